@@ -1,0 +1,1 @@
+"""Sliding-window factor-graph cooperative positioning (paper Section IV) on GTSAM."""

@@ -1,0 +1,1 @@
+"""GNSS measurement models: ephemeris, atmosphere, weighting, DGNSS, SPP and Doppler velocity."""

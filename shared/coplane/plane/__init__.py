@@ -1,0 +1,1 @@
+"""Road-plane construction (paper Section III): SVD fit, availability detection, RANSAC FE."""

@@ -1,0 +1,1 @@
+"""Fleet recordings: fleet.toml, RINEX observation/navigation files, uwb.csv and truth CSVs."""
