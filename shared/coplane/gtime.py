@@ -54,7 +54,7 @@ class GpsTime:
         cls, year: int, month: int, day: int, hour: int = 0, minute: int = 0, second: float = 0.0
     ) -> GpsTime:
         """Calendar date in the GPS time scale (as written in RINEX epoch lines)."""
-        whole = int(math.floor(second))
+        whole = math.floor(second)
         d = _dt.datetime(year, month, day, hour, minute, whole) - GPS_EPOCH
         total_days = d.days
         week, dow = divmod(total_days, 7)
