@@ -1,0 +1,69 @@
+"""Accuracy statistics: errors in the local ENU frame at the truth point, no trajectory alignment.
+
+Availability (share of truth epochs that have a solution) is always reported beside the errors:
+an estimator that drops hard epochs must not look better for it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.gtime import GpsTime
+
+Vec = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class AccuracyStats:
+    n_truth: int
+    n_solved: int
+    availability: float
+    h_rmse_m: float
+    v_rmse_m: float
+    cep95_m: float
+    h_max_m: float
+    v_max_m: float
+    h_mean_m: float
+    v_bias_m: float  # mean signed vertical error
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def enu_errors(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -> tuple[list[GpsTime], Vec]:
+    """(times, N x 3 ENU errors) for every truth epoch that has a solution, in time order."""
+    times = sorted(t for t in truth if t in solutions)
+    errs = np.zeros((len(times), 3))
+    for k, t in enumerate(times):
+        ref = np.asarray(truth[t], dtype=float)
+        lat, lon, _ = ecef_to_geodetic(ref)
+        errs[k] = enu_rotation(lat, lon) @ (np.asarray(solutions[t], dtype=float) - ref)
+    return times, errs
+
+
+def accuracy(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -> AccuracyStats:
+    _, e = enu_errors(solutions, truth)
+    n_truth = len(truth)
+    if len(e) == 0:
+        nan = math.nan
+        return AccuracyStats(n_truth, 0, 0.0, nan, nan, nan, nan, nan, nan, nan)
+    h = np.hypot(e[:, 0], e[:, 1])
+    v = e[:, 2]
+    return AccuracyStats(
+        n_truth=n_truth,
+        n_solved=len(e),
+        availability=len(e) / n_truth if n_truth else 0.0,
+        h_rmse_m=float(np.sqrt(np.mean(h**2))),
+        v_rmse_m=float(np.sqrt(np.mean(v**2))),
+        cep95_m=float(np.percentile(h, 95)),
+        h_max_m=float(h.max()),
+        v_max_m=float(np.abs(v).max()),
+        h_mean_m=float(h.mean()),
+        v_bias_m=float(v.mean()),
+    )

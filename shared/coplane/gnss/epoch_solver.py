@@ -1,0 +1,64 @@
+"""One receiver epoch end to end: satellite states, optional DGNSS, SPP with FDE, Doppler velocity.
+
+This is what a vehicle does every epoch before it builds its node message; `coplane spp` and the
+per-vehicle step both call it, so there is one definition of "the SPP of a vehicle".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
+from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, solve_doppler_velocity
+from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
+from coplane.gnss.spp import SppOptions, SppSolution, solve_spp
+from coplane.recording.model import NavData, ObsEpoch
+
+Vec = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EpochSolverOptions:
+    systems: tuple[str, ...] = ("G", "C")
+    spp: SppOptions = field(default_factory=SppOptions)
+    doppler: DopplerOptions = field(default_factory=DopplerOptions)
+    dgnss: DgnssOptions = field(default_factory=DgnssOptions)
+
+
+@dataclass
+class EpochResult:
+    prepared: PreparedEpoch
+    spp: SppSolution
+    velocity: DopplerVelocity | None
+    corrections: DgnssCorrections | None
+
+
+def base_corrections(
+    base_epoch: ObsEpoch, base_position: Vec, nav: NavData, options: EpochSolverOptions | None = None
+) -> DgnssCorrections:
+    opt = options or EpochSolverOptions()
+    return dgnss_corrections(prepare_epoch(base_epoch, nav, opt.systems), base_position, opt.dgnss)
+
+
+def solve_epoch(
+    epoch: ObsEpoch,
+    nav: NavData,
+    corrections: DgnssCorrections | None = None,
+    options: EpochSolverOptions | None = None,
+    initial_position: Vec | None = None,
+) -> EpochResult:
+    """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity."""
+    opt = options or EpochSolverOptions()
+    prepared = prepare_epoch(epoch, nav, opt.systems)
+    spp = solve_spp(
+        prepared,
+        nav,
+        opt.spp,
+        corrections_m=corrections.corrections_m if corrections is not None else None,
+        initial_position=initial_position,
+    )
+    vel = solve_doppler_velocity(prepared, spp.position, opt.doppler) if spp.ok else None
+    return EpochResult(prepared, spp, vel, corrections)

@@ -1,0 +1,31 @@
+"""Least-squares integrity helpers shared by SPP and Doppler velocity (global test + w-test)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+Vec = NDArray[np.float64]
+
+
+def chi2_threshold(false_alarm_probability: float, dof: int) -> float:
+    """Upper chi-square quantile for the global residual test; inf when there is no redundancy."""
+    return float(chi2.ppf(1.0 - false_alarm_probability, dof)) if dof > 0 else math.inf
+
+
+def w_tests(a: Vec, v: Vec, sigma: Vec) -> Vec:
+    """Baarda's standardised residuals v_i / sqrt(Qv_ii), Qv = Sigma - A (A' W A)^-1 A'.
+
+    A measurement that alone determines an unknown (e.g. the only satellite of a constellation,
+    which fixes that constellation's clock) has Qv_ii = 0 and gets w = 0: it cannot be tested.
+    """
+    w = 1.0 / sigma**2
+    n = np.linalg.inv(a.T @ (a * w[:, None]))
+    qv = sigma**2 - np.einsum("ij,jk,ik->i", a, n, a)
+    out = np.zeros_like(v)
+    ok = qv > 1e-9 * sigma**2
+    out[ok] = v[ok] / np.sqrt(qv[ok])
+    return out

@@ -1,0 +1,77 @@
+"""One epoch's satellites made ready for the models: ephemeris state, raw code/Doppler, TGD.
+
+SPP, Doppler velocity, DGNSS and the factor graph all start from the same `SatMeasurement`s, so
+satellite positions are computed once per receiver epoch (the expensive part of an epoch).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from coplane.gnss.constants import WAVELENGTH
+from coplane.gnss.ephemeris import SatState, satellite_states, tgd_m
+from coplane.gtime import GpsTime
+from coplane.recording.model import NavData, ObsEpoch
+
+
+@dataclass(frozen=True, slots=True)
+class SatMeasurement:
+    """A tracked satellite with a usable broadcast ephemeris at this epoch."""
+
+    sat: str
+    state: SatState
+    pseudorange_m: float
+    doppler_hz: float
+    cn0_dbhz: float
+    tgd_m: float
+
+    @property
+    def system(self) -> str:
+        return self.sat[0]
+
+    @property
+    def range_rate_mps(self) -> float:
+        """Doppler as range rate (RINEX sign: positive Doppler means approaching)."""
+        return -WAVELENGTH[self.system] * self.doppler_hz
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedEpoch:
+    time: GpsTime
+    sats: tuple[SatMeasurement, ...]
+    dropped: tuple[tuple[str, str], ...]  # (sat, reason) for satellites that cannot be used
+
+    def by_sat(self) -> dict[str, SatMeasurement]:
+        return {m.sat: m for m in self.sats}
+
+
+def prepare_epoch(epoch: ObsEpoch, nav: NavData, systems: Iterable[str] = ("G", "C")) -> PreparedEpoch:
+    """Satellite states at emission time for every satellite with a valid pseudorange."""
+    wanted = set(systems)
+    pr: dict[str, float] = {}
+    dropped: list[tuple[str, str]] = []
+    for s in epoch.sats:
+        if s.sat[0] not in wanted:
+            continue
+        if not math.isfinite(s.pseudorange_m):
+            dropped.append((s.sat, "no pseudorange"))
+            continue
+        pr[s.sat] = s.pseudorange_m
+    states = satellite_states(nav, epoch.time, pr)
+    out: list[SatMeasurement] = []
+    obs = epoch.by_sat()
+    for sat in sorted(pr):
+        st = states.get(sat)
+        if st is None:
+            dropped.append((sat, "no usable ephemeris"))
+            continue
+        if not (np.all(np.isfinite(st.pos)) and math.isfinite(st.clock_s)):
+            dropped.append((sat, "ephemeris gave non-finite state"))
+            continue
+        o = obs[sat]
+        out.append(SatMeasurement(sat, st, o.pseudorange_m, o.doppler_hz, o.cn0_dbhz, tgd_m(st.eph)))
+    return PreparedEpoch(epoch.time, tuple(out), tuple(dropped))
