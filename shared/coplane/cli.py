@@ -130,5 +130,172 @@ def spp(
         )
 
 
+def _recording_or_default(recording: Path | None) -> Path:
+    if recording is not None:
+        return recording
+    from coplane.sim.generate import ensure_default_recording
+
+    return ensure_default_recording()
+
+
+def _print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
+    from coplane.evaluate.report import TABLE_COLUMNS
+
+    for vid in vehicles:
+        table = Table(title=f"{title}: vehicle {vid}")
+        table.add_column("method")
+        for col in TABLE_COLUMNS:
+            table.add_column(col, justify="right")
+        for label, per in stats.items():
+            st = per.get(vid)
+            if st is None:
+                continue
+            vals = (st.h_rmse_m, st.v_rmse_m, st.cep95_m, st.h_max_m, st.v_max_m)
+            table.add_row(label, *(_fmt(x) for x in vals), f"{100 * st.availability:.1f}")
+        console.print(table)
+
+
+@app.command("eval")
+def eval_(
+    recording: Annotated[
+        Path | None, typer.Argument(help="Fleet recording; default: the bundled one.")
+    ] = None,
+    methods: Annotated[
+        str, typer.Option(help="Comma-separated methods (see docs/fgo.md).")
+    ] = "non-cp,mci,pc,pc-no-ir,pc-no-ir-no-fe",
+    interruption: Annotated[
+        str, typer.Option(help="Comma-separated ranging interruption rates in %, e.g. 0,20,40,60,80,100.")
+    ] = "0",
+    vehicle: Annotated[
+        list[str] | None, typer.Option(help="Vehicles for tables and figures (repeatable); default all.")
+    ] = None,
+    out: Annotated[
+        Path, typer.Option(help="Output folder: accuracy.md/json, figures, solutions/<method>/<vehicle>.csv.")
+    ] = Path("out/eval"),
+    seed: Annotated[int, typer.Option(help="Seed for plane down-selection, RANSAC and interruption.")] = 0,
+    dgnss: Annotated[
+        bool | None, typer.Option(help="Force DGNSS on/off; default: on when the recording has a base.")
+    ] = None,
+) -> None:
+    """Run the estimators in-process and write the paper's tables and figures."""
+    from coplane.evaluate.evaluation import evaluate
+    from coplane.recording.problems import RecordingError
+    from coplane.recording.reader import open_recording
+
+    try:
+        rates = [float(x) / 100.0 for x in interruption.split(",") if x.strip()]
+        if any(not 0.0 <= r <= 1.0 for r in rates):
+            raise ValueError("interruption rates must be within 0..100 %")
+        rec = open_recording(_recording_or_default(recording))
+        names = [m.strip() for m in methods.split(",") if m.strip()]
+        ev = evaluate(rec, names, rates, out, seed=seed, vehicles=vehicle, dgnss=dgnss, progress=True)
+    except (RecordingError, KeyError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from exc
+    shown = list(vehicle or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
+    _print_accuracy(rec.manifest.name, ev.stats, shown)
+    for r in ev.runs:
+        console.print(f"{r.label}: {r.n_epochs} epochs in {r.wall_time_s:.1f} s")
+    console.print(f"wrote {out}/accuracy.md, {len(ev.figures)} figures and solutions/")
+
+
+@app.command()
+def fleet(
+    recording: Annotated[
+        Path | None, typer.Argument(help="Fleet recording; default: the bundled one.")
+    ] = None,
+    method: Annotated[str, typer.Option(help="Estimator method.")] = "pc",
+    pace: Annotated[str, typer.Option(help="lockstep (deterministic) or realtime.")] = "lockstep",
+    speed: Annotated[float, typer.Option(help="Realtime speed factor.")] = 1.0,
+    serve: Annotated[bool, typer.Option(help="Keep the API (and the bus) running after the replay.")] = False,
+    api: Annotated[bool, typer.Option(help="Start the HTTP API.")] = True,
+    api_port: Annotated[int, typer.Option(help="API port.")] = 8000,
+    port: Annotated[int, typer.Option(help="Zenoh router port (0: any free port).")] = 7447,
+    out: Annotated[Path | None, typer.Option(help="Write solutions/<method>/<vehicle>.csv here.")] = None,
+    logs: Annotated[Path | None, typer.Option(help="Folder for each process's JSON log.")] = None,
+    seed: Annotated[int, typer.Option(help="Seed (planes, interruption).")] = 0,
+    interruption: Annotated[float, typer.Option(help="Ranging interruption rate in %.")] = 0.0,
+) -> None:
+    """Replay a recording as a fleet of processes over Zenoh and print the accuracy table."""
+    import time
+
+    from tqdm import tqdm
+
+    from coplane.evaluate.report import run_stats, write_solutions
+    from coplane.fgo.methods import get_method
+    from coplane.fleet import (
+        Collector,
+        FleetProcesses,
+        fleet_of,
+        fleet_services,
+        free_port,
+        router_spec,
+        wait_for_port,
+    )
+    from coplane.recording.reader import open_recording
+    from coplane.replay import vehicle_schedule
+
+    if pace not in ("lockstep", "realtime"):
+        console.print("[red]error:[/red] --pace must be lockstep or realtime")
+        raise typer.Exit(2)
+    get_method(method)
+    path = _recording_or_default(recording).resolve()
+    rec = open_recording(path)
+    fleet_name, vehicles = fleet_of(path)
+    n_epochs = len(
+        {t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), rec.manifest.interval_s)}
+    )
+    port = port or free_port()
+    connect = f"tcp/127.0.0.1:{port}"
+    procs = FleetProcesses(log_dir=logs)
+    try:
+        procs.start(router_spec(port))
+        wait_for_port(port)
+        collector = Collector(fleet_name, method, connect)
+        for spec in fleet_services(
+            path, method, pace, speed, connect, vehicles, api, api_port, seed, interruption / 100
+        ):
+            procs.start(spec)
+        agents = [n for n in procs.procs if n.startswith("agent-")]
+        with tqdm(total=n_epochs, desc=f"fleet {method} ({pace})", unit="epoch") as bar:
+            while any(procs.procs[a].poll() is None for a in agents):
+                time.sleep(0.2)
+                bar.update(collector.epochs - bar.n)
+            time.sleep(0.5)
+            bar.update(collector.epochs - bar.n)
+        if not serve:
+            procs.stop("fusion-server")  # it publishes its final diagnostics on the way out
+            time.sleep(0.3)
+        failed = {a: procs.procs[a].returncode for a in agents if procs.procs[a].returncode}
+        if failed:
+            console.print(f"[red]agents failed:[/red] {failed} (see --logs)")
+        stats = {method: run_stats(collector.run, rec)}
+        _print_accuracy(
+            f"{rec.manifest.name} (fleet over Zenoh)", stats, [v for v in vehicles if rec.truth_at(v)]
+        )
+        if collector.diag is not None:
+            d = collector.diag
+            console.print(
+                "messages: "
+                + ", ".join(
+                    f"{v}: used {c.used}/{c.received}, late {c.late}, rejected {c.rejected}"
+                    for v, c in d.vehicles.items()
+                )
+            )
+        if out is not None:
+            write_solutions(collector.run, out)
+            console.print(f"wrote {out}/solutions/{method}/")
+        if serve:
+            console.print(f"serving: API on http://127.0.0.1:{api_port} (Ctrl-C to stop)")
+            try:
+                while True:
+                    time.sleep(1.0)
+            except KeyboardInterrupt:
+                pass
+        collector.close()
+    finally:
+        procs.stop_all()
+
+
 if __name__ == "__main__":
     app()

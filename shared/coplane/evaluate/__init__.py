@@ -1,1 +1,1 @@
-"""coplane.evaluate."""
+"""Accuracy against truth (ENU at the truth point), tables, plots and solution files."""

@@ -1,0 +1,213 @@
+"""Fusion server: assembles epochs from node messages and solves them with FusionStep.
+
+Every received payload ends in exactly one bucket per vehicle: used, rejected (invalid), late
+(its epoch was already solved), or duplicate; payloads that name no known vehicle are counted by
+reason only (so hostile ids cannot grow memory). Membership follows Zenoh liveliness tokens.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import Counter, defaultdict
+from typing import Any
+
+import zenoh
+
+from coplane.bus import BadMessage, KeySpace, decode, encode, payload_bytes, session_config
+from coplane.fgo.methods import get_method
+from coplane.gtime import GpsTime
+from coplane.messages import DiagnosticsMessage, NodeMessage, VehicleCounters
+from coplane.recording.manifest import load_manifest
+from coplane.replay import fleet_id
+from coplane.steps import FusionStep, FusionStepConfig, epoch_time, gps_time
+
+from .settings import FusionSettings
+
+log = logging.getLogger("coplane.fusion")
+
+
+class FusionServer:
+    def __init__(self, settings: FusionSettings, stop: threading.Event | None = None) -> None:
+        self.s = settings
+        self.stop = stop or threading.Event()
+        man = load_manifest(settings.recording)
+        self.known = {v.id for v in man.vehicles}
+        self.fleet = settings.fleet or fleet_id(man.name)
+        self.keys = KeySpace(self.fleet)
+        self.spec = get_method(settings.method)
+        self.step = FusionStep(
+            self.fleet, self.spec, FusionStepConfig(settings.interruption_rate, settings.seed, man.interval_s)
+        )
+        self.events: queue.Queue[tuple[str, Any, Any]] = queue.Queue()
+        self.pending: dict[GpsTime, dict[str, NodeMessage]] = defaultdict(dict)
+        self.first_arrival: dict[GpsTime, float] = {}
+        self.latest: dict[str, GpsTime] = {}
+        self.solved_up_to: GpsTime | None = None
+        self.live: set[str] = set()
+        self.counters: dict[str, Counter[str]] = {v: Counter() for v in self.known}
+        self.rejected_by_reason: Counter[str] = Counter()
+        self.epochs_solved = 0
+        self.last_solve_s: float | None = None
+        self.started = time.monotonic()
+        self.waiting_since: float | None = None
+
+    # -- zenoh callbacks (zenoh threads): hand over to the main loop ---------------------------
+    def _on_node(self, sample: Any) -> None:
+        self.events.put(("node", str(sample.key_expr), payload_bytes(sample)))
+
+    def _on_alive(self, sample: Any) -> None:
+        self.events.put(("alive", sample.kind, str(sample.key_expr)))
+
+    # -- message handling ----------------------------------------------------------------------
+    def handle_node(self, key: str, payload: bytes) -> None:
+        vid = KeySpace.vehicle_of_node_key(key)
+        if vid is None or vid not in self.known:
+            self.rejected_by_reason["unknown-vehicle"] += 1
+            log.warning("rejected node message", extra={"key": key[:120], "reason": "unknown-vehicle"})
+            return
+        c = self.counters[vid]
+        c["received"] += 1
+        try:
+            msg = decode(NodeMessage, payload)
+            if msg.vehicle_id != vid:
+                raise BadMessage("key-mismatch", f"message for {msg.vehicle_id!r} on the key of {vid!r}")
+            if msg.fleet != self.fleet:
+                raise BadMessage("wrong-fleet", f"fleet {msg.fleet!r} != {self.fleet!r}")
+        except BadMessage as exc:
+            c["rejected"] += 1
+            self.rejected_by_reason[exc.kind] += 1
+            log.warning("rejected node message", extra={"vehicle": vid, "reason": str(exc)})
+            return
+        t = gps_time(msg.epoch)
+        if self.solved_up_to is not None and not (self.solved_up_to < t):
+            c["late"] += 1
+            return
+        if vid in self.pending.get(t, {}):
+            c["duplicate"] += 1
+            return
+        if vid in self.latest and t < self.latest[vid]:
+            c["out_of_order"] += 1  # still usable: its epoch is not solved yet
+        self.pending[t][vid] = msg
+        self.first_arrival.setdefault(t, time.monotonic())
+        if vid not in self.latest or self.latest[vid] < t:
+            self.latest[vid] = t
+
+    def handle_alive(self, kind: Any, key: str) -> None:
+        ident = KeySpace.id_of_alive_key(key)
+        if ident is None or ident[0] != "agent" or ident[1] not in self.known:
+            return
+        vid = ident[1]
+        if kind == zenoh.SampleKind.PUT:
+            if vid not in self.live:
+                log.info("vehicle online", extra={"vehicle": vid})
+            self.live.add(vid)
+        else:
+            if vid in self.live:
+                log.info("vehicle offline", extra={"vehicle": vid})
+            self.live.discard(vid)
+            self.latest.pop(vid, None)
+
+    # -- solving -------------------------------------------------------------------------------
+    def ready_epoch(self, now: float) -> GpsTime | None:
+        """The next epoch to solve now, or None."""
+        if not self.pending:
+            return None
+        t = min(self.pending)
+        if self.s.pace == "realtime":
+            return t if now - self.first_arrival[t] >= self.s.deadline_s else None
+        if now - self.started < self.s.startup_wait_s and not self.known <= self.live:
+            return None  # lockstep start: give every agent the chance to show up
+        waiting = [v for v in self.live if v not in self.latest or self.latest[v] < t]
+        if not waiting:
+            self.waiting_since = None
+            return t
+        if self.waiting_since is None:
+            self.waiting_since = now
+        if now - self.waiting_since > self.s.stall_timeout_s:
+            log.warning("solving without silent vehicles", extra={"vehicles": ",".join(sorted(waiting))})
+            self.waiting_since = None
+            return t
+        return None
+
+    def solve(self, t: GpsTime) -> Any:
+        msgs = self.pending.pop(t)
+        self.first_arrival.pop(t, None)
+        missing = sorted(v for v in self.live if v not in msgs)
+        for v in missing:
+            self.counters[v]["missing"] += 1
+        try:
+            sol = self.step.solve(t, msgs, missing)
+        except Exception:  # the estimator must never take the server down
+            log.exception("solve failed", extra={"epoch": str(t)})
+            for v in msgs:
+                self.counters[v]["rejected"] += 1
+            self.rejected_by_reason["solve-failed"] += len(msgs)
+            self.solved_up_to = t
+            return None
+        for v in msgs:
+            self.counters[v]["used"] += 1
+        self.solved_up_to = t
+        self.epochs_solved += 1
+        self.last_solve_s = sol.solve_time_s
+        return sol
+
+    def diagnostics(self) -> DiagnosticsMessage:
+        return DiagnosticsMessage(
+            fleet=self.fleet,
+            method=self.spec.name,
+            pace=self.s.pace,
+            epochs_solved=self.epochs_solved,
+            last_epoch=epoch_time(self.solved_up_to) if self.solved_up_to is not None else None,
+            last_solve_time_s=self.last_solve_s,
+            vehicles={
+                v: VehicleCounters(**{k: int(n) for k, n in c.items()}, online=v in self.live)
+                for v, c in sorted(self.counters.items())
+            },
+            rejected_by_reason=dict(self.rejected_by_reason),
+            live_vehicles=sorted(self.live),
+        )
+
+    def run(self) -> None:
+        s = self.s
+        session = zenoh.open(session_config("client", s.connect, lease_ms=s.lease_ms))
+        token = session.liveliness().declare_token(self.keys.alive("fusion", "0"))
+        sol_pub = session.declare_publisher(
+            self.keys.solution,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            reliability=zenoh.Reliability.RELIABLE,
+        )
+        diag_pub = session.declare_publisher(self.keys.diagnostics)
+        session.declare_subscriber(self.keys.all_nodes, self._on_node)
+        session.liveliness().declare_subscriber(self.keys.all_alive("agent"), self._on_alive, history=True)
+        log.info(
+            "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
+        )
+        last_diag = 0.0
+        try:
+            while not self.stop.is_set():
+                try:
+                    kind, a, b = self.events.get(timeout=0.02)
+                    if kind == "node":
+                        self.handle_node(a, b)
+                    else:
+                        self.handle_alive(a, b)
+                except queue.Empty:
+                    pass
+                except Exception:  # a bad event never stops the loop
+                    log.exception("event handling failed")
+                now = time.monotonic()
+                while (t := self.ready_epoch(now)) is not None:
+                    sol = self.solve(t)
+                    if sol is not None:
+                        sol_pub.put(encode(sol))
+                if now - last_diag > s.diagnostics_period_s:
+                    diag_pub.put(encode(self.diagnostics()))
+                    last_diag = now
+        finally:
+            diag_pub.put(encode(self.diagnostics()))
+            token.undeclare()
+            session.close()
+            log.info("fusion server stopped", extra={"epochs": self.epochs_solved})

@@ -1,0 +1,36 @@
+"""Fusion server configuration (env COPLANE_FUSION_*, TOML table [fusion], or --flags)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import SettingsConfigDict
+
+from coplane.runtime import ServiceSettings
+
+
+class FusionSettings(ServiceSettings):
+    model_config = SettingsConfigDict(env_prefix="COPLANE_FUSION_", extra="ignore")
+    toml_table: str = "fusion"
+
+    recording: Path = Field(description="The recording's manifest says which vehicles exist")
+    method: str = "pc"
+    fleet: str | None = None
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    pace: Literal["lockstep", "realtime"] = "lockstep"
+    deadline_s: float = Field(
+        default=0.5, gt=0.0, description="Realtime: wall seconds after an epoch's first message"
+    )
+    startup_wait_s: float = Field(
+        default=10.0, ge=0.0, description="Lockstep: wait this long for every vehicle's agent"
+    )
+    stall_timeout_s: float = Field(
+        default=5.0, gt=0.0, description="Lockstep: solve without a silent live vehicle"
+    )
+    interruption_rate: float = Field(default=0.0, ge=0.0, le=1.0)
+    seed: int = 0
+    lease_ms: int = Field(default=2000, ge=500)
+    diagnostics_period_s: float = Field(default=1.0, gt=0.0)
+    log_level: str = "INFO"

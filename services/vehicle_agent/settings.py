@@ -1,0 +1,29 @@
+"""Vehicle agent configuration (env COPLANE_AGENT_*, TOML table [agent], or --flags)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import SettingsConfigDict
+
+from coplane.runtime import ServiceSettings
+
+
+class AgentSettings(ServiceSettings):
+    model_config = SettingsConfigDict(env_prefix="COPLANE_AGENT_", extra="ignore")
+    toml_table: str = "agent"
+
+    recording: Path = Field(description="Fleet recording directory (fleet.toml)")
+    vehicle_id: str = Field(description="Which vehicle of the recording this agent replays")
+    method: str = "pc"
+    fleet: str | None = Field(default=None, description="Bus fleet id; default: from the recording name")
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    pace: Literal["lockstep", "realtime"] = "lockstep"
+    speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
+    seed: int = 0
+    dgnss: bool | None = Field(default=None, description="Use the base station; default: when present")
+    resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
+    lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
+    log_level: str = "INFO"

@@ -1,0 +1,99 @@
+"""Run several methods and interruption rates on one recording and write tables, CSVs and figures."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from coplane.evaluate.metrics import AccuracyStats
+from coplane.evaluate.plots import plot_cdfs, plot_error_vs_time, plot_plane_map, plot_rmse_vs_interruption
+from coplane.evaluate.report import run_stats, write_solutions, write_tables
+from coplane.evaluate.runner import MethodRun, run_method
+from coplane.fgo.methods import get_method
+from coplane.recording.reader import Recording
+
+
+@dataclass
+class Evaluation:
+    runs: list[MethodRun] = field(default_factory=list)
+    stats: dict[str, dict[str, AccuracyStats]] = field(default_factory=dict)  # label -> vehicle -> stats
+    figures: list[Path] = field(default_factory=list)
+
+
+def evaluate(
+    rec: Recording,
+    methods: Sequence[str],
+    rates: Sequence[float] = (0.0,),
+    out_dir: Path | None = None,
+    seed: int = 0,
+    vehicles: Sequence[str] | None = None,
+    dgnss: bool | None = None,
+    progress: bool = False,
+) -> Evaluation:
+    """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
+    specs = [get_method(m) for m in methods]  # validates names before any work
+    ev = Evaluation()
+    for spec in specs:
+        for rate in sorted(set(rates) | {0.0}):
+            if rate > 0 and not spec.fgo.use_ranging:
+                continue
+            run = run_method(rec, spec, interruption=rate, seed=seed, dgnss=dgnss, progress=progress)
+            ev.runs.append(run)
+            ev.stats[run.label] = run_stats(run, rec)
+            if out_dir is not None:
+                write_solutions(run, out_dir)
+    if out_dir is not None:
+        shown = list(vehicles or [v.id for v in rec.manifest.vehicles])
+        write_tables(
+            ev.stats,
+            shown,
+            out_dir,
+            extra={
+                "timing": {
+                    r.label: {
+                        "wall_s": r.wall_time_s,
+                        "epochs": r.n_epochs,
+                        "solve_median_s": float(np.median(r.solve_times_s)) if r.solve_times_s else None,
+                    }
+                    for r in ev.runs
+                }
+            },
+        )
+        ev.figures = write_figures(ev, rec, shown, out_dir)
+    return ev
+
+
+def write_figures(ev: Evaluation, rec: Recording, vehicles: Sequence[str], out_dir: Path) -> list[Path]:
+    figs: list[Path] = []
+    base_runs = [r for r in ev.runs if r.interruption == 0]
+    truth_all = {
+        v.id: {t: np.asarray(p) for t, p in rec.truth_at(v.id).items()} for v in rec.manifest.vehicles
+    }
+    for vid in vehicles:
+        truth = truth_all.get(vid)
+        if not truth:
+            continue
+        figs += plot_cdfs(base_runs, truth, vid, out_dir)
+        worst = max((r.interruption for r in ev.runs), default=0.0)
+        figs.append(
+            plot_error_vs_time(
+                [r for r in ev.runs if r.interruption == worst and r.method in ("pc", "mci")] or base_runs,
+                truth,
+                vid,
+                out_dir,
+            )
+        )
+        by_method: dict[str, dict[float, AccuracyStats]] = {}
+        for r in ev.runs:
+            if vid in ev.stats[r.label]:
+                by_method.setdefault(r.method, {})[r.interruption] = ev.stats[r.label][vid]
+        multi = {m: d for m, d in by_method.items() if len(d) > 1}
+        if multi:
+            figs.append(plot_rmse_vs_interruption(multi, vid, out_dir))
+    plane_run = next((r for r in base_runs if r.planes), None)
+    if plane_run is not None:
+        figs.append(plot_plane_map(plane_run, truth_all, out_dir))
+    return figs

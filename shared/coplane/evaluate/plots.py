@@ -1,0 +1,139 @@
+"""The paper's figures from `coplane eval` runs (matplotlib, written as PNG files)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from coplane.evaluate.metrics import AccuracyStats, enu_errors
+from coplane.evaluate.runner import MethodRun
+from coplane.geo import ecef_to_enu
+from coplane.gtime import GpsTime
+
+
+def _truth_arrays(truth: Mapping[GpsTime, np.ndarray]) -> dict[GpsTime, np.ndarray]:
+    return {t: np.asarray(p, dtype=float) for t, p in truth.items()}
+
+
+def plot_cdfs(
+    runs: Sequence[MethodRun], truth: Mapping[GpsTime, np.ndarray], vehicle: str, out_dir: Path
+) -> list[Path]:
+    """Figs. 9-10 / 14-15: CDFs of horizontal and vertical errors per method for one vehicle."""
+    paths = []
+    tr = _truth_arrays(truth)
+    for comp, name in (("h", "horizontal"), ("v", "vertical")):
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for run in runs:
+            _, e = enu_errors(run.positions.get(vehicle, {}), tr)
+            if len(e) == 0:
+                continue
+            err = np.hypot(e[:, 0], e[:, 1]) if comp == "h" else np.abs(e[:, 2])
+            x = np.sort(err)
+            ax.plot(x, np.arange(1, len(x) + 1) / len(x), label=run.label)
+        ax.set_xlabel(f"{name} error (m)")
+        ax.set_ylabel("CDF")
+        ax.set_title(f"{name.capitalize()} error CDF, vehicle {vehicle}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+        p = out_dir / f"cdf_{comp}_{vehicle}.png"
+        fig.tight_layout()
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    return paths
+
+
+def plot_error_vs_time(
+    runs: Sequence[MethodRun], truth: Mapping[GpsTime, np.ndarray], vehicle: str, out_dir: Path
+) -> Path:
+    """Fig. 13: horizontal error over time, with the epochs that had inter-vehicle ranging marked."""
+    fig, ax = plt.subplots(figsize=(9, 4))
+    tr = _truth_arrays(truth)
+    for run in runs:
+        times, e = enu_errors(run.positions.get(vehicle, {}), tr)
+        if not times:
+            continue
+        ax.plot([t.tow for t in times], np.hypot(e[:, 0], e[:, 1]), lw=1, label=run.label)
+        rng = run.ranges_used.get(vehicle, {})
+        if rng and any(rng.values()):
+            ok = [t.tow for t in times if rng.get(t, 0) > 0]
+            ax.plot(
+                ok, np.full(len(ok), -0.3), "|", ms=4, alpha=0.5, label=f"ranging available ({run.label})"
+            )
+    ax.set_xlabel("GPS time of week (s)")
+    ax.set_ylabel("horizontal error (m)")
+    ax.set_title(f"Horizontal error vs time, vehicle {vehicle}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    p = out_dir / f"error_time_{vehicle}.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+def plot_rmse_vs_interruption(
+    stats: Mapping[str, Mapping[float, AccuracyStats]], vehicle: str, out_dir: Path
+) -> Path:
+    """Figs. 11-12: horizontal and vertical RMSE against the ranging interruption rate."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for method, per_rate in stats.items():
+        rates = sorted(per_rate)
+        axes[0].plot([100 * r for r in rates], [per_rate[r].h_rmse_m for r in rates], "o-", label=method)
+        axes[1].plot([100 * r for r in rates], [per_rate[r].v_rmse_m for r in rates], "o-", label=method)
+    for ax, what in zip(axes, ("horizontal", "vertical"), strict=True):
+        ax.set_xlabel("ranging interruption rate (%)")
+        ax.set_ylabel(f"{what} RMSE (m)")
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+    fig.suptitle(f"RMSE vs ranging interruption, vehicle {vehicle}")
+    p = out_dir / f"rmse_vs_interruption_{vehicle}.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+def plot_plane_map(
+    run: MethodRun, truth_by_vehicle: Mapping[str, Mapping[GpsTime, np.ndarray]], out_dir: Path
+) -> Path:
+    """Fig. 16: where planes passed detection, passed after FE, or were unavailable."""
+    colors = {"available": "tab:blue", "available-after-fe": "tab:red", "unavailable": "black"}
+    fig, ax = plt.subplots(figsize=(7, 6))
+    ref = None
+    for vid, planes in sorted(run.planes.items()):
+        pos = run.positions.get(vid, {})
+        track = truth_by_vehicle.get(vid) or pos
+        for status, col in colors.items():
+            pts = [np.asarray(track[t]) for t, p in planes.items() if p.status == status and t in track]
+            if not pts:
+                continue
+            arr = np.array(pts)
+            if ref is None:
+                ref = arr[0]
+            enu = ecef_to_enu(arr, ref)
+            ax.scatter(
+                enu[:, 0],
+                enu[:, 1],
+                s=8,
+                facecolors="none",
+                edgecolors=col,
+                label=f"{status}" if vid == sorted(run.planes)[0] else None,
+            )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_title(f"Plane availability along the route ({run.label})")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    p = out_dir / "plane_map.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p

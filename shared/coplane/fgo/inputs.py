@@ -1,0 +1,118 @@
+"""What the fusion step consumes and produces: one epoch of the fleet, measurement by measurement.
+
+These are plain frozen dataclasses (no GTSAM types), built by the per-vehicle step from its node
+message, so the estimator can be fed from the bus, from `coplane eval` or from a unit test alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.gtime import GpsTime
+
+Vec = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PseudorangeObs:
+    """A corrected pseudorange ready for GTSAM's PseudorangeFactor.
+
+    Model: rho_m = |p - sat_pos_m| + c * (clock_s[system] - sat_clock_s) + noise(sigma_m), where
+    sat_pos_m is already rotated into the ECEF frame at reception (Sagnac) and rho_m has TGD,
+    ionosphere and troposphere (standalone) or the DGNSS correction removed.
+    """
+
+    sat: str
+    rho_m: float
+    sat_pos_m: Vec
+    sat_clock_s: float
+    sigma_m: float
+    elevation_rad: float = float("nan")
+    cn0_dbhz: float = float("nan")
+
+    @property
+    def system(self) -> str:
+        return self.sat[0]
+
+
+@dataclass(frozen=True)
+class PlaneObs:
+    """Antenna-height plane (paper eq. 12): unit upward normal n, offset d with n.p + d = 0."""
+
+    normal: Vec
+    d_m: float
+    sigma_m: float
+    status: str = "available"  # "available" | "available-after-fe"
+
+    def error(self, p: Vec) -> float:
+        """Paper eq. 24, f = P'^D - p.u_PC with u_PC = -n, i.e. n.p + d (signed, metres)."""
+        return float(self.normal @ p + self.d_m)
+
+
+@dataclass(frozen=True)
+class VelocityObs:
+    """Doppler least-squares velocity (paper eq. 34) in ECEF, with its 1-sigma per axis."""
+
+    velocity_mps: Vec
+    sigma_mps: float
+
+
+@dataclass(frozen=True)
+class VehicleEpochInput:
+    vehicle_id: str
+    time: GpsTime  # nominal epoch time
+    pseudoranges: tuple[PseudorangeObs, ...] = ()
+    velocity: VelocityObs | None = None
+    plane: PlaneObs | None = None
+    spp_position: Vec | None = None  # initial guess; None when SPP had no fix
+    clock_drift_mps: float | None = None  # Doppler clock drift, for the clock between factor
+
+
+@dataclass(frozen=True)
+class RangeObs:
+    """Round-trip inter-vehicle range (clock-free, symmetric), paper eq. 25."""
+
+    a: str
+    b: str
+    range_m: float
+    sigma_m: float
+
+
+@dataclass(frozen=True)
+class EpochInput:
+    time: GpsTime
+    vehicles: dict[str, VehicleEpochInput]
+    ranges: tuple[RangeObs, ...] = ()
+
+
+@dataclass(frozen=True)
+class VehicleEstimate:
+    vehicle_id: str
+    time: GpsTime
+    position_m: Vec
+    covariance_m2: Vec  # 3x3 ECEF marginal (NaN when not computed)
+    clocks_s: dict[str, float] = field(default_factory=dict)
+    n_pseudoranges: int = 0
+    n_ranges: int = 0
+    plane_used: bool = False
+    has_gnss_fix: bool = True  # False: carried by velocity/plane/ranging only
+
+
+@dataclass(frozen=True)
+class FleetSolution:
+    time: GpsTime
+    estimates: dict[str, VehicleEstimate]
+    solve_time_s: float
+    factor_counts: dict[str, int]
+    iterations: int = 0
+    error_before: float = float("nan")
+    error_after: float = float("nan")
+    # vehicles present in the EpochInput without an estimate, with the reason (e.g. too few
+    # measurements for a first position, solver failure)
+    skipped: dict[str, str] = field(default_factory=dict)
+    # invalid measurements dropped by the estimator, by kind ("pseudorange", "range", ...)
+    rejected: dict[str, int] = field(default_factory=dict)
+    n_clusters: int = 0  # clusters solved this epoch

@@ -1,0 +1,224 @@
+"""Wire models for everything that crosses a process boundary (versioned pydantic models).
+
+The per-vehicle step produces a `NodeMessage`, the fusion step consumes node messages and produces
+a `SolutionMessage`; the in-process evaluator passes the very same objects, so a lockstep replay
+over the bus and `coplane eval` compute on identical inputs (JSON floats round-trip exactly).
+Every field is validated at the boundary: non-finite numbers, absurd magnitudes, malformed ids and
+oversized lists are rejected with a reason (design principle 4).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+NODE_SCHEMA = "coplane.node/1"
+SOLUTION_SCHEMA = "coplane.solution/1"
+DIAGNOSTICS_SCHEMA = "coplane.diagnostics/1"
+
+VehicleId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
+SatId = Annotated[str, Field(pattern=r"^[GC][0-9]{2}$")]
+Ecef = Annotated[tuple[float, float, float], Field(description="WGS-84 ECEF metres")]
+Cov3 = Annotated[list[float], Field(min_length=9, max_length=9, description="3x3 row-major, m^2")]
+Metres = Annotated[float, Field(ge=-1e8, le=1e8)]
+
+MAX_SATELLITES = 64
+MAX_RANGES = 256
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class EpochTime(_Model):
+    week: int = Field(ge=0, le=10000)
+    tow: float = Field(ge=0.0, lt=604800.0)
+
+
+def _check_ecef(v: tuple[float, float, float], what: str, lo: float = 6.0e6, hi: float = 8.0e7) -> None:
+    r = (v[0] ** 2 + v[1] ** 2 + v[2] ** 2) ** 0.5
+    if not lo <= r <= hi:
+        raise ValueError(f"{what} is {r:.0f} m from the Earth's centre (expected {lo:.0f}..{hi:.0f})")
+
+
+class SatelliteReport(_Model):
+    """One tracked satellite: raw measurements, the states and corrections used, the factor input."""
+
+    sat: SatId
+    pseudorange_m: float = Field(ge=1.5e7, le=5.0e7)
+    doppler_hz: float | None = Field(default=None, ge=-1e5, le=1e5)
+    cn0_dbhz: float | None = Field(default=None, ge=0.0, le=70.0)
+    elevation_deg: float = Field(ge=-90.0, le=90.0)
+    azimuth_deg: float = Field(ge=0.0, le=360.0)
+    sat_pos_ecef_m: Ecef  # in the ECEF frame at reception (Sagnac applied)
+    sat_clock_s: float = Field(ge=-1.0, le=1.0)
+    tgd_m: float = Field(ge=-100.0, le=100.0)
+    iono_m: float = Field(ge=-100.0, le=200.0)
+    tropo_m: float = Field(ge=0.0, le=100.0)
+    dgnss_m: float | None = Field(default=None, ge=-500.0, le=500.0)
+    rho_m: float = Field(ge=1.0e7, le=6.0e7)  # corrected pseudorange fed to the factor
+    sigma_m: float = Field(gt=0.0, le=1e4)
+    used: bool = True  # False: excluded by the vehicle's RAIM
+    excluded_reason: str | None = Field(default=None, max_length=200)
+
+    @model_validator(mode="after")
+    def _sat_far_away(self) -> SatelliteReport:
+        _check_ecef(self.sat_pos_ecef_m, f"satellite {self.sat} position", 1.0e7, 6.0e7)
+        return self
+
+
+class SppReport(_Model):
+    ok: bool
+    reason: str | None = Field(default=None, max_length=300)
+    position_ecef_m: Ecef | None = None
+    covariance_m2: Cov3 | None = None
+    clocks_m: dict[str, float] = Field(default_factory=dict, max_length=4)
+    n_used: int = Field(default=0, ge=0, le=MAX_SATELLITES)
+    excluded: list[SatId] = Field(default_factory=list, max_length=MAX_SATELLITES)
+    gdop: float | None = Field(default=None, ge=0.0, le=1e6)
+    pdop: float | None = Field(default=None, ge=0.0, le=1e6)
+    hdop: float | None = Field(default=None, ge=0.0, le=1e6)
+    vdop: float | None = Field(default=None, ge=0.0, le=1e6)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SppReport:
+        if self.ok and self.position_ecef_m is None:
+            raise ValueError("an SPP fix needs position_ecef_m")
+        if self.position_ecef_m is not None:
+            _check_ecef(self.position_ecef_m, "SPP position")
+        return self
+
+
+class VelocityReport(_Model):
+    velocity_ecef_mps: tuple[float, float, float]
+    sigma_mps: float = Field(gt=0.0, le=100.0)
+    clock_drift_mps: float = Field(ge=-1e6, le=1e6)
+    n_used: int = Field(ge=0, le=MAX_SATELLITES)
+
+    @model_validator(mode="after")
+    def _plausible(self) -> VelocityReport:
+        if sum(v * v for v in self.velocity_ecef_mps) ** 0.5 > 150.0:
+            raise ValueError("velocity above 150 m/s is not a road vehicle")
+        return self
+
+
+PlaneStatusName = Literal["available", "available-after-fe", "unavailable"]
+
+
+class PlaneReport(_Model):
+    """The road plane the vehicle fitted (paper Sec. III), translated to its antenna height."""
+
+    status: PlaneStatusName
+    reason: str | None = Field(default=None, max_length=300)
+    normal: tuple[float, float, float] | None = None  # unit, upward, ECEF
+    d_antenna_m: float | None = None
+    d_road_m: float | None = None
+    sigma_m: float | None = Field(default=None, gt=0.0, le=100.0)
+    residual_max_m: float | None = Field(default=None, ge=0.0)
+    residual_rms_m: float | None = Field(default=None, ge=0.0)
+    n_points_initial: int = Field(default=0, ge=0, le=100000)
+    n_points_used: int = Field(default=0, ge=0, le=100000)
+    centroid_ecef_m: Ecef | None = None
+
+    @model_validator(mode="after")
+    def _usable(self) -> PlaneReport:
+        if self.status != "unavailable":
+            if self.normal is None or self.d_antenna_m is None or self.sigma_m is None:
+                raise ValueError("an available plane needs normal, d_antenna_m and sigma_m")
+            n = sum(c * c for c in self.normal) ** 0.5
+            if abs(n - 1.0) > 1e-6:
+                raise ValueError(f"plane normal is not unit length ({n:.6f})")
+        return self
+
+
+class RangeReport(_Model):
+    to: VehicleId
+    range_m: float = Field(gt=0.0, le=2000.0)
+    sigma_m: float = Field(gt=0.0, le=100.0)
+
+
+class NodeMessage(_Model):
+    """What one vehicle sends the fusion server for one epoch (paper Fig. 2, "node message")."""
+
+    schema_: Literal["coplane.node/1"] = Field(default="coplane.node/1", alias="schema")
+    fleet: VehicleId
+    vehicle_id: VehicleId
+    seq: int = Field(ge=0)
+    epoch: EpochTime  # nominal epoch (multiple of the interval)
+    rx_time: EpochTime  # the receiver's exact tag
+    antenna_height_m: float = Field(ge=0.0, le=10.0)
+    spp: SppReport
+    velocity: VelocityReport | None = None
+    satellites: list[SatelliteReport] = Field(default_factory=list, max_length=MAX_SATELLITES)
+    plane: PlaneReport | None = None
+    ranges: list[RangeReport] = Field(default_factory=list, max_length=MAX_RANGES)
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
+
+    @model_validator(mode="after")
+    def _unique(self) -> NodeMessage:
+        sats = [s.sat for s in self.satellites]
+        if len(set(sats)) != len(sats):
+            raise ValueError("duplicate satellite in one node message")
+        peers = [r.to for r in self.ranges]
+        if len(set(peers)) != len(peers) or self.vehicle_id in peers:
+            raise ValueError("ranges must name each peer once and not the vehicle itself")
+        return self
+
+
+class VehicleState(_Model):
+    vehicle_id: VehicleId
+    position_ecef_m: Ecef
+    covariance_m2: Cov3 | None = None
+    clocks_s: dict[str, float] = Field(default_factory=dict, max_length=4)
+    antenna_height_m: float = Field(ge=0.0, le=10.0)
+    n_pseudoranges: int = Field(ge=0)
+    n_ranges: int = Field(ge=0)
+    plane_used: bool
+    plane_status: PlaneStatusName | None = None
+    has_gnss_fix: bool
+
+
+class SolutionMessage(_Model):
+    """The fleet solution of one epoch, sent back to the vehicles and to the API."""
+
+    schema_: Literal["coplane.solution/1"] = Field(default="coplane.solution/1", alias="schema")
+    fleet: VehicleId
+    method: str = Field(max_length=64)
+    seq: int = Field(ge=0)
+    epoch: EpochTime
+    vehicles: list[VehicleState] = Field(max_length=4096)
+    solve_time_s: float = Field(ge=0.0)
+    factor_counts: dict[str, int] = Field(default_factory=dict)
+    missing: list[VehicleId] = Field(default_factory=list)  # live vehicles that did not report
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
+
+
+class VehicleCounters(_Model):
+    """Per-vehicle message accounting at the fusion server: received = used + rejected + late + duplicate."""
+
+    received: int = 0
+    used: int = 0
+    rejected: int = 0
+    late: int = 0
+    duplicate: int = 0
+    out_of_order: int = 0
+    missing: int = 0  # epochs solved while this live vehicle had not reported
+    online: bool = False
+
+
+class DiagnosticsMessage(_Model):
+    schema_: Literal["coplane.diagnostics/1"] = Field(default="coplane.diagnostics/1", alias="schema")
+    fleet: VehicleId
+    method: str = Field(max_length=64)
+    pace: Literal["lockstep", "realtime"]
+    epochs_solved: int = Field(ge=0)
+    last_epoch: EpochTime | None = None
+    last_solve_time_s: float | None = None
+    vehicles: dict[str, VehicleCounters] = Field(default_factory=dict)
+    rejected_by_reason: dict[str, int] = Field(default_factory=dict)  # includes unattributable payloads
+    live_vehicles: list[str] = Field(default_factory=list)
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)

@@ -1,0 +1,38 @@
+"""The epoch schedule of a replay, shared by the in-process evaluator and the vehicle agents.
+
+A vehicle is live from its first to its last observation epoch. Inside that span it reports at
+every nominal epoch (a multiple of the interval), with an empty report where its receiver had no
+epoch (an underpass, a dropped epoch), so that in lockstep the server never waits for a message
+that will not come and the vehicle still gets a plane and a carried-through position.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+from coplane.gtime import GpsTime
+from coplane.recording.model import ObsEpoch
+
+
+def nominal_grid(first: GpsTime, last: GpsTime, interval_s: float) -> Iterator[GpsTime]:
+    t0 = first.round_to(interval_s)
+    n = round((last.round_to(interval_s) - t0) / interval_s)
+    for k in range(n + 1):
+        yield (t0 + k * interval_s).round_to(interval_s)
+
+
+def vehicle_schedule(epochs: Sequence[ObsEpoch], interval_s: float) -> list[tuple[GpsTime, ObsEpoch | None]]:
+    """(nominal time, the receiver epoch or None) for every nominal epoch of the vehicle's span."""
+    if not epochs:
+        return []
+    by_t: dict[GpsTime, ObsEpoch] = {}
+    for e in epochs:
+        by_t.setdefault(e.time.round_to(interval_s), e)  # the reader already dropped duplicates
+    return [(t, by_t.get(t)) for t in nominal_grid(epochs[0].time, epochs[-1].time, interval_s)]
+
+
+def fleet_id(name: str) -> str:
+    """A bus-safe fleet id ([A-Za-z0-9_-], at most 32 chars) from a recording's free-text name."""
+    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in name.strip())
+    slug = "-".join(p for p in slug.split("-") if p)[:32].strip("-")
+    return slug or "fleet"

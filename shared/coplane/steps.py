@@ -1,0 +1,402 @@
+"""The two pure objects every path shares (design principle 1): no I/O, deterministic.
+
+`VehicleStep` is one vehicle's epoch: SPP + Doppler velocity (DGNSS when corrections are given),
+the road plane from the fleet's solved positions (paper Sec. III) and the node message.
+`FusionStep` is the server's epoch: node messages -> factor-graph inputs -> fleet solution.
+`coplane eval` calls them in-process, the Zenoh services call them over the bus; both exchange the
+same pydantic messages, so a lockstep replay over the bus reproduces the in-process positions.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.fgo.engine import FusionEstimator
+from coplane.fgo.inputs import (
+    EpochInput,
+    PlaneObs,
+    PseudorangeObs,
+    RangeObs,
+    VehicleEpochInput,
+    VelocityObs,
+)
+from coplane.fgo.methods import MethodSpec, interrupt_range
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.gnss.atmosphere import iono_delay_m, saastamoinen_m
+from coplane.gnss.constants import C
+from coplane.gnss.dgnss import DgnssCorrections
+from coplane.gnss.ephemeris import geometric_range, rotate_to_receive_frame
+from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
+from coplane.gnss.weighting import pseudorange_sigma_m
+from coplane.gtime import GpsTime
+from coplane.messages import (
+    EpochTime,
+    NodeMessage,
+    PlaneReport,
+    RangeReport,
+    SatelliteReport,
+    SolutionMessage,
+    SppReport,
+    VehicleState,
+    VelocityReport,
+)
+from coplane.plane.config import PlaneConfig
+from coplane.plane.detect import PlaneStatus, RoadPlane, construct_plane
+from coplane.plane.history import PositionHistory
+from coplane.recording.model import NavData, ObsEpoch, UwbRange
+
+Vec = NDArray[Any]
+
+_STATUS_NAME = {
+    PlaneStatus.AVAILABLE: "available",
+    PlaneStatus.AVAILABLE_AFTER_FE: "available-after-fe",
+    PlaneStatus.UNAVAILABLE: "unavailable",
+}
+
+
+def epoch_time(t: GpsTime) -> EpochTime:
+    return EpochTime(week=t.week, tow=t.tow)
+
+
+def gps_time(e: EpochTime) -> GpsTime:
+    return GpsTime(e.week, e.tow)
+
+
+def _tuple3(v: Vec) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _cov9(c: Vec) -> list[float] | None:
+    c = np.asarray(c, dtype=float)
+    return [float(x) for x in c.reshape(9)] if np.all(np.isfinite(c)) else None
+
+
+def stable_seed(*parts: int | str) -> list[int]:
+    """A seed sequence that does not depend on Python's per-process hash randomisation."""
+    return [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) & 0xFFFFFFFF for p in parts]
+
+
+@dataclass
+class VehicleStepConfig:
+    solver: EpochSolverOptions = field(default_factory=EpochSolverOptions)
+    plane: PlaneConfig = field(default_factory=PlaneConfig)
+    uwb_sigma_m: float = 0.3
+    seed: int = 0
+
+
+class VehicleStep:
+    """One vehicle: measurements + the fleet's solved positions -> node message (pure)."""
+
+    def __init__(
+        self,
+        fleet: str,
+        vehicle_id: str,
+        antenna_height_m: float,
+        nav: NavData,
+        method: MethodSpec,
+        config: VehicleStepConfig | None = None,
+    ) -> None:
+        self.fleet = fleet
+        self.vehicle_id = vehicle_id
+        self.antenna_height_m = antenna_height_m
+        self.nav = nav
+        self.method = method
+        self.config = config or VehicleStepConfig()
+        pc = self.config.plane
+        if not method.plane_fault_exclusion:
+            pc = replace(pc, fault_exclusion=False)
+        self.plane_config = pc
+        self.history = PositionHistory(pc)
+        self.seq = 0
+        self.first_epoch: GpsTime | None = None
+        self._last_fused: tuple[GpsTime, Vec] | None = None
+
+    # -- the fleet's solution feeds the plane history (paper eq. 2) --------------------------
+    def ingest(self, solution: SolutionMessage) -> None:
+        """Add a fleet solution to the plane history.
+
+        Solutions of epochs before this vehicle's first epoch are ignored: a vehicle joins the
+        cooperation when it starts reporting. Over the bus a late joiner cannot know what was
+        solved before it subscribed, so the in-process run follows the same rule and both paths
+        stay identical.
+        """
+        t = gps_time(solution.epoch)
+        if self.first_epoch is None or t < self.first_epoch:
+            return
+        for v in solution.vehicles:
+            if self.method.planes == "self" and v.vehicle_id != self.vehicle_id:
+                continue
+            p = np.asarray(v.position_ecef_m, dtype=float)
+            self.history.add(v.vehicle_id, t.seconds, p, v.antenna_height_m)
+            if v.vehicle_id == self.vehicle_id:
+                self._last_fused = (t, p)
+
+    # -- one epoch ---------------------------------------------------------------------------
+    def process(
+        self,
+        t: GpsTime,
+        epoch: ObsEpoch | None,
+        corrections: DgnssCorrections | None = None,
+        uwb: Iterable[UwbRange] = (),
+    ) -> NodeMessage:
+        """The node message for nominal epoch `t`; `epoch` None means the receiver had no epoch."""
+        if epoch is None:
+            epoch = ObsEpoch(t, ())
+        if self.first_epoch is None:
+            self.first_epoch = t
+        last = self._last_fused[1] if self._last_fused is not None else None
+        res = solve_epoch(epoch, self.nav, corrections, self.config.solver, last)
+        approx = res.spp.position if res.spp.ok else last
+        sats = self._satellites(res, approx, corrections)
+        plane = self._plane(t, approx) if self.method.planes != "none" else None
+        msg = NodeMessage(
+            fleet=self.fleet,
+            vehicle_id=self.vehicle_id,
+            seq=self.seq,
+            epoch=epoch_time(t),
+            rx_time=epoch_time(epoch.time),
+            antenna_height_m=self.antenna_height_m,
+            spp=self._spp_report(res),
+            velocity=self._velocity_report(res),
+            satellites=sats,
+            plane=plane,
+            ranges=[
+                RangeReport(to=r.b, range_m=r.range_m, sigma_m=self.config.uwb_sigma_m)
+                for r in uwb
+                if r.a == self.vehicle_id and r.b != self.vehicle_id
+            ],
+        )
+        self.seq += 1
+        return msg
+
+    def _spp_report(self, res: EpochResult) -> SppReport:
+        s = res.spp
+        if not s.ok:
+            return SppReport(ok=False, reason=s.reason, excluded=list(s.excluded))
+        d = s.dops
+        return SppReport(
+            ok=True,
+            position_ecef_m=_tuple3(s.position),
+            covariance_m2=_cov9(s.covariance),
+            clocks_m=dict(s.clocks_m),
+            n_used=s.n_used,
+            excluded=list(s.excluded),
+            gdop=d.gdop if d else None,
+            pdop=d.pdop if d else None,
+            hdop=d.hdop if d else None,
+            vdop=d.vdop if d else None,
+        )
+
+    @staticmethod
+    def _velocity_report(res: EpochResult) -> VelocityReport | None:
+        v = res.velocity
+        if v is None or not v.ok or np.linalg.norm(v.velocity_mps) > 150.0:
+            return None
+        sig = float(math.sqrt(max(np.trace(v.covariance) / 3.0, 1e-6)))
+        return VelocityReport(
+            velocity_ecef_mps=_tuple3(v.velocity_mps),
+            sigma_mps=min(sig, 100.0),
+            clock_drift_mps=v.drift_mps,
+            n_used=len(v.used),
+        )
+
+    def _satellites(
+        self, res: EpochResult, approx: Vec | None, corrections: DgnssCorrections | None
+    ) -> list[SatelliteReport]:
+        """Per-satellite factor inputs, modelled at the best position the vehicle has."""
+        if approx is None:
+            return []  # no position at all yet: elevation, Sagnac and atmosphere are unknown
+        lat, lon, h = ecef_to_geodetic(approx)
+        rot = enu_rotation(lat, lon)
+        used = set(res.spp.used) if res.spp.ok else None
+        excluded = set(res.spp.excluded)
+        mask = math.radians(self.config.solver.spp.elevation_mask_deg)
+        out: list[SatelliteReport] = []
+        for m in res.prepared.sats:
+            rng, e = geometric_range(m.state.pos, approx)
+            el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
+            az = math.atan2(float(rot[0] @ e), float(rot[1] @ e)) % (2 * math.pi)
+            sat_rx = rotate_to_receive_frame(m.state.pos, rng / C)
+            if corrections is not None:
+                dg = corrections.corrections_m.get(m.sat)
+                if dg is None:
+                    continue  # DGNSS mode uses corrected satellites only
+                iono = tropo = 0.0
+                rho = m.pseudorange_m - dg
+            else:
+                dg = None
+                iono = iono_delay_m(m.system, res.prepared.time, lat, lon, az, el, self.nav)
+                tropo = saastamoinen_m(lat, h, el)
+                rho = m.pseudorange_m - m.tgd_m - iono - tropo
+            reason = None
+            if m.sat in excluded:
+                reason = "excluded by RAIM"
+            elif el < mask:
+                reason = "below elevation mask"
+            elif used is not None and m.sat not in used:
+                reason = "not used by SPP"
+            out.append(
+                SatelliteReport(
+                    sat=m.sat,
+                    pseudorange_m=m.pseudorange_m,
+                    doppler_hz=m.doppler_hz if math.isfinite(m.doppler_hz) else None,
+                    cn0_dbhz=m.cn0_dbhz if math.isfinite(m.cn0_dbhz) else None,
+                    elevation_deg=math.degrees(el),
+                    azimuth_deg=math.degrees(az),
+                    sat_pos_ecef_m=_tuple3(sat_rx),
+                    sat_clock_s=m.state.clock_s,
+                    tgd_m=m.tgd_m,
+                    iono_m=iono,
+                    tropo_m=tropo,
+                    dgnss_m=dg,
+                    rho_m=rho,
+                    sigma_m=pseudorange_sigma_m(el, m.cn0_dbhz, m.system),
+                    used=reason is None,
+                    excluded_reason=reason,
+                )
+            )
+        return out
+
+    def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
+        if centre is None:
+            return PlaneReport(status="unavailable", reason="no position to centre the fitting region")
+        rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
+        only = {self.vehicle_id} if self.method.planes == "self" else None
+        pts = self.history.select(centre, t.seconds, rng, vehicle_ids=only)
+        plane = construct_plane(pts, self.antenna_height_m, self.plane_config, rng)
+        return plane_report(plane)
+
+
+def plane_report(p: RoadPlane) -> PlaneReport:
+    if p.status == PlaneStatus.UNAVAILABLE:
+        return PlaneReport(
+            status="unavailable",
+            reason=p.reason,
+            n_points_initial=p.n_points_initial,
+            n_points_used=p.n_points_used,
+            residual_max_m=p.residual_max_m if math.isfinite(p.residual_max_m) else None,
+        )
+    return PlaneReport(
+        status=_STATUS_NAME[p.status],  # type: ignore[arg-type]
+        reason=p.reason,
+        normal=_tuple3(p.normal),
+        d_antenna_m=float(p.d_antenna),
+        d_road_m=float(p.d_road),
+        sigma_m=float(p.sigma_m),
+        residual_max_m=float(p.residual_max_m),
+        residual_rms_m=float(p.residual_rms_m),
+        n_points_initial=p.n_points_initial,
+        n_points_used=p.n_points_used,
+        centroid_ecef_m=_tuple3(p.centroid),
+    )
+
+
+@dataclass
+class FusionStepConfig:
+    interruption_rate: float = 0.0  # paper 5.3: share of ranges removed per pair (seeded)
+    interruption_seed: int = 0
+    interval_s: float = 1.0  # the epoch index for interruption comes from time, not a counter
+
+
+class FusionStep:
+    """The server's epoch: node messages -> factor-graph inputs -> solution message (pure)."""
+
+    def __init__(self, fleet: str, method: MethodSpec, config: FusionStepConfig | None = None) -> None:
+        self.fleet = fleet
+        self.method = method
+        self.config = config or FusionStepConfig()
+        self.estimator = FusionEstimator(method.fgo)
+        self.seq = 0
+
+    def inputs(self, t: GpsTime, messages: Mapping[str, NodeMessage]) -> EpochInput:
+        vehicles: dict[str, VehicleEpochInput] = {}
+        for vid in sorted(messages):
+            vehicles[vid] = self._vehicle_input(t, messages[vid])
+        ranges: dict[tuple[str, str], RangeObs] = {}
+        for vid in sorted(messages):
+            for r in messages[vid].ranges:
+                if r.to not in messages:
+                    continue
+                pair = (vid, r.to) if vid < r.to else (r.to, vid)
+                if pair in ranges:
+                    continue  # a pair at most once per epoch (spec); first reporter wins
+                k = round(t.seconds / self.config.interval_s)  # same decision after a server restart
+                if interrupt_range(pair, k, self.config.interruption_rate, self.config.interruption_seed):
+                    continue
+                ranges[pair] = RangeObs(pair[0], pair[1], r.range_m, r.sigma_m)
+        return EpochInput(t, vehicles, tuple(ranges[k] for k in sorted(ranges)))
+
+    def _vehicle_input(self, t: GpsTime, m: NodeMessage) -> VehicleEpochInput:
+        prs = tuple(
+            PseudorangeObs(
+                sat=s.sat,
+                rho_m=s.rho_m,
+                sat_pos_m=np.array(s.sat_pos_ecef_m),
+                sat_clock_s=s.sat_clock_s,
+                sigma_m=s.sigma_m,
+                elevation_rad=math.radians(s.elevation_deg),
+                cn0_dbhz=s.cn0_dbhz if s.cn0_dbhz is not None else math.nan,
+            )
+            for s in m.satellites
+            if s.used
+        )
+        vel = None
+        if m.velocity is not None:
+            vel = VelocityObs(np.array(m.velocity.velocity_ecef_mps), self.method.fgo.sigma_v)
+        plane = None
+        if m.plane is not None and m.plane.status != "unavailable":
+            assert (
+                m.plane.normal is not None and m.plane.d_antenna_m is not None and m.plane.sigma_m is not None
+            )
+            plane = PlaneObs(np.array(m.plane.normal), m.plane.d_antenna_m, m.plane.sigma_m, m.plane.status)
+        return VehicleEpochInput(
+            vehicle_id=m.vehicle_id,
+            time=t,
+            pseudoranges=prs,
+            velocity=vel,
+            plane=plane,
+            spp_position=np.array(m.spp.position_ecef_m) if m.spp.position_ecef_m is not None else None,
+            clock_drift_mps=m.velocity.clock_drift_mps if m.velocity is not None else None,
+        )
+
+    def solve(
+        self, t: GpsTime, messages: Mapping[str, NodeMessage], missing: Iterable[str] = ()
+    ) -> SolutionMessage:
+        sol = self.estimator.step(self.inputs(t, messages))
+        states = []
+        for vid in sorted(sol.estimates):
+            est = sol.estimates[vid]
+            msg = messages[vid]
+            states.append(
+                VehicleState(
+                    vehicle_id=vid,
+                    position_ecef_m=_tuple3(est.position_m),
+                    covariance_m2=_cov9(est.covariance_m2),
+                    clocks_s=dict(est.clocks_s),
+                    antenna_height_m=msg.antenna_height_m,
+                    n_pseudoranges=est.n_pseudoranges,
+                    n_ranges=est.n_ranges,
+                    plane_used=est.plane_used,
+                    plane_status=msg.plane.status if msg.plane is not None else None,
+                    has_gnss_fix=est.has_gnss_fix,
+                )
+            )
+        out = SolutionMessage(
+            fleet=self.fleet,
+            method=self.method.name,
+            seq=self.seq,
+            epoch=epoch_time(t),
+            vehicles=states,
+            solve_time_s=sol.solve_time_s,
+            factor_counts=dict(sol.factor_counts),
+            missing=sorted(missing),
+        )
+        self.seq += 1
+        return out
