@@ -123,6 +123,7 @@ class VehicleAgent:
                     except queue.Empty:
                         break
                 msg = self.step.process(t, ep, self._corrections(t), self.uwb.get(t, ()))
+                msg = msg.model_copy(update={"sent_unix_s": time.time()})  # latency stamp only
                 payload = encode(msg)
                 pub.put(payload)
                 self.published += 1

@@ -153,6 +153,9 @@ class NodeMessage(_Model):
     satellites: list[SatelliteReport] = Field(default_factory=list, max_length=MAX_SATELLITES)
     plane: PlaneReport | None = None
     ranges: list[RangeReport] = Field(default_factory=list, max_length=MAX_RANGES)
+    sent_unix_s: float | None = Field(
+        default=None, ge=0.0, description="wall clock at publish (latency only)"
+    )
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
@@ -167,6 +170,18 @@ class NodeMessage(_Model):
         return self
 
 
+class PlaneSummary(_Model):
+    """What the API and plots show about the plane a vehicle sent (status and why)."""
+
+    status: PlaneStatusName
+    reason: str | None = Field(default=None, max_length=300)
+    residual_max_m: float | None = None
+    residual_rms_m: float | None = None
+    sigma_m: float | None = None
+    n_points_initial: int = 0
+    n_points_used: int = 0
+
+
 class VehicleState(_Model):
     vehicle_id: VehicleId
     position_ecef_m: Ecef
@@ -177,7 +192,10 @@ class VehicleState(_Model):
     n_ranges: int = Field(ge=0)
     plane_used: bool
     plane_status: PlaneStatusName | None = None
+    plane: PlaneSummary | None = None
     has_gnss_fix: bool
+    n_satellites: int = Field(default=0, ge=0)
+    spp_ok: bool = False
 
 
 class SolutionMessage(_Model):
@@ -192,6 +210,7 @@ class SolutionMessage(_Model):
     solve_time_s: float = Field(ge=0.0)
     factor_counts: dict[str, int] = Field(default_factory=dict)
     missing: list[VehicleId] = Field(default_factory=list)  # live vehicles that did not report
+    oldest_node_sent_unix_s: float | None = None  # for end-to-end latency (node publish -> solution)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 

@@ -34,12 +34,13 @@ from coplane.gnss.constants import C
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.ephemeris import geometric_range, rotate_to_receive_frame
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
-from coplane.gnss.weighting import pseudorange_sigma_m
+from coplane.gnss.weighting import pseudorange_sigma_m, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
 from coplane.messages import (
     EpochTime,
     NodeMessage,
     PlaneReport,
+    PlaneSummary,
     RangeReport,
     SatelliteReport,
     SolutionMessage,
@@ -257,7 +258,11 @@ class VehicleStep:
                     tropo_m=tropo,
                     dgnss_m=dg,
                     rho_m=rho,
-                    sigma_m=pseudorange_sigma_m(el, m.cn0_dbhz, m.system),
+                    sigma_m=(
+                        pseudorange_sigma_m(el, m.cn0_dbhz, m.system)
+                        if corrections is not None
+                        else standalone_pseudorange_sigma_m(el, m.cn0_dbhz, m.system, iono)
+                    ),
                     used=reason is None,
                     excluded_reason=reason,
                 )
@@ -295,6 +300,20 @@ def plane_report(p: RoadPlane) -> PlaneReport:
         n_points_initial=p.n_points_initial,
         n_points_used=p.n_points_used,
         centroid_ecef_m=_tuple3(p.centroid),
+    )
+
+
+def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
+    if p is None:
+        return None
+    return PlaneSummary(
+        status=p.status,
+        reason=p.reason,
+        residual_max_m=p.residual_max_m,
+        residual_rms_m=p.residual_rms_m,
+        sigma_m=p.sigma_m,
+        n_points_initial=p.n_points_initial,
+        n_points_used=p.n_points_used,
     )
 
 
@@ -385,7 +404,10 @@ class FusionStep:
                     n_ranges=est.n_ranges,
                     plane_used=est.plane_used,
                     plane_status=msg.plane.status if msg.plane is not None else None,
+                    plane=plane_summary(msg.plane),
                     has_gnss_fix=est.has_gnss_fix,
+                    n_satellites=sum(1 for s in msg.satellites if s.used),
+                    spp_ok=msg.spp.ok,
                 )
             )
         out = SolutionMessage(
@@ -397,6 +419,9 @@ class FusionStep:
             solve_time_s=sol.solve_time_s,
             factor_counts=dict(sol.factor_counts),
             missing=sorted(missing),
+            oldest_node_sent_unix_s=min(
+                (m.sent_unix_s for m in messages.values() if m.sent_unix_s is not None), default=None
+            ),
         )
         self.seq += 1
         return out

@@ -26,7 +26,7 @@ from coplane.gnss.constants import C
 from coplane.gnss.ephemeris import geometric_range
 from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
-from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2
+from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData
 
@@ -145,7 +145,9 @@ def _sigma(m: SatMeasurement, el: float, iono: float, opt: SppOptions, different
         if not differential:
             var += (_RTKLIB_ERR_BRDCI * iono) ** 2 + (_RTKLIB_ERR_SAAS_M / (math.sin(el) + 0.1)) ** 2
         return math.sqrt(var)
-    return pseudorange_sigma_m(el, m.cn0_dbhz, m.system)
+    if differential:
+        return pseudorange_sigma_m(el, m.cn0_dbhz, m.system)
+    return standalone_pseudorange_sigma_m(el, m.cn0_dbhz, m.system, iono)
 
 
 def _solve(

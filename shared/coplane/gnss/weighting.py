@@ -100,3 +100,15 @@ def rtklib_variance_m2(
     if iono_free:
         var *= 9.0
     return fact * fact * var
+
+
+# The broadcast Klobuchar model removes only about half of the ionospheric delay (IS-GPS-200
+# 20.3.3.5.2.5 states ~50 % rms); RTKLIB uses the same 0.5 factor (ERR_BRDCI). Standalone
+# pseudoranges carry that residual on top of the receiver error; DGNSS cancels it.
+BROADCAST_IONO_ERROR_FRACTION = 0.5
+
+
+def standalone_pseudorange_sigma_m(el_rad: float, cn0_dbhz: float, system: str, iono_m: float) -> float:
+    """Pseudorange sigma for undifferenced use: receiver error plus the broadcast-iono residual."""
+    base = pseudorange_sigma_m(el_rad, cn0_dbhz, system)
+    return math.sqrt(base * base + (BROADCAST_IONO_ERROR_FRACTION * iono_m) ** 2)
