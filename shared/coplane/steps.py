@@ -131,13 +131,19 @@ class VehicleStep:
         t = gps_time(solution.epoch)
         if self.first_epoch is None or t < self.first_epoch:
             return
-        for v in solution.vehicles:
-            if self.method.planes == "self" and v.vehicle_id != self.vehicle_id:
-                continue
-            p = np.asarray(v.position_ecef_m, dtype=float)
-            self.history.add(v.vehicle_id, t.seconds, p, v.antenna_height_m)
+        states = [
+            v for v in solution.vehicles if self.method.planes != "self" or v.vehicle_id == self.vehicle_id
+        ]
+        if states and self.method.planes != "none":  # no plane, no history to keep
+            self.history.add_many(
+                [v.vehicle_id for v in states],
+                t.seconds,
+                [v.position_ecef_m for v in states],
+                [v.antenna_height_m for v in states],
+            )
+        for v in states:
             if v.vehicle_id == self.vehicle_id:
-                self._last_fused = (t, p)
+                self._last_fused = (t, np.asarray(v.position_ecef_m, dtype=float))
 
     # -- one epoch ---------------------------------------------------------------------------
     def process(

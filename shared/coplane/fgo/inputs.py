@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coplane.gtime import GpsTime
+from coplane.plane.fit import constraint_error
 
 Vec = NDArray[np.float64]
 
@@ -48,8 +49,8 @@ class PlaneObs:
     status: str = "available"  # "available" | "available-after-fe"
 
     def error(self, p: Vec) -> float:
-        """Paper eq. 24, f = P'^D - p.u_PC with u_PC = -n, i.e. n.p + d (signed, metres)."""
-        return float(self.normal @ p + self.d_m)
+        """Paper eq. 24 (signed metres, positive above the plane): the one definition in plane.fit."""
+        return constraint_error(self.normal, self.d_m, p)
 
 
 @dataclass(frozen=True)
