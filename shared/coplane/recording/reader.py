@@ -1,0 +1,220 @@
+"""A fleet recording opened for replay: manifest now, every file lazily and once.
+
+`open_recording` validates fleet.toml (errors raise RecordingError); the RINEX, uwb and truth
+files are read on first use and cached, and all their problems go to one `Problems` so a run
+can report "N input problems" in one place. Grouping follows the spec: receiver epochs keep
+their exact time tags but are grouped by the nearest multiple of `interval_s` (a receiver with
+two epochs rounding to one nominal time keeps the first); uwb and truth rows match the nominal
+epoch nearest to their tag within 0.1 x interval_s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from coplane.gtime import GpsTime
+from coplane.recording.csvfiles import read_truth, read_uwb
+from coplane.recording.manifest import load_manifest
+from coplane.recording.model import Manifest, NavData, ObsEpoch, ObsHeader, TruthPoint, UwbRange
+from coplane.recording.problems import Problems
+from coplane.recording.rinex_nav import read_nav_files
+from coplane.recording.rinex_obs import SignalCodes, read_obs
+
+MATCH_FRACTION = 0.1  # uwb/truth rows match an epoch within this fraction of the interval
+
+
+@dataclass(frozen=True, slots=True)
+class FleetEpoch:
+    """Everything observed at one nominal epoch (receivers absent there are simply missing)."""
+
+    time: GpsTime  # nominal: nearest multiple of the manifest interval
+    index: int
+    vehicles: dict[str, ObsEpoch]  # exact receiver tags stay inside each ObsEpoch
+    base: ObsEpoch | None = None
+    uwb: tuple[UwbRange, ...] = ()
+
+
+class Recording:
+    """Lazy, cached access to one fleet recording."""
+
+    def __init__(self, manifest: Manifest, signals: Mapping[str, SignalCodes] | None = None) -> None:
+        self.manifest = manifest
+        self.problems = Problems()
+        self._signals = signals
+        self._nav: NavData | None = None
+        self._obs: dict[str, tuple[ObsHeader, list[ObsEpoch]]] = {}
+        self._uwb: list[UwbRange] | None = None
+        self._truth: dict[str, list[TruthPoint]] = {}
+        self._truth_at: dict[str, dict[GpsTime, tuple[float, float, float]]] = {}
+        self._fleet: list[FleetEpoch] | None = None
+
+    @property
+    def interval_s(self) -> float:
+        return self.manifest.interval_s
+
+    def nominal(self, t: GpsTime) -> GpsTime:
+        """The nominal epoch time a tag belongs to."""
+        return t.round_to(self.manifest.interval_s)
+
+    @property
+    def nav(self) -> NavData:
+        if self._nav is None:
+            self._nav = read_nav_files(self.manifest.nav_files, self.problems)
+        return self._nav
+
+    # ---- observations
+    def _load_obs(self, key: str, path: Path) -> tuple[ObsHeader, list[ObsEpoch]]:
+        if key not in self._obs:
+            header, epochs = read_obs(path, self.problems, self._signals)
+            self._obs[key] = (header, self._dedupe(path, epochs))
+        return self._obs[key]
+
+    def _dedupe(self, path: Path, epochs: list[ObsEpoch]) -> list[ObsEpoch]:
+        """Keep the first of several epochs that round to one nominal time (reported)."""
+        out: list[ObsEpoch] = []
+        seen: dict[GpsTime, GpsTime] = {}
+        for e in epochs:
+            t = self.nominal(e.time)
+            if t in seen:
+                self.problems.add(
+                    path,
+                    None,
+                    "duplicate-epoch",
+                    f"epoch {e.time} rounds to nominal {t} like epoch {seen[t]}: skipped",
+                )
+                continue
+            seen[t] = e.time
+            out.append(e)
+        return out
+
+    def vehicle_epochs(self, vid: str) -> list[ObsEpoch]:
+        return self._load_obs(f"vehicle:{vid}", self.manifest.vehicle(vid).obs)[1]
+
+    def vehicle_header(self, vid: str) -> ObsHeader:
+        return self._load_obs(f"vehicle:{vid}", self.manifest.vehicle(vid).obs)[0]
+
+    def base_epochs(self) -> list[ObsEpoch]:
+        """The reference station's epochs ([] when the recording has no [base])."""
+        if self.manifest.base is None:
+            return []
+        return self._load_obs("base", self.manifest.base.obs)[1]
+
+    def base_header(self) -> ObsHeader | None:
+        if self.manifest.base is None:
+            return None
+        return self._load_obs("base", self.manifest.base.obs)[0]
+
+    # ---- uwb and truth
+    def uwb(self) -> list[UwbRange]:
+        """All valid uwb.csv rows ([] without [uwb])."""
+        if self._uwb is None:
+            spec = self.manifest.uwb
+            if spec is None:
+                self._uwb = []
+            else:
+                ids = {v.id for v in self.manifest.vehicles}
+                self._uwb = read_uwb(spec.file, self.problems, ids, spec.max_range_m)
+        return self._uwb
+
+    def truth(self, vid: str) -> list[TruthPoint]:
+        """The vehicle's truth rows ([] when it has none)."""
+        if vid not in self._truth:
+            path = self.manifest.vehicle(vid).truth
+            self._truth[vid] = [] if path is None else read_truth(path, self.problems)
+        return self._truth[vid]
+
+    def truth_at(self, vid: str) -> dict[GpsTime, tuple[float, float, float]]:
+        """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
+        if vid not in self._truth_at:
+            out: dict[GpsTime, tuple[float, float, float]] = {}
+            tol = MATCH_FRACTION * self.manifest.interval_s
+            unmatched: list[GpsTime] = []
+            for p in self.truth(vid):
+                t = self.nominal(p.time)
+                if abs(p.time - t) > tol:
+                    unmatched.append(p.time)
+                elif t in out:
+                    self.problems.add(
+                        self.manifest.vehicle(vid).truth or "",
+                        None,
+                        "duplicate-row",
+                        f"truth row at {p.time} matches nominal epoch {t} already matched: skipped",
+                    )
+                else:
+                    out[t] = p.ecef_m
+            if unmatched:
+                self.problems.add(
+                    self.manifest.vehicle(vid).truth or "",
+                    None,
+                    "unmatched-row",
+                    f"{len(unmatched)} truth row(s) farther than {tol:g} s from any nominal epoch "
+                    f"(first at {unmatched[0]}): not used",
+                )
+            self._truth_at[vid] = out
+        return self._truth_at[vid]
+
+    # ---- grouping
+    def fleet_epochs(self) -> Iterator[FleetEpoch]:
+        """Nominal epochs in time order with every receiver's epoch and the uwb rows matched there."""
+        if self._fleet is None:
+            self._fleet = self._build_fleet()
+        return iter(self._fleet)
+
+    def _build_fleet(self) -> list[FleetEpoch]:
+        by_vehicle = {
+            v.id: {self.nominal(e.time): e for e in self.vehicle_epochs(v.id)} for v in self.manifest.vehicles
+        }
+        base = {self.nominal(e.time): e for e in self.base_epochs()}
+        times: set[GpsTime] = set(base)
+        for m in by_vehicle.values():
+            times.update(m)
+        ordered = sorted(times)
+        uwb = self._match_uwb(set(ordered))
+        return [
+            FleetEpoch(
+                time=t,
+                index=i,
+                vehicles={vid: m[t] for vid, m in by_vehicle.items() if t in m},
+                base=base.get(t),
+                uwb=tuple(uwb.get(t, ())),
+            )
+            for i, t in enumerate(ordered)
+        ]
+
+    def _match_uwb(self, times: set[GpsTime]) -> dict[GpsTime, list[UwbRange]]:
+        out: dict[GpsTime, list[UwbRange]] = {}
+        spec = self.manifest.uwb
+        if spec is None:
+            return out
+        tol = MATCH_FRACTION * self.manifest.interval_s
+        pairs: set[tuple[GpsTime, tuple[str, str]]] = set()
+        for u in self.uwb():
+            t = self.nominal(u.time)
+            if abs(u.time - t) > tol or t not in times:
+                why = (
+                    f"farther than {tol:g} s from nominal {t}"
+                    if abs(u.time - t) > tol
+                    else "no receiver epoch"
+                )
+                self.problems.add(
+                    spec.file, None, "unmatched-row", f"range {u.a}-{u.b} at {u.time}: {why}: skipped"
+                )
+                continue
+            if (t, u.pair) in pairs:
+                self.problems.add(
+                    spec.file,
+                    None,
+                    "duplicate-row",
+                    f"pair {u.pair} has two ranges in epoch {t}: kept the first",
+                )
+                continue
+            pairs.add((t, u.pair))
+            out.setdefault(t, []).append(u)
+        return out
+
+
+def open_recording(path: str | Path, signals: Mapping[str, SignalCodes] | None = None) -> Recording:
+    """Open a fleet recording directory (or its fleet.toml); raises RecordingError if unusable."""
+    return Recording(load_manifest(Path(path)), signals)
