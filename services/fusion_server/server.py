@@ -50,6 +50,7 @@ class FusionServer:
         self.counters: dict[str, Counter[str]] = {v: Counter() for v in self.known}
         self.rejected_by_reason: Counter[str] = Counter()
         self.epochs_solved = 0
+        self.node_payloads = 0
         self.last_solve_s: float | None = None
         self.started = time.monotonic()
         self.waiting_since: float | None = None
@@ -63,6 +64,7 @@ class FusionServer:
 
     # -- message handling ----------------------------------------------------------------------
     def handle_node(self, key: str, payload: bytes) -> None:
+        self.node_payloads += 1
         vid = KeySpace.vehicle_of_node_key(key)
         if vid is None or vid not in self.known:
             self.rejected_by_reason["unknown-vehicle"] += 1
@@ -168,7 +170,23 @@ class FusionServer:
             },
             rejected_by_reason=dict(self.rejected_by_reason),
             live_vehicles=sorted(self.live),
+            node_payloads=self.node_payloads,
         )
+
+    def drain(self) -> None:
+        """Handle every queued event (used on shutdown so the final diagnostics are complete)."""
+        while True:
+            try:
+                kind, a, b = self.events.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                if kind == "node":
+                    self.handle_node(a, b)
+                else:
+                    self.handle_alive(a, b)
+            except Exception:
+                log.exception("event handling failed")
 
     def run(self) -> None:
         s = self.s
@@ -207,6 +225,7 @@ class FusionServer:
                     diag_pub.put(encode(self.diagnostics()))
                     last_diag = now
         finally:
+            self.drain()  # account for everything that arrived before the stop
             diag_pub.put(encode(self.diagnostics()))
             token.undeclare()
             session.close()

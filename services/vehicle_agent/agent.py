@@ -11,7 +11,6 @@ import logging
 import queue
 import threading
 import time
-from collections import defaultdict
 from typing import Any
 
 import numpy as np
@@ -23,7 +22,7 @@ from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage
 from coplane.recording.reader import open_recording
-from coplane.replay import fleet_id, vehicle_schedule
+from coplane.replay import first_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import VehicleStep, VehicleStepConfig, gps_time
 
 from .settings import AgentSettings
@@ -53,14 +52,14 @@ class VehicleAgent:
         )
         self.schedule = vehicle_schedule(rec.vehicle_epochs(v.id), man.interval_s)
         self.use_dgnss = man.base is not None if settings.dgnss is None else settings.dgnss
+        # only this vehicle's file, the base and uwb.csv are read: agents start fast
         self.base: dict[GpsTime, Any] = {}
-        self.uwb: dict[GpsTime, list[Any]] = defaultdict(list)
-        for fe in rec.fleet_epochs():
-            if fe.base is not None:
-                self.base[fe.time] = fe.base
-            for r in fe.uwb:
-                if r.a == v.id:
-                    self.uwb[fe.time].append(r)
+        if self.use_dgnss:
+            for e in rec.base_epochs():
+                self.base.setdefault(e.time.round_to(man.interval_s), e)
+        self.uwb = uwb_for_vehicle(rec.uwb(), v.id, (t for t, _ in self.schedule), man.interval_s)
+        self.t0 = first_epoch(rec)  # the fleet's first epoch: the realtime origin
+        self.skipped = 0
         self.solutions: queue.Queue[bytes] = queue.Queue()
         self.published = 0
         self.ingested = 0
@@ -108,14 +107,18 @@ class VehicleAgent:
         try:
             if not self.schedule:
                 return 0
-            wall0 = time.monotonic()
-            t_first = self.schedule[0][0]
+            start = s.start_unix_s if s.start_unix_s is not None else time.time()
+            t0 = self.t0 or self.schedule[0][0]
+            interval = self.rec.manifest.interval_s
             for t, ep in self.schedule:
                 if self.stop.is_set():
                     break
                 if s.pace == "realtime":
-                    due = wall0 + (t - t_first) / s.speed
-                    if self.stop.wait(max(0.0, due - time.monotonic())):
+                    due = start + (t - t0) / s.speed
+                    if due < time.time() - interval / s.speed:
+                        self.skipped += 1  # already past: a (re)started agent joins at the current epoch
+                        continue
+                    if self.stop.wait(max(0.0, due - time.time())):
                         break
                 while True:  # ingest what has arrived, in order
                     try:
@@ -129,7 +132,10 @@ class VehicleAgent:
                 self.published += 1
                 if s.pace == "lockstep":
                     self._wait_for_solution(t, pub, payload, msg)
-            log.info("agent finished", extra={"vehicle": self.step.vehicle_id, "published": self.published})
+            log.info(
+                "agent finished",
+                extra={"vehicle": self.step.vehicle_id, "published": self.published, "skipped": self.skipped},
+            )
             return self.published
         finally:
             token.undeclare()

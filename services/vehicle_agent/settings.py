@@ -22,6 +22,11 @@ class AgentSettings(ServiceSettings):
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     pace: Literal["lockstep", "realtime"] = "lockstep"
     speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
+    start_unix_s: float | None = Field(
+        default=None,
+        description="Realtime: wall-clock time of the recording's first epoch, shared by the fleet, so a "
+        "restarted agent rejoins at the current epoch; default: now",
+    )
     seed: int = 0
     dgnss: bool | None = Field(default=None, description="Use the base station; default: when present")
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")

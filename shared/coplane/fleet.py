@@ -54,8 +54,11 @@ def fleet_services(
     api_port: int = 8000,
     seed: int = 0,
     interruption: float = 0.0,
+    start_unix_s: float | None = None,
 ) -> list[ServiceSpec]:
+    """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin."""
     rec = str(recording)
+    start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
     out = [
         ServiceSpec(
             "fusion-server",
@@ -98,6 +101,7 @@ def fleet_services(
                     f'["{connect}"]',
                     "--seed",
                     str(seed),
+                    *start,
                 ],
             )
         )
@@ -198,3 +202,65 @@ def router_spec(port: int) -> ServiceSpec:
 def fleet_of(recording: Path) -> tuple[str, list[str]]:
     man = load_manifest(recording)
     return fleet_id(man.name), [v.id for v in man.vehicles]
+
+
+# -- docker-compose: generated from the same service list the launcher starts -------------------
+COMPOSE_RECORDING = "/app/shared/coplane/data/recordings/default"  # the bundled recording in the image
+COMPOSE_ROUTER = "tcp/zenoh-router:7447"
+ZENOH_IMAGE = "eclipse/zenoh:1.10.2"
+
+
+def compose_document(
+    vehicles: Sequence[str], method: str = "pc", pace: str = "realtime", speed: float = 1.0
+) -> dict[str, Any]:
+    """The docker-compose.yml content for a fleet replay of the bundled recording.
+
+    Service names, modules and arguments come from `fleet_services`, so the compose file and
+    `coplane fleet` start the same processes (tests/test_compose.py checks the committed file).
+    """
+    services: dict[str, Any] = {
+        "zenoh-router": {
+            "image": ZENOH_IMAGE,
+            "command": ["-c", "/etc/zenoh/router.json5"],
+            "volumes": ["./deploy/zenoh/router.json5:/etc/zenoh/router.json5:ro"],
+            "ports": ["7447:7447"],
+            "restart": "unless-stopped",
+        }
+    }
+    for spec in fleet_services(
+        Path(COMPOSE_RECORDING), method, pace, speed, COMPOSE_ROUTER, vehicles, api=True
+    ):
+        svc: dict[str, Any] = {
+            "build": ".",
+            "image": "coplane:latest",
+            "command": ["python", "-m", spec.module, *spec.args],
+            "depends_on": ["zenoh-router"],
+            "restart": "on-failure",
+            "healthcheck": {
+                "test": [
+                    "CMD",
+                    "python",
+                    "-c",
+                    "import socket; socket.create_connection(('zenoh-router', 7447), 2)",
+                ],
+                "interval": "10s",
+                "timeout": "3s",
+                "retries": 3,
+            },
+        }
+        if spec.name == "api":
+            svc["ports"] = ["8000:8000"]
+            svc["command"] = [*svc["command"], "--host", "0.0.0.0"]
+            svc["healthcheck"] = {
+                "test": [
+                    "CMD",
+                    "python",
+                    "-c",
+                    "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2)",
+                ],
+                "interval": "10s",
+                "timeout": "3s",
+                "retries": 3,
+            }
+        services[spec.name] = svc
+    return {"services": services}

@@ -239,5 +239,6 @@ class DiagnosticsMessage(_Model):
     vehicles: dict[str, VehicleCounters] = Field(default_factory=dict)
     rejected_by_reason: dict[str, int] = Field(default_factory=dict)  # includes unattributable payloads
     live_vehicles: list[str] = Field(default_factory=list)
+    node_payloads: int = Field(default=0, ge=0)  # every payload seen on node keys
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)

@@ -21,7 +21,7 @@ from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
 from coplane.recording.reader import Recording
-from coplane.replay import fleet_id, vehicle_schedule
+from coplane.replay import fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
 
 Vec = NDArray[Any]
@@ -81,15 +81,20 @@ def run_method(
         for vid in ids
     }
     fusion = FusionStep(fleet, spec, FusionStepConfig(interruption, seed, rec.manifest.interval_s))
-    base_by_t = {}
-    uwb_by_t: dict[GpsTime, list[Any]] = defaultdict(list)
-    for fe in rec.fleet_epochs():
-        if fe.base is not None:
-            base_by_t[fe.time] = fe.base
-        uwb_by_t[fe.time].extend(fe.uwb)
+    base_by_t: dict[GpsTime, Any] = {}
+    if use_dgnss:
+        for e in rec.base_epochs():
+            base_by_t.setdefault(e.time.round_to(rec.manifest.interval_s), e)
+    schedule = lockstep_schedule(rec, ids)
+    uwb_rows = rec.uwb()
+    uwb = {
+        vid: uwb_for_vehicle(
+            uwb_rows, vid, (t for t, live in schedule if vid in live), rec.manifest.interval_s
+        )
+        for vid in ids
+    }
     run = MethodRun(spec.name, interruption)
     t_start = _time.perf_counter()
-    schedule = lockstep_schedule(rec, ids)
     for t, live in tqdm(schedule, desc=run.label, unit="epoch", disable=not progress, leave=False):
         corr = None
         if use_dgnss:
@@ -98,7 +103,7 @@ def run_method(
             if b is not None:
                 corr = base_corrections(b, np.asarray(rec.manifest.base.position_ecef_m), rec.nav)
         msgs: dict[str, NodeMessage] = {
-            vid: steps[vid].process(t, ep, corr, uwb_by_t.get(t, ())) for vid, ep in sorted(live.items())
+            vid: steps[vid].process(t, ep, corr, uwb[vid].get(t, ())) for vid, ep in sorted(live.items())
         }
         sol = fusion.solve(t, msgs)
         for s in steps.values():

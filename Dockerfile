@@ -1,0 +1,10 @@
+# One image for every coplane Python service (vehicle agent, fusion server, API).
+FROM python:3.11-slim
+WORKDIR /app
+ENV PIP_NO_CACHE_DIR=1 PYTHONUNBUFFERED=1
+COPY pyproject.toml README.md ./
+COPY shared shared
+COPY services services
+RUN pip install .
+# the bundled recording ships inside the package data (shared/coplane/data/recordings/default)
+USER nobody
