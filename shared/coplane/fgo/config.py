@@ -1,0 +1,127 @@
+"""Configuration of the sliding-window factor-graph estimator (paper Sec. IV).
+
+One frozen dataclass so a method (methods.py) is a value that can be compared, printed, hashed and
+derived with `dataclasses.replace`; the estimator never reads globals.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+Solver = Literal["lm-window", "isam2-fixed-lag", "batch-fixed-lag"]
+Robust = Literal["huber", "cauchy"]
+
+SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
+ROBUST_KERNELS: tuple[Robust, ...] = ("huber", "cauchy")
+
+# Usual 95 %-efficiency tuning constants (in whitened units, i.e. sigmas) when robust_k is None.
+DEFAULT_ROBUST_K: dict[str, float] = {"huber": 1.345, "cauchy": 2.3849}
+
+
+@dataclass(frozen=True)
+class FgoConfig:
+    """Everything the estimator needs to know; defaults are the paper's proposed method (PC + IR).
+
+    Solvers:
+      - "lm-window": the paper's scheme. Each epoch the graph of the last `window_epochs` epochs
+        is rebuilt (from cached factors) and solved by Levenberg-Marquardt; older states and their
+        factors are simply deleted. A loose anchor prior on each vehicle's oldest state keeps the
+        window observable when it holds no GNSS at all (see `anchor_sigma`).
+      - "isam2-fixed-lag" / "batch-fixed-lag": GTSAM's fixed-lag smoothers with lag
+        `window_epochs - 1`: states leaving the window are marginalised (their information stays as
+        a prior), not deleted.
+    """
+
+    window_epochs: int = 5  # paper: l = 5 measuring cycles
+    solver: Solver = "lm-window"
+    use_ranging: bool = True
+    use_planes: bool = True
+    use_velocity: bool = True
+    # Paper sigma_V (m/s): the velocity between factor has sigma_V * dt per axis (eqs. 35-37).
+    sigma_v: float = 0.6
+    # UWB ranging sigma (m) when a RangeObs carries no positive sigma (paper: 0.3 m, UWB datasheet).
+    range_sigma: float = 0.3
+    # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
+    robust: Robust | None = None
+    robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # Receiver clock: random walk around the Doppler clock drift (m/sqrt(s)); converted to seconds
+    # for GTSAM, whose PseudorangeFactor keys the clock in seconds.
+    clock_rw_sigma: float = 1.0
+    # When no Doppler drift is known the clock step has mean 0 and this 1-sigma drift (m/s) on top:
+    # cheap TCXOs drift by up to a few hundred m/s, so this must stay loose.
+    clock_drift_sigma: float = 300.0
+    # A new clock this far (m) from the predicted one (or > 5 sigma) is a receiver clock jump
+    # (millisecond steering: 3e5 m): the clock link is not added, the clock restarts.
+    clock_jump_m: float = 1000.0
+    # lm-window only: prior on each vehicle's oldest window state at its previous estimate. Its
+    # covariance is the previous marginal of that state with eigenvalues floored at anchor_sigma^2,
+    # so it is negligible while GNSS is in the window and carries the vehicle through an outage
+    # longer than the window, growing like dead reckoning.
+    anchor_sigma: float = 10.0
+    # Fallback between factor when a vehicle has no Doppler velocity at an epoch: the last known
+    # velocity with sigma motion_sigma * dt (m/s) ...
+    motion_sigma: float = 2.0
+    # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
+    max_speed: float = 50.0
+    min_fix_pseudoranges: int = 4  # has_gnss_fix threshold
+    compute_covariance: bool = True
+    # Solve each connected cluster (vehicles linked by ranges in the window) on its own.
+    split_clusters: bool = True
+    # Levenberg-Marquardt (lm-window and batch-fixed-lag).
+    lm_max_iterations: int = 50
+    lm_relative_error_tol: float = 1e-6
+    lm_absolute_error_tol: float = 1e-6
+    # iSAM2: relinearisation threshold (tangent units: metres for positions) and the number of
+    # extra update() iterations per epoch (iSAM2 does one Gauss-Newton step per update).
+    isam2_relinearize_threshold: float = 0.01
+    isam2_extra_iterations: int = 1
+    # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
+    # until no position moves by more than isam2_converged_m.
+    isam2_converge_iterations: int = 10
+    isam2_converged_m: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
+        if self.robust is not None and self.robust not in ROBUST_KERNELS:
+            raise ValueError(
+                f"unknown robust kernel {self.robust!r}; valid: None, {', '.join(ROBUST_KERNELS)}"
+            )
+        if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
+            raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
+        positive = {
+            "sigma_v": self.sigma_v,
+            "range_sigma": self.range_sigma,
+            "clock_rw_sigma": self.clock_rw_sigma,
+            "clock_drift_sigma": self.clock_drift_sigma,
+            "clock_jump_m": self.clock_jump_m,
+            "anchor_sigma": self.anchor_sigma,
+            "motion_sigma": self.motion_sigma,
+            "max_speed": self.max_speed,
+            "lm_relative_error_tol": self.lm_relative_error_tol,
+            "lm_absolute_error_tol": self.lm_absolute_error_tol,
+            "isam2_relinearize_threshold": self.isam2_relinearize_threshold,
+            "isam2_converged_m": self.isam2_converged_m,
+        }
+        if self.robust_k is not None:
+            positive["robust_k"] = self.robust_k
+        for name, value in positive.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:
+            raise ValueError(
+                "lm_max_iterations and min_fix_pseudoranges must be >= 1, isam2_extra_iterations >= 0"
+            )
+
+    @property
+    def lag(self) -> float:
+        """Fixed-lag smoother lag in epoch-index units: keeps exactly `window_epochs` epochs."""
+        return float(self.window_epochs - 1)
+
+    @property
+    def robust_tuning(self) -> float | None:
+        if self.robust is None:
+            return None
+        return self.robust_k if self.robust_k is not None else DEFAULT_ROBUST_K[self.robust]

@@ -1,0 +1,227 @@
+"""Factor builders for paper eqs. 21, 24, 27 and 36 on GTSAM's native factors.
+
+Native classes wherever GTSAM has one (C++ evaluation, no Python callback per linearisation):
+  - pseudorange (eq. 21): gtsam.PseudorangeFactor(position Point3, clock double in SECONDS)
+  - inter-vehicle range (eq. 27): gtsam.RangeFactor3 (Point3-Point3; RangeFactor3D is Pose3-Point3)
+  - velocity (eq. 36): gtsam.BetweenFactorPoint3 on the displacement v * dt
+  - receiver clock random walk: gtsam.BetweenFactorDouble (seconds)
+  - anchor / fallback priors: gtsam.PriorFactorPoint3, gtsam.PriorFactorDouble
+Only the plane constraint (eq. 24) is a gtsam.CustomFactor: GTSAM has no point-on-plane factor.
+
+Sagnac: the PseudorangeFactor of the GTSAM 4.3.0 wheel adds the Earth-rotation (Sagnac) term
+omega_e / c * (x_s * y_r - y_s * x_r) itself, i.e. it expects the satellite position in the ECEF
+frame at *transmission*. Our PseudorangeObs carries the satellite already rotated into the ECEF
+frame at *reception* (inputs.py), so `gtsam_satellite_position` rotates it back by omega_e * tau;
+the factor then reproduces |p - sat_pos_m| to well under a millimetre (tests/test_fgo_factors.py).
+The correction is detected once at run time, so a GTSAM build without the internal term also works.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.fgo.inputs import PlaneObs
+from coplane.gnss.constants import OMEGA_E_GPS, C
+
+Vec = NDArray[np.float64]
+
+# ----------------------------------------------------------------------------------------------
+# noise models (immutable in GTSAM, so shared instances are safe and save a pybind call each)
+
+
+@functools.lru_cache(maxsize=8192)
+def isotropic(dim: int, sigma: float) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
+
+
+@functools.lru_cache(maxsize=8192)
+def robust_isotropic(dim: int, sigma: float, kernel: str | None, k: float | None) -> gtsam.noiseModel.Base:
+    """Isotropic Gaussian, wrapped in a Huber or Cauchy M-estimator when `kernel` is set."""
+    base = isotropic(dim, sigma)
+    if kernel is None:
+        return base
+    if k is None or not k > 0:
+        raise ValueError(f"robust kernel {kernel!r} needs a positive k, got {k!r}")
+    m: gtsam.noiseModel.mEstimator.Base
+    if kernel == "huber":
+        m = gtsam.noiseModel.mEstimator.Huber.Create(k)
+    elif kernel == "cauchy":
+        m = gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+    else:
+        raise ValueError(f"unknown robust kernel {kernel!r}")
+    return gtsam.noiseModel.Robust.Create(m, base)
+
+
+# ----------------------------------------------------------------------------------------------
+# pseudorange (eqs. 18-21)
+
+
+def _rotation_z(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """R_z(theta) per element, shape (n, 3, 3): the ECEF frame rotated by theta about z."""
+    c, s = np.cos(theta), np.sin(theta)
+    n = theta.shape[0]
+    r = np.zeros((n, 3, 3))
+    r[:, 0, 0] = c
+    r[:, 0, 1] = s
+    r[:, 1, 0] = -s
+    r[:, 1, 1] = c
+    r[:, 2, 2] = 1.0
+    return r
+
+
+@functools.cache
+def gtsam_applies_sagnac() -> bool:
+    """Whether this GTSAM's PseudorangeFactor adds the Sagnac term itself (4.3.0 wheel: yes)."""
+    sat = np.array([1.5e7, 1.0e7, 1.8e7])
+    rx = np.array([-2.18e6, 4.38e6, 4.08e6])
+    f = gtsam.PseudorangeFactor(0, 1, 0.0, sat, 0.0, gtsam.noiseModel.Unit.Create(1))
+    extra = float(f.evaluateError(rx, 0.0)[0]) - float(np.linalg.norm(rx - sat))
+    sagnac = OMEGA_E_GPS / C * (sat[0] * rx[1] - sat[1] * rx[0])  # about 21 m here
+    if abs(extra - sagnac) < 1e-3:
+        return True
+    if abs(extra) < 1e-3:
+        return False
+    raise RuntimeError(f"unexpected gtsam.PseudorangeFactor model: extra term {extra} m")
+
+
+def gtsam_satellite_positions(sat_pos_rx: Vec, receiver: Vec) -> Vec:
+    """Satellite positions (n, 3) as gtsam.PseudorangeFactor wants them.
+
+    `sat_pos_rx` is in the ECEF frame at reception (inputs.PseudorangeObs). If GTSAM applies the
+    Sagnac term itself, rotate back to the frame at transmission by omega_e * tau, tau the signal
+    travel time from the approximate receiver position (1 km of position error moves tau by 3 us,
+    i.e. the satellite by 6 mm).
+    """
+    sats = np.asarray(sat_pos_rx, dtype=float).reshape(-1, 3)
+    if not gtsam_applies_sagnac():
+        return sats
+    tau = np.linalg.norm(sats - np.asarray(receiver, dtype=float), axis=1) / C
+    r = _rotation_z(OMEGA_E_GPS * tau)
+    # s_rx = R_z(theta) s_tx  =>  s_tx = R_z(theta)^T s_rx
+    return np.einsum("nji,nj->ni", r, sats)
+
+
+def pseudorange_factor(
+    pos_key: int,
+    clock_key: int,
+    rho_m: float,
+    sat_pos_gtsam: Vec,
+    sat_clock_s: float,
+    noise: gtsam.noiseModel.Base,
+) -> gtsam.PseudorangeFactor:
+    """Eq. 21: error = |p - s| (+ GTSAM's Sagnac) + c (dt_rx - dt_sat) - rho, clock in seconds."""
+    return gtsam.PseudorangeFactor(pos_key, clock_key, rho_m, sat_pos_gtsam, sat_clock_s, noise)
+
+
+def pseudorange_factors(
+    pos_key: int,
+    clock_keys: Sequence[int],
+    rho_m: Sequence[float] | Vec,
+    sat_pos_rx: Vec,
+    sat_clock_s: Sequence[float] | Vec,
+    sigma_m: Sequence[float] | Vec,
+    receiver_approx: Vec,
+    robust: str | None = None,
+    robust_k: float | None = None,
+) -> list[gtsam.PseudorangeFactor]:
+    """All pseudorange factors of one vehicle epoch (one vectorised frame conversion)."""
+    sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
+    return [
+        gtsam.PseudorangeFactor(
+            pos_key, ck, float(r), sats[i], float(sc), robust_isotropic(1, float(sg), robust, robust_k)
+        )
+        for i, (ck, r, sc, sg) in enumerate(zip(clock_keys, rho_m, sat_clock_s, sigma_m, strict=True))
+    ]
+
+
+# ----------------------------------------------------------------------------------------------
+# plane constraint (eqs. 22-24): the only CustomFactor
+
+
+def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.CustomFactor:
+    """Eq. 24: error n.p + d (metres, + above the plane along the upward normal), Jacobian n^T.
+
+    Eq. 24 writes f = P'^D - p.u_PC with u_PC = -n: the same number. The normal is renormalised
+    so the error is a distance whatever the caller's rounding.
+    """
+    n = np.asarray(plane.normal, dtype=float).reshape(3)
+    norm = float(np.linalg.norm(n))
+    if not (math.isfinite(norm) and norm > 0.5):
+        raise ValueError(f"plane normal is not a unit vector: {plane.normal!r}")
+    n = n / norm
+    d = float(plane.d_m) / norm
+    jac = n.reshape(1, 3).copy()
+
+    def error(_: gtsam.CustomFactor, values: gtsam.Values, H: list[NDArray[np.float64]] | None) -> Vec:
+        p = values.atPoint3(pos_key)
+        if H is not None:
+            H[0] = jac
+        return np.array([n @ p + d])
+
+    return gtsam.CustomFactor(isotropic(1, float(plane.sigma_m)), [pos_key], error)
+
+
+# ----------------------------------------------------------------------------------------------
+# inter-vehicle range (eqs. 25-27), velocity (eqs. 35-36), clock, priors
+
+
+def range_factor(
+    key_a: int,
+    key_b: int,
+    range_m: float,
+    sigma_m: float,
+    robust: str | None = None,
+    robust_k: float | None = None,
+) -> gtsam.RangeFactor3:
+    """Eq. 27 with GTSAM's sign: error = |p_a - p_b| - d."""
+    return gtsam.RangeFactor3(
+        key_a, key_b, float(range_m), robust_isotropic(1, float(sigma_m), robust, robust_k)
+    )
+
+
+def displacement_factor(
+    prev_key: int, key: int, displacement_m: Vec, sigma_m: float
+) -> gtsam.BetweenFactorPoint3:
+    """Eq. 36 multiplied by dt: (p_t - p_{t-1}) - v dt with sigma_V dt per axis."""
+    return gtsam.BetweenFactorPoint3(
+        prev_key, key, np.asarray(displacement_m, dtype=float), isotropic(3, float(sigma_m))
+    )
+
+
+def clock_step_sigma_m(dt_s: float, drift_known: bool, rw_sigma: float, drift_sigma: float) -> float:
+    """1-sigma (m) of the receiver-clock change over dt: random walk, plus the drift if unknown."""
+    var = rw_sigma * rw_sigma * dt_s
+    if not drift_known:
+        var += (drift_sigma * dt_s) ** 2
+    return math.sqrt(var)
+
+
+def clock_factor(prev_key: int, key: int, step_m: float, sigma_m: float) -> gtsam.BetweenFactorDouble:
+    """Receiver clock random walk, converted to seconds: (b_t - b_{t-1}) - step / c."""
+    return gtsam.BetweenFactorDouble(prev_key, key, step_m / C, isotropic(1, sigma_m / C))
+
+
+def position_prior(key: int, mean: Vec, cov: NDArray[np.float64]) -> gtsam.PriorFactorPoint3:
+    return gtsam.PriorFactorPoint3(
+        key, np.asarray(mean, dtype=float), gtsam.noiseModel.Gaussian.Covariance(cov)
+    )
+
+
+def clock_prior(key: int, mean_s: float, sigma_s: float) -> gtsam.PriorFactorDouble:
+    return gtsam.PriorFactorDouble(key, float(mean_s), isotropic(1, sigma_s))
+
+
+def floored_covariance(cov: NDArray[np.float64] | None, floor_sigma: float) -> NDArray[np.float64]:
+    """`cov` with its eigenvalues raised to at least floor_sigma^2 (sigma^2 I when unknown)."""
+    floor = floor_sigma * floor_sigma
+    if cov is None or not np.all(np.isfinite(cov)):
+        return np.eye(3) * floor
+    sym = 0.5 * (cov + cov.T)
+    w, u = np.linalg.eigh(sym)
+    return (u * np.maximum(w, floor)) @ u.T

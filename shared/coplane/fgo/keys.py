@@ -1,0 +1,74 @@
+"""GTSAM keys for (vehicle, epoch index, kind), collision-free while vehicles join and leave.
+
+A key is `gtsam.symbol(chr, index)` with index = slot << 32 | step: `slot` is a small integer given
+to a vehicle id the first time it is seen (never reused), `step` the estimator's epoch counter.
+Kinds: 'p' for the ECEF position (Point3) and one lower-case letter per GNSS system for that
+system's receiver clock (double, seconds): 'g' GPS, 'c' BeiDou, ...
+"""
+
+from __future__ import annotations
+
+import gtsam
+
+STEP_BITS = 32
+SLOT_BITS = 24  # gtsam.Symbol indices have 56 bits
+MAX_STEP = (1 << STEP_BITS) - 1
+MAX_SLOT = (1 << SLOT_BITS) - 1
+
+POSITION_CHR = "p"
+CLOCK_CHR: dict[str, str] = {"G": "g", "R": "r", "E": "e", "C": "c", "J": "j", "I": "i", "S": "s"}
+_KIND_OF_CHR = {POSITION_CHR: "position", **{c: f"clock-{s}" for s, c in CLOCK_CHR.items()}}
+
+
+def _index(slot: int, step: int) -> int:
+    if not 0 <= slot <= MAX_SLOT:
+        raise ValueError(f"vehicle slot {slot} out of range 0..{MAX_SLOT}")
+    if not 0 <= step <= MAX_STEP:
+        raise ValueError(f"epoch step {step} out of range 0..{MAX_STEP}")
+    return (slot << STEP_BITS) | step
+
+
+def position_key(slot: int, step: int) -> int:
+    return int(gtsam.symbol(POSITION_CHR, _index(slot, step)))
+
+
+def clock_key(slot: int, step: int, system: str) -> int:
+    """Receiver clock of one GNSS system (its own inter-system bias is absorbed here)."""
+    try:
+        c = CLOCK_CHR[system]
+    except KeyError:
+        raise ValueError(f"unknown GNSS system {system!r}; known: {''.join(CLOCK_CHR)}") from None
+    return int(gtsam.symbol(c, _index(slot, step)))
+
+
+def decode_key(key: int) -> tuple[str, int, int]:
+    """(kind, slot, step) of a key made here, e.g. ("clock-G", 3, 120)."""
+    s = gtsam.Symbol(key)
+    kind = _KIND_OF_CHR.get(chr(s.chr()), f"unknown-{chr(s.chr())}")
+    idx = int(s.index())
+    return kind, idx >> STEP_BITS, idx & MAX_STEP
+
+
+class KeyRegistry:
+    """Vehicle id -> slot, assigned in first-seen order and never reused (keys stay unique)."""
+
+    def __init__(self) -> None:
+        self._slots: dict[str, int] = {}
+
+    def slot(self, vehicle_id: str) -> int:
+        s = self._slots.get(vehicle_id)
+        if s is None:
+            s = len(self._slots)
+            if s > MAX_SLOT:
+                raise ValueError("too many distinct vehicle ids for the key space")
+            self._slots[vehicle_id] = s
+        return s
+
+    def vehicle(self, slot: int) -> str | None:
+        for vid, s in self._slots.items():
+            if s == slot:
+                return vid
+        return None
+
+    def __len__(self) -> int:
+        return len(self._slots)

@@ -1,0 +1,356 @@
+"""The sliding window (per-epoch factor blocks) and the three ways to solve a cluster of it.
+
+The window keeps, per epoch, each vehicle's `StateBlock` (its keys, initial values and its own
+factors, built once) and the epoch's range factors; nothing is rebuilt later, so the per-epoch
+Python cost is proportional to what is new, not to the window.
+
+Solvers, one instance per cluster of vehicles (connected by ranges within the window):
+  - `solve_lm_window`: the paper's scheme, stateless: graph = the window's blocks + ranges +
+    anchor priors, Levenberg-Marquardt, gtsam.Marginals for the covariances.
+  - `SmootherCluster`: a gtsam.IncrementalFixedLagSmoother (iSAM2) or gtsam.BatchFixedLagSmoother
+    with lag window_epochs - 1, fed only the new epoch's factors; states leaving the window are
+    marginalised by GTSAM. Created ("rebuilt") from the whole window + anchors when the cluster is
+    new, merges or splits.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.fgo.config import FgoConfig
+from coplane.gtime import GpsTime
+
+Vec = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Link:
+    """A factor from an earlier state of the vehicle (velocity / motion / clock step).
+
+    Kept apart from the block's own factors because it dies with the earlier state: when that
+    state leaves the window, the paper deletes "the old states and their associated factors".
+    """
+
+    prev_step: int
+    kind: str
+    factor: gtsam.NonlinearFactor
+
+
+@dataclass
+class StateBlock:
+    """One vehicle at one epoch: its variables, its own factors and its links to earlier states."""
+
+    vehicle_id: str
+    step: int
+    time: GpsTime
+    pos_key: int
+    clock_keys: dict[str, int]  # GNSS system -> key, systems sorted
+    init_pos: Vec
+    init_clocks: dict[int, float]  # clock key -> seconds
+    graph: gtsam.NonlinearFactorGraph  # factors on this epoch's variables only
+    counts: dict[str, int]  # of `graph`, by kind
+    links: list[Link]
+    n_pseudoranges: int
+    plane_used: bool
+    velocity: Vec | None  # Doppler velocity at this epoch (for the next epoch's displacement)
+    clock_drift_mps: float | None
+    has_fix: bool
+
+    @property
+    def keys(self) -> list[int]:
+        return [self.pos_key, *self.clock_keys.values()]
+
+
+@dataclass
+class RangeEdge:
+    a: str
+    b: str
+    key_a: int
+    key_b: int
+    factor: gtsam.NonlinearFactor
+
+
+@dataclass
+class StepRecord:
+    step: int
+    time: GpsTime
+    blocks: dict[str, StateBlock]
+    ranges: list[RangeEdge]
+
+
+class Window:
+    """The last `window_epochs` epochs: blocks per step and per vehicle, and factor totals."""
+
+    def __init__(self, window_epochs: int) -> None:
+        self.window_epochs = window_epochs
+        self.steps: deque[StepRecord] = deque()
+        self.by_vehicle: dict[str, deque[StateBlock]] = {}
+        self.counts: dict[str, int] = {}  # factors in the window by kind (links to live states)
+        self._links_by_prev: dict[int, dict[str, int]] = {}
+
+    def _count(self, counts: dict[str, int], sign: int) -> None:
+        for k, n in counts.items():
+            self.counts[k] = self.counts.get(k, 0) + sign * n
+
+    def _count_links(self, blk: StateBlock, sign: int) -> None:
+        for ln in blk.links:
+            self.counts[ln.kind] = self.counts.get(ln.kind, 0) + sign
+            by = self._links_by_prev.setdefault(ln.prev_step, {})
+            by[ln.kind] = by.get(ln.kind, 0) + sign
+
+    @property
+    def oldest_step(self) -> int | None:
+        return self.steps[0].step if self.steps else None
+
+    def prune(self, oldest_step: int) -> list[StateBlock]:
+        """Delete steps older than `oldest_step`; returns the removed blocks."""
+        removed: list[StateBlock] = []
+        while self.steps and self.steps[0].step < oldest_step:
+            rec = self.steps.popleft()
+            for vid in sorted(rec.blocks):
+                blk = rec.blocks[vid]
+                dq = self.by_vehicle[vid]
+                assert dq[0] is blk
+                dq.popleft()
+                if not dq:
+                    del self.by_vehicle[vid]
+                self._count(blk.counts, -1)
+                removed.append(blk)
+            self._count({"range": len(rec.ranges)}, -1)
+            self._count(self._links_by_prev.pop(rec.step, {}), -1)  # links into the deleted states
+        return removed
+
+    def push(self, rec: StepRecord) -> None:
+        self.steps.append(rec)
+        for vid in sorted(rec.blocks):
+            blk = rec.blocks[vid]
+            self.by_vehicle.setdefault(vid, deque()).append(blk)
+            self._count(blk.counts, +1)
+            self._count_links(blk, +1)
+        self._count({"range": len(rec.ranges)}, +1)
+
+    def drop_new(self, vehicles: Iterable[str]) -> None:
+        """Remove the newest step's blocks (and their ranges) of `vehicles` after a failed solve."""
+        rec = self.steps[-1]
+        gone = set(vehicles)
+        for vid in sorted(gone):
+            blk = rec.blocks.pop(vid, None)
+            if blk is None:
+                continue
+            dq = self.by_vehicle[vid]
+            assert dq[-1] is blk
+            dq.pop()
+            if not dq:
+                del self.by_vehicle[vid]
+            self._count(blk.counts, -1)
+            self._count_links(blk, -1)
+        kept = [r for r in rec.ranges if r.a not in gone and r.b not in gone]
+        self._count({"range": len(rec.ranges) - len(kept)}, -1)
+        rec.ranges = kept
+
+    def vehicles(self) -> list[str]:
+        return sorted(self.by_vehicle)
+
+    def partition(self, split: bool) -> list[ClusterView]:
+        """Connected components of vehicles linked by ranges in the window, with their content.
+
+        One pass over the window; clusters sorted by their smallest vehicle id, blocks in step then
+        vehicle order, so the same inputs always give the same graphs. `split=False`: one cluster.
+        """
+        vids = sorted(self.by_vehicle)
+        if not vids:
+            return []
+        parent = {v: v for v in vids}
+
+        def find(v: str) -> str:
+            while parent[v] != v:
+                parent[v] = parent[parent[v]]
+                v = parent[v]
+            return v
+
+        if split:
+            for rec in self.steps:
+                for r in rec.ranges:
+                    ra, rb = find(r.a), find(r.b)
+                    if ra != rb:
+                        if rb < ra:
+                            ra, rb = rb, ra
+                        parent[rb] = ra
+        else:
+            for v in vids:
+                parent[v] = vids[0]
+        views: dict[str, ClusterView] = {}
+        for v in vids:
+            root = find(v)
+            views.setdefault(root, ClusterView([], [], [])).vehicles.append(v)
+        for rec in self.steps:
+            for vid in sorted(rec.blocks):
+                views[find(vid)].blocks.append(rec.blocks[vid])
+            for r in rec.ranges:
+                views[find(r.a)].ranges.append(r)
+        return [views[root] for root in sorted(views)]
+
+
+@dataclass
+class ClusterView:
+    """The part of the window that one cluster solves: its vehicles, blocks and ranges."""
+
+    vehicles: list[str]
+    blocks: list[StateBlock]
+    ranges: list[RangeEdge]
+
+
+@dataclass
+class ClusterResult:
+    values: gtsam.Values
+    covariances: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    iterations: int = 0
+    error_before: float = float("nan")
+    error_after: float = float("nan")
+
+
+def lm_params(cfg: FgoConfig) -> gtsam.LevenbergMarquardtParams:
+    p = gtsam.LevenbergMarquardtParams()
+    p.setMaxIterations(cfg.lm_max_iterations)
+    p.setRelativeErrorTol(cfg.lm_relative_error_tol)
+    p.setAbsoluteErrorTol(cfg.lm_absolute_error_tol)
+    return p
+
+
+def build_graph(
+    blocks: Sequence[StateBlock],
+    ranges: Sequence[RangeEdge],
+    extra: Sequence[gtsam.NonlinearFactor],
+    oldest_step: int,
+) -> gtsam.NonlinearFactorGraph:
+    """Priors + blocks (own factors, links to states still in the window) + ranges."""
+    g = gtsam.NonlinearFactorGraph()
+    for f in extra:
+        g.add(f)
+    for b in blocks:
+        g.push_back(b.graph)
+        for ln in b.links:
+            if ln.prev_step >= oldest_step:
+                g.add(ln.factor)
+    for r in ranges:
+        g.add(r.factor)
+    return g
+
+
+def marginal_covariances(
+    marginals: gtsam.Marginals | gtsam.ISAM2, keys: Sequence[int]
+) -> dict[int, NDArray[np.float64]]:
+    """3x3 marginals of `keys`, from one joint query (several times cheaper than one per key)."""
+    joint = marginals.jointMarginalCovariance(list(keys))
+    return {k: np.array(joint.at(k, k), dtype=float) for k in keys}
+
+
+def solve_lm_window(
+    cfg: FgoConfig,
+    blocks: Sequence[StateBlock],
+    ranges: Sequence[RangeEdge],
+    priors: Sequence[gtsam.NonlinearFactor],
+    initial: gtsam.Values,
+    cov_keys: Sequence[int],
+    oldest_step: int,
+) -> ClusterResult:
+    """The paper's window: one LM solve over the cluster's window graph, then its marginals."""
+    graph = build_graph(blocks, ranges, priors, oldest_step)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, lm_params(cfg))
+    before = graph.error(initial)
+    values = opt.optimize()
+    after = graph.error(values)
+    if not np.isfinite(after):
+        raise RuntimeError(f"LM returned a non-finite error {after}")
+    covs = marginal_covariances(gtsam.Marginals(graph, values), cov_keys) if cov_keys else {}
+    return ClusterResult(values, covs, int(opt.iterations()), float(before), float(after))
+
+
+class SmootherCluster:
+    """One cluster's GTSAM fixed-lag smoother (iSAM2 or batch LM), timestamps = epoch steps."""
+
+    def __init__(self, cfg: FgoConfig, vehicles: Iterable[str]) -> None:
+        self.cfg = cfg
+        self.vehicles: set[str] = set(vehicles)
+        self.incremental = cfg.solver == "isam2-fixed-lag"
+        self.smoother: gtsam.IncrementalFixedLagSmoother | gtsam.BatchFixedLagSmoother
+        if self.incremental:
+            p = gtsam.ISAM2Params()
+            p.setRelinearizeThreshold(cfg.isam2_relinearize_threshold)
+            p.relinearizeSkip = 1
+            p.findUnusedFactorSlots = True
+            p.evaluateNonlinearError = True
+            self.smoother = gtsam.IncrementalFixedLagSmoother(cfg.lag, p)
+        else:
+            self.smoother = gtsam.BatchFixedLagSmoother(cfg.lag, lm_params(cfg))
+
+    def update(
+        self,
+        blocks: Sequence[StateBlock],
+        ranges: Sequence[RangeEdge],
+        priors: Sequence[gtsam.NonlinearFactor],
+        initial: gtsam.Values,
+        timestamps: dict[int, float],
+        cov_keys: Sequence[int],
+        oldest_step: int,
+        estimate_keys: Sequence[int],
+        converge: bool = False,
+    ) -> ClusterResult:
+        """Add factors and new variables (the whole window on creation, else one epoch).
+
+        Returns the estimates of `estimate_keys` (the cluster's window states) only: the smoother
+        may still hold states the window already dropped, until its next marginalisation.
+        """
+        graph = build_graph(blocks, ranges, priors, oldest_step)
+        res = self.smoother.update(graph, initial, cast(Any, timestamps))
+        iterations = int(res.getIterations())
+        keys = list(estimate_keys)
+        if self.incremental:
+            for _ in range(self.cfg.isam2_extra_iterations):
+                res = self.smoother.update()
+                iterations += int(res.getIterations())
+            if converge:
+                # iSAM2 makes one Gauss-Newton step per update: from an SPP start (new cluster or
+                # vehicle) iterate until the positions settle, as batch LM would
+                pos_keys = [b.pos_key for b in blocks]
+                before = self.smoother.calculateEstimate(pos_keys)
+                for _ in range(self.cfg.isam2_converge_iterations):
+                    res = self.smoother.update()
+                    iterations += int(res.getIterations())
+                    after = self.smoother.calculateEstimate(pos_keys)
+                    moved = max(
+                        float(np.linalg.norm(after.atPoint3(k) - before.atPoint3(k))) for k in pos_keys
+                    )
+                    before = after
+                    if moved < self.cfg.isam2_converged_m:
+                        break
+        error = float(res.getError())
+        if not np.isfinite(error):
+            raise RuntimeError(f"smoother returned a non-finite error {error}")
+        values = self.smoother.calculateEstimate(keys)
+        covs = self.covariances(cov_keys) if cov_keys else {}
+        return ClusterResult(values, covs, iterations, float("nan"), error)
+
+    def covariances(self, keys: Sequence[int]) -> dict[int, NDArray[np.float64]]:
+        """Marginal covariances: iSAM2 has them in its Bayes tree; batch needs gtsam.Marginals."""
+        sm = self.smoother
+        if isinstance(sm, gtsam.IncrementalFixedLagSmoother):
+            return marginal_covariances(sm.getISAM2(), keys)
+        graph = _non_null(sm.getFactors())
+        return marginal_covariances(gtsam.Marginals(graph, self.smoother.calculateEstimate()), keys)
+
+
+def _non_null(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """The smoother's factor graph without the empty slots left by marginalisation."""
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        if graph.exists(i):
+            out.add(graph.at(i))
+    return out
