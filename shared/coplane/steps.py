@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.fgo.engine import FusionEstimator
 from coplane.fgo.inputs import (
     EpochInput,
     PlaneObs,
@@ -337,7 +336,7 @@ class FusionStep:
         self.fleet = fleet
         self.method = method
         self.config = config or FusionStepConfig()
-        self.estimator = FusionEstimator(method.fgo)
+        self.estimator = method.build_estimator()
         self.seq = 0
 
     def inputs(self, t: GpsTime, messages: Mapping[str, NodeMessage]) -> EpochInput:

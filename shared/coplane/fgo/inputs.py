@@ -7,6 +7,7 @@ message, so the estimator can be fed from the bus, from `coplane eval` or from a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -117,3 +118,13 @@ class FleetSolution:
     # invalid measurements dropped by the estimator, by kind ("pseudorange", "range", ...)
     rejected: dict[str, int] = field(default_factory=dict)
     n_clusters: int = 0  # clusters solved this epoch
+
+
+class Estimator(Protocol):
+    """What the fusion step drives: one fleet epoch in, the fleet's estimates out.
+
+    The factor graph (fgo.engine.FusionEstimator) and the non-FGO baselines implement it, so every
+    method runs through the same VehicleStep/FusionStep, evaluator and services.
+    """
+
+    def step(self, epoch: EpochInput) -> FleetSolution: ...

@@ -17,14 +17,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from coplane.fgo.config import FgoConfig, Solver
-from coplane.fgo.inputs import RangeObs
+from coplane.fgo.inputs import Estimator, RangeObs
 
 PlaneSource = Literal["none", "fleet", "self"]
 INTERRUPTION_BLOCK = 100
@@ -37,6 +37,17 @@ class MethodSpec:
     planes: PlaneSource  # where the per-vehicle step takes the points for its road plane
     plane_fault_exclusion: bool  # plane availability detection + RANSAC FE (paper Sec. 3.2)
     description: str
+    # Estimators that are not this factor graph (EKF, DD-CP, GAMP baselines) plug in here; they
+    # take the same EpochInput and return the same FleetSolution (fgo.inputs.Estimator).
+    estimator_factory: Callable[[MethodSpec], Estimator] | None = None
+
+    def build_estimator(self) -> Estimator:
+        """A fresh estimator for this method (the factor graph unless a factory is given)."""
+        if self.estimator_factory is not None:
+            return self.estimator_factory(self)
+        from coplane.fgo.engine import FusionEstimator
+
+        return FusionEstimator(self.fgo)
 
     def with_solver(self, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
         """The same method on another solver and/or window length."""
