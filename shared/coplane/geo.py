@@ -6,6 +6,8 @@ S, eq. 1) is three lines of trigonometry and is written here because pymap3d doe
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pymap3d as pm
 from numpy.typing import ArrayLike, NDArray
@@ -15,11 +17,49 @@ WGS84_F = 1.0 / 298.257223563
 OMEGA_E_WGS84 = 7.2921151467e-5  # rad/s (GPS); BeiDou's CGCS2000 uses the same value
 
 
+_E2 = WGS84_F * (2.0 - WGS84_F)
+_B = WGS84_A * (1.0 - WGS84_F)
+_EP2 = (WGS84_A**2 - _B**2) / _B**2
+
+
+def _geodetic_scalar(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Heikkinen's closed form (exact to ~1e-9 m near the Earth's surface).
+
+    Written here rather than calling pymap3d because SPP converts a point every iteration of
+    every epoch: pymap3d's generic vectorised path costs ~0.2 ms a call, this ~2 us.
+    """
+    p2 = x * x + y * y
+    p = math.sqrt(p2)
+    if p < 1e-9:  # on the polar axis
+        return (math.copysign(math.pi / 2, z), 0.0, abs(z) - _B)
+    z2 = z * z
+    f = 54.0 * _B * _B * z2
+    g = p2 + (1.0 - _E2) * z2 - _E2 * (WGS84_A**2 - _B**2)
+    c = _E2 * _E2 * f * p2 / (g * g * g)
+    s = (1.0 + c + math.sqrt(c * c + 2.0 * c)) ** (1.0 / 3.0)
+    k = s + 1.0 + 1.0 / s
+    pp = f / (3.0 * k * k * g * g)
+    q = math.sqrt(1.0 + 2.0 * _E2 * _E2 * pp)
+    r0 = -(pp * _E2 * p) / (1.0 + q) + math.sqrt(
+        max(0.5 * WGS84_A**2 * (1.0 + 1.0 / q) - pp * (1.0 - _E2) * z2 / (q * (1.0 + q)) - 0.5 * pp * p2, 0.0)
+    )
+    u = math.sqrt((p - _E2 * r0) ** 2 + z2)
+    v = math.sqrt((p - _E2 * r0) ** 2 + (1.0 - _E2) * z2)
+    z0 = _B * _B * z / (WGS84_A * v)
+    h = u * (1.0 - _B * _B / (WGS84_A * v))
+    lat = math.atan((z + _EP2 * z0) / p)
+    return (lat, math.atan2(y, x), h)
+
+
 def ecef_to_geodetic(xyz: ArrayLike) -> NDArray[np.float64]:
     """ECEF (..., 3) m -> (..., 3) [lat rad, lon rad, ellipsoidal height m]."""
     p = np.asarray(xyz, dtype=float)
+    if p.shape == (3,):
+        return np.array(_geodetic_scalar(float(p[0]), float(p[1]), float(p[2])))
     lat, lon, h = pm.ecef2geodetic(p[..., 0], p[..., 1], p[..., 2], deg=False)
-    return np.stack([np.asarray(lat), np.asarray(lon), np.asarray(h)], axis=-1)
+    # pymap3d hands back 0-d values for length-1 inputs: restore the input's leading shape
+    shape = p.shape[:-1]
+    return np.stack([np.reshape(lat, shape), np.reshape(lon, shape), np.reshape(h, shape)], axis=-1)
 
 
 def geodetic_to_ecef(lat: float, lon: float, h: float) -> NDArray[np.float64]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from scipy.stats import chi2
 Vec = NDArray[np.float64]
 
 
+@functools.lru_cache(maxsize=1024)
 def chi2_threshold(false_alarm_probability: float, dof: int) -> float:
     """Upper chi-square quantile for the global residual test; inf when there is no redundancy."""
     return float(chi2.ppf(1.0 - false_alarm_probability, dof)) if dof > 0 else math.inf

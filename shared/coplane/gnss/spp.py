@@ -22,8 +22,7 @@ from numpy.typing import NDArray
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
-from coplane.gnss.constants import C
-from coplane.gnss.ephemeris import geometric_range
+from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
@@ -98,9 +97,17 @@ class _Fit:
     converged: bool
 
 
-def _predict(
+def sagnac_ranges(sat_pos: Vec, p: Vec) -> tuple[Vec, Vec]:
+    """Vectorised `ephemeris.geometric_range`: ranges with the Sagnac term and unit LOS vectors."""
+    d = sat_pos - p
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    e = d / r[:, None]
+    return r + OMEGA_E_GPS * (sat_pos[:, 0] * p[1] - sat_pos[:, 1] * p[0]) / C, e
+
+
+def _atmosphere(
     m: SatMeasurement,
-    p: Vec,
+    e: Vec,
     t: GpsTime,
     nav: NavData,
     opt: SppOptions,
@@ -108,28 +115,23 @@ def _predict(
     lat: float,
     lon: float,
     h: float,
-    rot: Vec | None,
-) -> tuple[float, Vec, float, float]:
-    """Predicted pseudorange without receiver clock, unit line of sight, elevation, iono delay."""
-    rng, e = geometric_range(m.state.pos, p)
-    pred = rng - C * m.state.clock_s
-    el = math.pi / 2
+    rot: Vec,
+) -> tuple[float, float, float]:
+    """(TGD + iono + tropo in metres, elevation, iono) for one satellite at a surface position."""
+    el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
+    if differential:
+        return 0.0, el, 0.0
+    delay = m.tgd_m
     iono = 0.0
-    if not differential:
-        pred += m.tgd_m
-    if rot is not None:
-        el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
-        if not differential:
-            az = math.atan2(float(rot[0] @ e), float(rot[1] @ e)) % (2 * math.pi)
-            if opt.iono:
-                if opt.iono_model == "rtklib" and m.system == "C" and "G" in nav.iono:
-                    iono = klobuchar_gps_m(t, lat, lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
-                else:
-                    iono = iono_delay_m(m.system, t, lat, lon, az, el, nav)
-            if opt.tropo:
-                pred += saastamoinen_m(lat, h, el)
-            pred += iono
-    return pred, e, el, iono
+    az = math.atan2(float(rot[0] @ e), float(rot[1] @ e)) % (2 * math.pi)
+    if opt.iono:
+        if opt.iono_model == "rtklib" and m.system == "C" and "G" in nav.iono:
+            iono = klobuchar_gps_m(t, lat, lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
+        else:
+            iono = iono_delay_m(m.system, t, lat, lon, az, el, nav)
+    if opt.tropo:
+        delay += saastamoinen_m(lat, h, el)
+    return delay + iono, el, iono
 
 
 # RTKLIB pntpos adds these to its elevation model (rescode): code bias, broadcast-iono and
@@ -137,6 +139,11 @@ def _predict(
 _RTKLIB_ERR_CBIAS_M = 0.3
 _RTKLIB_ERR_BRDCI = 0.5
 _RTKLIB_ERR_SAAS_M = 0.3
+
+# Atmosphere and weights are re-evaluated only when the position moved more than this since the
+# last evaluation: their sensitivity to position is millimetres per kilometre, and evaluating them
+# every Gauss-Newton iteration for every satellite was most of SPP's cost.
+_ATMOSPHERE_REFRESH_M = 1000.0
 
 
 def _sigma(m: SatMeasurement, el: float, iono: float, opt: SppOptions, differential: bool) -> float:
@@ -162,73 +169,69 @@ def _solve(
     """Gauss-Newton on position + one clock per system present; None when under-determined."""
     systems = sorted({m.system for m in sats})
     nx = 3 + len(systems)
+    n = len(sats)
+    sat_pos = np.array([m.state.pos for m in sats])
+    sat_clk_m = C * np.array([m.state.clock_s for m in sats])
+    sys_col = np.array([3 + systems.index(m.system) for m in sats])
     x = np.zeros(nx)
     if x0 is not None:
         x[:3] = x0[:3]
     mask = math.radians(opt.elevation_mask_deg)
-    active = list(range(len(sats)))
-    v: Vec = np.zeros(0)
-    a: Vec = np.zeros((0, nx))
-    sig: Vec = np.zeros(0)
+    # before the position is near the surface: no atmosphere, no mask, zenith weights (RTKLIB)
+    delay = np.array([0.0 if differential else m.tgd_m for m in sats])
+    el = np.full(n, math.pi / 2)
+    sig = np.array([_sigma(m, math.pi / 2, 0.0, opt, differential) for m in sats])
+    atm_at: Vec | None = None
+    keep = np.ones(n, dtype=bool)
     converged = False
     it = 0
+
+    def refresh(p: Vec) -> None:
+        nonlocal atm_at
+        lat, lon, h = ecef_to_geodetic(p)
+        rot = enu_rotation(lat, lon)
+        _, e = sagnac_ranges(sat_pos, p)
+        for i, m in enumerate(sats):
+            delay[i], el[i], iono = _atmosphere(m, e[i], t, nav, opt, differential, lat, lon, h, rot)
+            sig[i] = _sigma(m, el[i], iono, opt, differential)
+        atm_at = p.copy()
+
     while it < opt.max_iterations:
         it += 1
         p = x[:3]
-        rot: Vec | None = None
-        lat = lon = h = 0.0
-        if float(p @ p) > 6.0e6**2:  # only once near the Earth's surface are el/atmosphere meaningful
-            lat, lon, h = ecef_to_geodetic(p)
-            rot = enu_rotation(lat, lon)
-        rows, res, sg, keep = [], [], [], []
-        for i, m in enumerate(sats):
-            pred, e, el, iono = _predict(m, p, t, nav, opt, differential, lat, lon, h, rot)
-            if rot is not None and el < mask:
-                continue
-            row = np.zeros(nx)
-            row[:3] = -e
-            k = systems.index(m.system)
-            row[3 + k] = 1.0
-            rows.append(row)
-            res.append(y[i] - (pred + x[3 + k]))
-            sg.append(_sigma(m, el, iono, opt, differential))
-            keep.append(i)
-        present = sorted({sats[i].system for i in keep})
-        a = np.array(rows).reshape(-1, nx)
-        # drop clock columns of systems that lost all their satellites to the mask
+        near_surface = float(p @ p) > 6.0e6**2
+        if near_surface and (atm_at is None or float(np.linalg.norm(p - atm_at)) > _ATMOSPHERE_REFRESH_M):
+            refresh(p)
+        rng, e = sagnac_ranges(sat_pos, p)
+        keep = el >= mask if near_surface else np.ones(n, dtype=bool)
+        present = sorted({sats[i].system for i in np.flatnonzero(keep)})
         cols = [0, 1, 2] + [3 + systems.index(s) for s in present]
-        a = a[:, cols]
-        if len(keep) < len(cols):
+        if int(keep.sum()) < len(cols):
             return None
-        v, sig = np.array(res), np.array(sg)
-        w = 1.0 / sig
-        dx, *_ = np.linalg.lstsq(a * w[:, None], v * w, rcond=None)
-        full = np.zeros(nx)
-        full[cols] = dx
-        x += full
-        active = keep
+        pred = rng - sat_clk_m + delay
+        v = y - (pred + x[sys_col])
+        a = np.zeros((n, nx))
+        a[:, :3] = -e
+        a[np.arange(n), sys_col] = 1.0
+        w = 1.0 / sig[keep]
+        dx, *_ = np.linalg.lstsq(a[keep][:, cols] * w[:, None], v[keep] * w, rcond=None)
+        x[cols] += dx
         if float(np.linalg.norm(dx[:3])) < opt.convergence_m:
             converged = True
             break
-    # residuals at the final state
-    p = x[:3]
-    lat, lon, h = ecef_to_geodetic(p)
-    rot = enu_rotation(lat, lon)
-    final_sats = [sats[i] for i in active]
+    # residuals and weights at the final state, with the atmosphere evaluated there
+    p = x[:3].copy()
+    refresh(p)
+    rng, e = sagnac_ranges(sat_pos, p)
+    idx = np.flatnonzero(keep)
+    final_sats = [sats[i] for i in idx]
     systems_f = sorted({m.system for m in final_sats})
-    nxf = 3 + len(systems_f)
-    a = np.zeros((len(final_sats), nxf))
-    v = np.zeros(len(final_sats))
-    sig = np.zeros(len(final_sats))
-    for j, i in enumerate(active):
-        m = sats[i]
-        pred, e, el, iono = _predict(m, p, t, nav, opt, differential, lat, lon, h, rot)
-        a[j, :3] = -e
-        a[j, 3 + systems_f.index(m.system)] = 1.0
-        v[j] = y[i] - (pred + x[3 + systems.index(m.system)])
-        sig[j] = _sigma(m, el, iono, opt, differential)
+    a = np.zeros((len(idx), 3 + len(systems_f)))
+    a[:, :3] = -e[idx]
+    a[np.arange(len(idx)), [3 + systems_f.index(m.system) for m in final_sats]] = 1.0
+    v = y[idx] - (rng[idx] - sat_clk_m[idx] + delay[idx] + x[sys_col[idx]])
     xf = np.concatenate([x[:3], [x[3 + systems.index(s)] for s in systems_f]])
-    return _Fit(xf, systems_f, final_sats, v, sig, a, it, converged)
+    return _Fit(xf, systems_f, final_sats, v, sig[idx].copy(), a, it, converged)
 
 
 def _dops(a: Vec, p: Vec) -> Dops:
