@@ -114,7 +114,8 @@ class PlaneReport(_Model):
     normal: tuple[float, float, float] | None = None  # unit, upward, ECEF
     d_antenna_m: float | None = None
     d_road_m: float | None = None
-    sigma_m: float | None = Field(default=None, gt=0.0, le=100.0)
+    sigma_m: float | None = Field(default=None, gt=0.0, le=100.0)  # what the factor uses
+    offset_sigma_m: float | None = Field(default=None, ge=0.0, le=100.0)  # from the points' own sigma
     residual_max_m: float | None = Field(default=None, ge=0.0)
     residual_rms_m: float | None = Field(default=None, ge=0.0)
     n_points_initial: int = Field(default=0, ge=0, le=100000)
@@ -178,6 +179,7 @@ class PlaneSummary(_Model):
     residual_max_m: float | None = None
     residual_rms_m: float | None = None
     sigma_m: float | None = None
+    offset_sigma_m: float | None = None
     n_points_initial: int = 0
     n_points_used: int = 0
 

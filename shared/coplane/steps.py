@@ -27,7 +27,7 @@ from coplane.fgo.inputs import (
     VelocityObs,
 )
 from coplane.fgo.methods import MethodSpec, interrupt_range
-from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.geo import ecef_to_geodetic, enu_rotation, up_vector
 from coplane.gnss.atmosphere import iono_delay_m, saastamoinen_m
 from coplane.gnss.constants import C
 from coplane.gnss.dgnss import DgnssCorrections
@@ -48,7 +48,7 @@ from coplane.messages import (
     VelocityReport,
 )
 from coplane.plane.config import PlaneConfig
-from coplane.plane.detect import PlaneStatus, RoadPlane, construct_plane
+from coplane.plane.detect import PlaneStatus, RoadPlane, construct_plane, offset_sigma_m
 from coplane.plane.history import PositionHistory
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
 
@@ -139,6 +139,7 @@ class VehicleStep:
                 t.seconds,
                 [v.position_ecef_m for v in states],
                 [v.antenna_height_m for v in states],
+                [_sigma_up(v) for v in states],
             )
         for v in states:
             if v.vehicle_id == self.vehicle_id:
@@ -279,12 +280,22 @@ class VehicleStep:
             return PlaneReport(status="unavailable", reason="no position to centre the fitting region")
         rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
         only = {self.vehicle_id} if self.method.planes == "self" else None
-        pts = self.history.select(centre, t.seconds, rng, vehicle_ids=only)
-        plane = construct_plane(pts, self.antenna_height_m, self.plane_config, rng)
-        return plane_report(plane)
+        sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only)
+        plane = construct_plane(sample.points, self.antenna_height_m, self.plane_config, rng)
+        return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids))
 
 
-def plane_report(p: RoadPlane) -> PlaneReport:
+def _sigma_up(v: VehicleState) -> float:
+    """Vertical 1-sigma of a solved position (from its ECEF covariance), NaN when not given."""
+    if v.covariance_m2 is None:
+        return math.nan
+    up = up_vector(np.asarray(v.position_ecef_m))
+    var = float(up @ np.asarray(v.covariance_m2).reshape(3, 3) @ up)
+    return math.sqrt(var) if var > 0 else math.nan
+
+
+def plane_report(p: RoadPlane, offset_sigma: float = 0.0) -> PlaneReport:
+    """The wire form of a plane; the factor's sigma adds the offset uncertainty to the fit residual."""
     if p.status == PlaneStatus.UNAVAILABLE:
         return PlaneReport(
             status="unavailable",
@@ -299,7 +310,8 @@ def plane_report(p: RoadPlane) -> PlaneReport:
         normal=_tuple3(p.normal),
         d_antenna_m=float(p.d_antenna),
         d_road_m=float(p.d_road),
-        sigma_m=float(p.sigma_m),
+        sigma_m=float(math.hypot(p.sigma_m, offset_sigma)),
+        offset_sigma_m=float(offset_sigma),
         residual_max_m=float(p.residual_max_m),
         residual_rms_m=float(p.residual_rms_m),
         n_points_initial=p.n_points_initial,
@@ -317,6 +329,7 @@ def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
         residual_max_m=p.residual_max_m,
         residual_rms_m=p.residual_rms_m,
         sigma_m=p.sigma_m,
+        offset_sigma_m=p.offset_sigma_m,
         n_points_initial=p.n_points_initial,
         n_points_used=p.n_points_used,
     )

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -351,3 +353,21 @@ def build_plane(
 ) -> RoadPlane:
     """Function form of `PlaneBuilder.build`."""
     return PlaneBuilder(history, config).build(spp_ecef, antenna_height_m, time_s, rng, vehicle_ids)
+
+
+def offset_sigma_m(sigmas_up_m: ArrayLike, vehicle_ids: Sequence[str]) -> float:
+    """Uncertainty of a plane's offset from the uncertainty of the positions it was fitted to.
+
+    The fit residual (RoadPlane.sigma_m) only measures how well the points agree with each other;
+    if all of them sit 1 m too high, the plane does too and says nothing. The offset inherits the
+    points' vertical errors, averaged over what is independent: a vehicle's consecutive solved
+    positions share most of their error (multipath and NLOS are correlated over seconds), so the
+    averaging counts distinct vehicles, not points:  sigma_off^2 = mean(sigma_up_i^2) / n_vehicles.
+    Points with unknown sigma (NaN) are ignored; with none known the result is 0.
+    """
+    s = np.asarray(sigmas_up_m, dtype=float)
+    ok = np.isfinite(s)
+    if not ok.any():
+        return 0.0
+    n_veh = max(1, len({v for v, k in zip(vehicle_ids, ok, strict=True) if k}))
+    return float(math.sqrt(float(np.mean(s[ok] ** 2)) / n_veh))

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -62,7 +62,7 @@ def project_many_to_road(ecef: ArrayLike, antenna_heights_m: ArrayLike) -> Vec:
 class _Bucket:
     """Growable column arrays of the points of one cell, in insertion order (serials increase)."""
 
-    __slots__ = ("alive", "n", "n_alive", "serial", "t", "tkey", "vid", "xyz")
+    __slots__ = ("alive", "n", "n_alive", "serial", "sig", "t", "tkey", "vid", "xyz")
 
     def __init__(self, capacity: int = 8) -> None:
         self.t = np.empty(capacity)
@@ -70,15 +70,16 @@ class _Bucket:
         self.vid = np.empty(capacity, dtype=np.int32)
         self.serial = np.empty(capacity, dtype=np.int64)
         self.xyz = np.empty((capacity, 3))
+        self.sig = np.empty(capacity)  # vertical 1-sigma of the solved position (NaN: unknown)
         self.alive = np.zeros(capacity, dtype=bool)
         self.n = 0
         self.n_alive = 0
 
-    def append(self, t: float, tkey: int, vid: int, serial: int, xyz: Vec) -> None:
+    def append(self, t: float, tkey: int, vid: int, serial: int, xyz: Vec, sig: float = math.nan) -> None:
         if self.n == self.t.shape[0]:
             self._resize(max(8, 2 * self.n))
         i = self.n
-        self.t[i], self.tkey[i], self.vid[i], self.serial[i] = t, tkey, vid, serial
+        self.t[i], self.tkey[i], self.vid[i], self.serial[i], self.sig[i] = t, tkey, vid, serial, sig
         self.xyz[i] = xyz
         self.alive[i] = True
         self.n += 1
@@ -94,7 +95,7 @@ class _Bucket:
         """Compact to the rows where `mask` (length n) is true; order (and serial order) is kept."""
         idx = np.flatnonzero(mask[: self.n])
         k = idx.shape[0]
-        for name in ("t", "tkey", "vid", "serial", "xyz", "alive"):
+        for name in ("t", "tkey", "vid", "serial", "xyz", "sig", "alive"):
             arr = getattr(self, name)
             arr[:k] = arr[idx]
         self.n = k
@@ -103,7 +104,7 @@ class _Bucket:
             self._resize(max(8, 2 * k))
 
     def _resize(self, capacity: int) -> None:
-        for name in ("t", "tkey", "vid", "serial", "xyz", "alive"):
+        for name in ("t", "tkey", "vid", "serial", "xyz", "sig", "alive"):
             old = getattr(self, name)
             new = np.zeros((capacity, *old.shape[1:]), dtype=old.dtype)
             new[: self.n] = old[: self.n]
@@ -118,6 +119,7 @@ class HistorySample:
     times_s: Vec  # (N,)
     vehicle_ids: tuple[str, ...]
     n_candidates: int  # points in range before the down-selection to n_max
+    sigmas_up_m: Vec = field(default_factory=lambda: np.empty(0))  # (N,) vertical 1-sigma, NaN unknown
 
 
 class PositionHistory:
@@ -138,14 +140,21 @@ class PositionHistory:
         self._rank: NDArray[np.int64] | None = None  # sort rank of each vehicle index by id
 
     # -- writing -----------------------------------------------------------------------------
-    def add(self, vehicle_id: str, time_s: float, ecef: ArrayLike, antenna_height_m: float) -> None:
+    def add(
+        self,
+        vehicle_id: str,
+        time_s: float,
+        ecef: ArrayLike,
+        antenna_height_m: float,
+        sigma_up_m: float = math.nan,
+    ) -> None:
         """Store a solved antenna position of `vehicle_id` at `time_s`, projected to the road (eq. 1).
 
         A second position of the same vehicle at the same epoch replaces the first (a fixed-lag
         smoother re-estimates past epochs). Implausible input raises ValueError.
         """
         p = self._check(vehicle_id, time_s, ecef, antenna_height_m)
-        self._insert(vehicle_id, float(time_s), project_to_road(p, antenna_height_m))
+        self._insert(vehicle_id, float(time_s), project_to_road(p, antenna_height_m), sigma_up_m)
 
     def add_many(
         self,
@@ -153,6 +162,7 @@ class PositionHistory:
         times_s: ArrayLike,
         ecef: ArrayLike,
         antenna_heights_m: ArrayLike,
+        sigmas_up_m: ArrayLike | None = None,
     ) -> None:
         """`add` for many positions (e.g. one fleet solution) with one vectorised projection."""
         vids = list(vehicle_ids)
@@ -164,8 +174,9 @@ class PositionHistory:
         for i, vid in enumerate(vids):
             self._check(vid, float(t[i]), p[i], float(h[i]))
         road = project_many_to_road(p, h)
+        sig = np.full(p.shape[0], math.nan) if sigmas_up_m is None else np.asarray(sigmas_up_m, dtype=float)
         for i, vid in enumerate(vids):
-            self._insert(vid, float(t[i]), road[i])
+            self._insert(vid, float(t[i]), road[i], float(sig[i]))
 
     def prune(self, now_s: float | None = None) -> int:
         """Drop points older than `now_s - max_history_s` (default: newest time seen); returns count."""
@@ -241,7 +252,7 @@ class PositionHistory:
                 [self._vid_index[v] for v in set(vehicle_ids) if v in self._vid_index], dtype=np.int32
             )
         r = cfg.range_fitting_m
-        pts, ts, vs = [], [], []
+        pts, ts, vs, ss = [], [], [], []
         for b in self._buckets_near(c, r):
             n = b.n
             m = b.alive[:n] & (b.t[:n] < t_hi) & (b.t[:n] >= t_lo)
@@ -257,11 +268,13 @@ class PositionHistory:
                 pts.append(b.xyz[idx])
                 ts.append(b.t[idx])
                 vs.append(b.vid[idx])
+                ss.append(b.sig[idx])
         if not pts:
             return HistorySample(np.empty((0, 3)), np.empty(0), (), 0)
         p = np.concatenate(pts)
         t = np.concatenate(ts)
         v = np.concatenate(vs)
+        sg = np.concatenate(ss)
         rank = self._vehicle_rank()
         order = np.lexsort((rank[v], t))  # by time, then vehicle id: independent of storage order
         n_cand = order.shape[0]
@@ -272,6 +285,7 @@ class PositionHistory:
             times_s=t[order].copy(),
             vehicle_ids=tuple(self._vids[i] for i in v[order]),
             n_candidates=n_cand,
+            sigmas_up_m=sg[order].copy(),
         )
 
     # -- internals ---------------------------------------------------------------------------
@@ -290,7 +304,7 @@ class PositionHistory:
             raise ValueError(f"antenna height of {vehicle_id} must be in [0, 10] m, got {antenna_height_m!r}")
         return p
 
-    def _insert(self, vehicle_id: str, time_s: float, road: Vec) -> None:
+    def _insert(self, vehicle_id: str, time_s: float, road: Vec, sigma_up_m: float = math.nan) -> None:
         cfg = self.config
         vid = self._vid_index.get(vehicle_id)
         if vid is None:
@@ -308,7 +322,7 @@ class PositionHistory:
             b = self._cells[key] = _Bucket()
         serial = self._serial
         self._serial += 1
-        b.append(time_s, tkey, vid, serial, road)
+        b.append(time_s, tkey, vid, serial, road, sigma_up_m)
         self._where[(vid, tkey)] = (key, serial)
         if b.n_alive > cfg.max_points_per_cell + cfg.max_points_per_cell // 4:
             self._cap(key, b)
