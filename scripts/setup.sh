@@ -14,3 +14,5 @@ if ! command -v docker-compose >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e '.[dev]'
+# Headless Chromium for the dashboard test (tests/test_api_dashboard.py); Debian package, needs root.
+if ! command -v chromium >/dev/null; then (apt-get update -qq && apt-get install -y -qq chromium) || echo "could not install chromium"; fi

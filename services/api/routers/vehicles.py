@@ -1,0 +1,75 @@
+"""Vehicles: latest state per vehicle and its bounded track (JSON or GeoJSON)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, HTTPException, Path, Query, Request
+from fastapi.responses import JSONResponse, Response
+
+from ..models import Track, VehicleDetail, VehicleList
+from . import fleet_state, now, problems
+
+router = APIRouter(tags=["vehicles"])
+
+VehicleIdPath = Annotated[str, Path(pattern=r"^[A-Za-z0-9_-]{1,32}$", description="Vehicle id as on the bus")]
+GEOJSON = "application/geo+json"
+
+
+def _unknown(vid: str) -> HTTPException:
+    return HTTPException(404, f"vehicle {vid!r} is not known to this API")
+
+
+@router.get("/vehicles", response_model=VehicleList, summary="Latest state of every vehicle")
+async def list_vehicles(request: Request) -> VehicleList:
+    return fleet_state(request).vehicle_list(now(request))
+
+
+@router.get(
+    "/vehicles/{vehicle_id}",
+    response_model=VehicleDetail,
+    responses=problems(404, 422),
+    summary="Latest state of one vehicle with covariance, plane and message counters",
+)
+async def get_vehicle(vehicle_id: VehicleIdPath, request: Request) -> VehicleDetail:
+    out = fleet_state(request).vehicle_detail(vehicle_id, now(request))
+    if out is None:
+        raise _unknown(vehicle_id)
+    return out
+
+
+@router.get(
+    "/vehicles/{vehicle_id}/track",
+    response_model=Track,
+    responses={
+        200: {
+            "description": "The track; `format=geojson` gives a GeoJSON FeatureCollection",
+            "content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/GeoJsonFeatureCollection"}}},
+        },
+        **problems(404, 422),
+    },
+    summary="Recent positions of one vehicle (bounded history)",
+)
+async def get_track(
+    vehicle_id: VehicleIdPath,
+    request: Request,
+    since: Annotated[
+        float | None,
+        Query(
+            allow_inf_nan=False,
+            description="Only points after this GPS time (seconds since the GPS epoch: week*604800+tow)",
+        ),
+    ] = None,
+    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+    format: Annotated[Literal["json", "geojson"], Query(description="json or geojson")] = "json",
+) -> Response | Track:
+    st = fleet_state(request)
+    if format == "geojson":
+        fc = st.track_geojson(vehicle_id, since, limit)
+        if fc is None:
+            raise _unknown(vehicle_id)
+        return JSONResponse(fc.model_dump(mode="json"), media_type=GEOJSON)
+    tr = st.track(vehicle_id, since, limit)
+    if tr is None:
+        raise _unknown(vehicle_id)
+    return tr
