@@ -20,7 +20,7 @@ def test_geodetic_round_trip_matches_pymap3d(lat_deg: float, lon_deg: float, h: 
 
 
 def test_poles_and_vectorised_path() -> None:
-    lat, lon, h = ecef_to_geodetic([0.0, 0.0, 6356752.314245 + 10.0])
+    lat, _, h = ecef_to_geodetic([0.0, 0.0, 6356752.314245 + 10.0])
     assert abs(lat - np.pi / 2) < 1e-12 and abs(h - 10.0) < 1e-6
     pts = np.array([geodetic_to_ecef(0.3, 1.1, 50.0), geodetic_to_ecef(-0.7, -2.0, 5.0)])
     out = ecef_to_geodetic(pts)

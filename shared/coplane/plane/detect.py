@@ -22,11 +22,10 @@ min_sigma_m: the paper sets Sigma_PC "by the size of residual in plane fitting" 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
-
-from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
