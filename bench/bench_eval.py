@@ -1,0 +1,61 @@
+"""`coplane eval` cost on the bundled recording: wall time per method and per-epoch solve time.
+
+Issue 4's target: the bundled 4-vehicle, 600-epoch recording evaluates in under 10 s per method
+on this 2-core machine. Median of `--repeats` runs (recording already loaded, as in `coplane eval`
+after the first method), printed as a Markdown table for docs/performance.md.
+
+    .venv/bin/python bench/bench_eval.py --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import time
+
+import numpy as np
+
+from coplane.evaluate.runner import run_method
+from coplane.recording.reader import open_recording
+from coplane.sim.generate import bundled_default_path
+
+METHODS = ["non-cp", "mci", "pc", "pc-no-ir", "pc-no-ir-no-fe", "pc-self"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--methods", default=",".join(METHODS))
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    rec = open_recording(bundled_default_path())
+    for v in rec.manifest.vehicles:
+        rec.vehicle_epochs(v.id)
+    _ = rec.nav, rec.base_epochs(), rec.uwb()
+    load_s = time.perf_counter() - t0
+    rows = []
+    for m in args.methods.split(","):
+        walls, solves = [], []
+        for _ in range(args.repeats):
+            run = run_method(rec, m)
+            walls.append(run.wall_time_s)
+            solves.extend(run.solve_times_s)
+        s = np.array(solves) * 1000
+        rows.append(
+            f"| {m} | {run.n_epochs} | {np.median(walls):.1f} | {min(walls):.1f} | "
+            f"{np.median(s):.1f} | {np.percentile(s, 99):.1f} | {'yes' if np.median(walls) < 10 else 'no'} |"
+        )
+        print(rows[-1], flush=True)
+    print(
+        f"\n## coplane eval on the bundled recording (bench/bench_eval.py, {dt.date.today()}, 2 cores)\n\n"
+        f"4 vehicles x 600 epochs, DGNSS, LM window of 5 epochs, Huber. Loading the recording: "
+        f"{load_s:.1f} s (once). Wall time per method = every vehicle's SPP, Doppler, plane and node "
+        f"message plus the fusion solve, median of {args.repeats} runs.\n\n"
+        "| method | epochs | wall s (median) | wall s (min) | solve ms/epoch (median) | solve ms p99 | < 10 s |\n"
+        "|---|---|---|---|---|---|---|"
+    )
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
