@@ -18,7 +18,15 @@ from coplane.sim.generate import bundled_default_path
 
 pytestmark = pytest.mark.slow
 
-RUNS = [("non-cp", 0.0), ("mci", 0.0), ("pc", 0.0), ("pc-no-ir", 0.0), ("pc-no-ir-no-fe", 0.0), ("mci", 1.0), ("pc", 1.0)]
+RUNS = [
+    ("non-cp", 0.0),
+    ("mci", 0.0),
+    ("pc", 0.0),
+    ("pc-no-ir", 0.0),
+    ("pc-no-ir-no-fe", 0.0),
+    ("mci", 1.0),
+    ("pc", 1.0),
+]
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +77,11 @@ def test_planes_beat_ranging_most_in_the_vertical(stats: dict) -> None:
 
 
 def test_planes_alone_beat_standalone_and_fault_exclusion_matters(stats: dict) -> None:
-    v_non, v_pcnoir, v_nofe = _v(stats, ("non-cp", 0.0)), _v(stats, ("pc-no-ir", 0.0)), _v(stats, ("pc-no-ir-no-fe", 0.0))
+    v_non, v_pcnoir, v_nofe = (
+        _v(stats, ("non-cp", 0.0)),
+        _v(stats, ("pc-no-ir", 0.0)),
+        _v(stats, ("pc-no-ir-no-fe", 0.0)),
+    )
     h_non, h_pcnoir = _h(stats, ("non-cp", 0.0)), _h(stats, ("pc-no-ir", 0.0))
     for vid in v_non:
         assert v_pcnoir[vid] < 0.95 * v_non[vid], vid
