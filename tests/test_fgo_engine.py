@@ -531,7 +531,18 @@ def test_pseudorange_obs_model_matches_the_estimate() -> None:
 
 
 def test_methods_registry() -> None:
-    assert list(METHODS) == ["non-cp", "mci", "pc", "pc-no-ir", "pc-no-ir-no-fe", "pc-self"]
+    assert list(METHODS) == [
+        "non-cp",
+        "mci",
+        "pc",
+        "pc-no-ir",
+        "pc-no-ir-no-fe",
+        "pc-self",
+        "non-cp-ekf",
+        "dd-cp",
+        "gamp-cp",
+    ]
+    assert all(METHODS[m].estimator_factory is not None for m in ("non-cp-ekf", "dd-cp", "gamp-cp"))
     pc = get_method("pc")
     assert pc.fgo.use_ranging and pc.fgo.use_planes and pc.planes == "fleet" and pc.plane_fault_exclusion
     assert not get_method("non-cp").fgo.use_planes and not get_method("non-cp").fgo.use_ranging

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,12 +16,15 @@ from coplane.evaluate.runner import MethodRun, run_method
 from coplane.fgo.methods import get_method
 from coplane.recording.reader import Recording
 
+RTKLIB_METHOD = "rtklib"  # coplane.baselines.rtklib_row; imported only when asked for
+
 
 @dataclass
 class Evaluation:
     runs: list[MethodRun] = field(default_factory=list)
     stats: dict[str, dict[str, AccuracyStats]] = field(default_factory=dict)  # label -> vehicle -> stats
     figures: list[Path] = field(default_factory=list)
+    notes: dict[str, str] = field(default_factory=dict)  # method -> remark (e.g. the rtklib row skipped)
 
 
 def evaluate(
@@ -34,9 +38,20 @@ def evaluate(
     progress: bool = False,
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
-    specs = [get_method(m) for m in methods]  # validates names before any work
+    specs = [None if m == RTKLIB_METHOD else get_method(m) for m in methods]  # validate names first
     ev = Evaluation()
     for spec in specs:
+        if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
+            from coplane.baselines.rtklib_row import evaluation_row
+
+            rtk_run, ev.notes[RTKLIB_METHOD] = evaluation_row(rec, dgnss)
+            print(ev.notes[RTKLIB_METHOD], file=sys.stderr)
+            if rtk_run is not None:
+                ev.runs.append(rtk_run)
+                ev.stats[rtk_run.label] = run_stats(rtk_run, rec)
+                if out_dir is not None:
+                    write_solutions(rtk_run, out_dir)
+            continue
         for rate in sorted(set(rates) | {0.0}):
             if rate > 0 and not spec.fgo.use_ranging:
                 continue
@@ -52,6 +67,7 @@ def evaluate(
             shown,
             out_dir,
             extra={
+                "notes": ev.notes,
                 "timing": {
                     r.label: {
                         "wall_s": r.wall_time_s,
@@ -59,7 +75,7 @@ def evaluate(
                         "solve_median_s": float(np.median(r.solve_times_s)) if r.solve_times_s else None,
                     }
                     for r in ev.runs
-                }
+                },
             },
         )
         ev.figures = write_figures(ev, rec, shown, out_dir)

@@ -23,9 +23,9 @@ from typing import Literal
 
 import numpy as np
 
+from coplane.baselines import DdCpEkf, GampCp, NonCpEkf, gamp_config
 from coplane.fgo.config import FgoConfig, Solver
 from coplane.fgo.inputs import Estimator, RangeObs
-from coplane.baselines import DdCpEkf, GampCp, NonCpEkf, gamp_config
 
 PlaneSource = Literal["none", "fleet", "self"]
 INTERRUPTION_BLOCK = 100
@@ -135,7 +135,7 @@ METHODS: dict[str, MethodSpec] = {
             _cfg(ranging=True, planes=False),
             "none",
             False,
-            "GAMP CP: per-vehicle EKF beliefs + damped GAMP message passing over the UWB ranging graph.",
+            "GAMP CP: damped GAMP over pseudoranges + UWB ranges; priors from each vehicle's EKF prediction.",
             estimator_factory=lambda spec: GampCp(gamp_config(spec.fgo)),
         ),
     )

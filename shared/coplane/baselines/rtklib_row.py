@@ -1,0 +1,226 @@
+"""The RTKLIB reference row of `coplane eval` (method name "rtklib"): the standard tool beside ours.
+
+RTKLIB 2.4.3 b34 (through pyrtklib, an optional dependency in the dev extra) post-processes each
+vehicle's RINEX observation file of the recording directly with `postpos`, the engine of
+rnx2rtkp/RTKPOST. It does not go through the node messages: it is RTKLIB's own SPP (broadcast
+ephemeris, Klobuchar, Saastamoinen, its elevation weighting and chi-square/RAIM checks) on the same
+raw data, so every Table I shows what the standard tool gets on that recording.
+
+Mode: DGPS (code-differential kinematic against the recording's base at its known position) when
+DGNSS is on, else single. RTKLIB's relative modes, DGPS included, only use a pseudorange whose
+carrier phase is also present (rtkpos.c `validobs`: "if no phase observable, pseudorange is also
+unusable"); the simulated recordings carry no carrier phase, so with them DGPS yields no
+solution and `outsingle` makes RTKLIB output its single-point solution instead. The solutions'
+quality flags are counted (`RtklibResult.quality`) and the note says which mode was really used.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from coplane.evaluate.runner import MethodRun, lockstep_schedule
+from coplane.gtime import GpsTime
+from coplane.recording.reader import Recording
+
+RTKLIB_METHOD = "rtklib"
+QUALITY_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "ppp"}
+
+# prcopt_t fields copied from RTKLIB's prcopt_default (a fresh prcopt_t from pyrtklib is all zeros,
+# which would e.g. reject every innovation with maxinno = 0)
+_PRCOPT_SCALARS = (
+    "armaxiter", "bdsmodear", "codesmooth", "dynamics", "elmaskar", "elmaskhold", "elmin", "freqopt",
+    "glomodear", "initrst", "intpref", "ionoopt", "maxaveep", "maxgdop", "maxinno", "maxout",
+    "maxtdiff", "minfix", "minlock", "mode", "modear", "navsys", "nf", "niter", "outsingle", "refpos",
+    "rovpos", "sateph", "sbascorr", "sbassatsel", "sclkstab", "soltype", "syncsol", "thresslip",
+    "tidecorr", "tropopt",
+)  # fmt: skip
+_PRCOPT_ARRAYS = {"eratio": 3, "err": 5, "prn": 6, "std": 3, "thresar": 6}
+_SOLOPT_SCALARS = (
+    "datum", "degf", "geoid", "height", "maxsolstd", "outhead", "outopt", "outvel", "posf", "solstatic",
+    "sstat", "timef", "times", "timeu", "trace",
+)  # fmt: skip
+
+
+def rtklib_unavailable() -> str | None:
+    """Why the RTKLIB row cannot run here (pyrtklib missing), or None when it can."""
+    try:
+        import pyrtklib  # noqa: F401
+    except ImportError as exc:
+        return f"pyrtklib is not importable ({exc}); install the dev extra (pip install -e '.[dev]') for the RTKLIB row"
+    return None
+
+
+@dataclass
+class RtklibResult:
+    run: MethodRun
+    mode: str  # what was asked: "dgps" or "single"
+    quality: dict[str, Counter[str]] = field(default_factory=dict)  # per vehicle: solutions by RTKLIB Q
+    failures: dict[str, str] = field(default_factory=dict)  # vehicle -> why RTKLIB gave nothing
+
+    @property
+    def note(self) -> str:
+        """One line for the console and accuracy.json: the mode asked and the solutions obtained."""
+        total: Counter[str] = Counter()
+        for q in self.quality.values():
+            total.update(q)
+        got = ", ".join(f"{n} {k}" for k, n in sorted(total.items())) or "no solutions"
+        text = f"RTKLIB {self.mode} (pyrtklib postpos): {got}"
+        if self.mode == "dgps" and not total.get("dgps"):
+            text += " (no DGPS solution: RTKLIB 2.4.3 uses code only with carrier phase; single-point output)"
+        if self.failures:
+            text += "; failed: " + ", ".join(f"{v}: {r}" for v, r in sorted(self.failures.items()))
+        return text
+
+
+def _options(rec: Recording, dgps: bool, elevation_mask_deg: float) -> tuple[object, object]:
+    import pyrtklib as rtk
+
+    d, opt = rtk.prcopt_default, rtk.prcopt_t()
+    for n in _PRCOPT_SCALARS:
+        setattr(opt, n, getattr(d, n))
+    for n, k in _PRCOPT_ARRAYS.items():
+        dst, src = getattr(opt, n), getattr(d, n)
+        for i in range(k):
+            dst[i] = src[i]
+    opt.mode = rtk.PMODE_DGPS if dgps else rtk.PMODE_SINGLE
+    opt.navsys = rtk.SYS_GPS | rtk.SYS_CMP
+    opt.nf = 1
+    opt.elmin = math.radians(elevation_mask_deg)
+    opt.sateph = rtk.EPHOPT_BRDC
+    opt.ionoopt = rtk.IONOOPT_BRDC
+    opt.tropopt = rtk.TROPOPT_SAAS
+    opt.posopt[4] = 1  # RAIM FDE, as our SPP
+    opt.outsingle = 1  # DGPS: output the single solution where there is no differential one
+    if dgps:
+        assert rec.manifest.base is not None
+        opt.refpos = rtk.POSOPT_POS
+        for i, v in enumerate(rec.manifest.base.position_ecef_m):
+            opt.rb[i] = float(v)
+    sd, sopt = rtk.solopt_default, rtk.solopt_t()
+    for n in _SOLOPT_SCALARS:
+        setattr(sopt, n, getattr(sd, n))
+    sopt.sep[0] = sd.sep[0]
+    sopt.posf = rtk.SOLF_XYZ
+    sopt.times = rtk.TIMES_GPST
+    sopt.timef = 0  # GPS week and seconds of week
+    sopt.outhead = 1
+    return opt, sopt
+
+
+def _signed_sq(s: float) -> float:
+    return math.copysign(s * s, s)
+
+
+def read_xyz_solution(path: Path) -> list[tuple[GpsTime, np.ndarray, np.ndarray, int]]:
+    """(time, ECEF, 3x3 covariance, Q) rows of an RTKLIB XYZ solution file (GPST week/tow)."""
+    out = []
+    for line in path.read_text().splitlines():
+        if not line.strip() or line.startswith("%"):
+            continue
+        f = line.split()
+        if len(f) < 13:
+            continue
+        try:
+            week, tow = int(f[0]), float(f[1])
+            xyz = np.array([float(v) for v in f[2:5]])
+            q = int(f[5])
+            sx, sy, sz, sxy, syz, szx = (float(v) for v in f[7:13])
+        except ValueError:
+            continue
+        cov = np.array(
+            [
+                [sx * sx, _signed_sq(sxy), _signed_sq(szx)],
+                [_signed_sq(sxy), sy * sy, _signed_sq(syz)],
+                [_signed_sq(szx), _signed_sq(syz), sz * sz],
+            ]
+        )
+        out.append((GpsTime(week, tow), xyz, cov, q))
+    return out
+
+
+def process_recording(
+    rec: Recording,
+    dgnss: bool | None = None,
+    vehicles: list[str] | None = None,
+    elevation_mask_deg: float = 10.0,
+) -> RtklibResult:
+    """RTKLIB postpos on every vehicle's RINEX file; positions keyed by nominal epoch.
+
+    DGNSS defaults to on when the recording has a base (as `coplane eval`). Needs pyrtklib.
+    """
+    import pyrtklib as rtk
+
+    use_dgnss = rec.manifest.base is not None if dgnss is None else bool(dgnss)
+    if use_dgnss and rec.manifest.base is None:
+        raise ValueError(f"recording {rec.manifest.name!r} has no [base]: cannot run RTKLIB DGPS")
+    ids = vehicles or [v.id for v in rec.manifest.vehicles]
+    opt, sopt = _options(rec, use_dgnss, elevation_mask_deg)
+    dt = rec.manifest.interval_s
+    run = MethodRun(RTKLIB_METHOD, 0.0)
+    res = RtklibResult(run, "dgps" if use_dgnss else "single")
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="coplane-rtklib-") as tmp:
+        for vid in ids:
+            files = [str(rec.manifest.vehicle(vid).obs)]
+            if use_dgnss:
+                assert rec.manifest.base is not None
+                files.append(str(rec.manifest.base.obs))  # postpos: rover, base, then navigation
+            files += [str(p) for p in rec.manifest.nav_files]
+            out = Path(tmp) / f"{vid}.pos"
+            buf = rtk.Arr1Dchar(1024)
+            for i, ch in enumerate(str(out)[:1023]):
+                buf[i] = ch
+            t0 = time.perf_counter()
+            ret = rtk.postpos(
+                rtk.gtime_t(),
+                rtk.gtime_t(),
+                0.0,
+                0.0,
+                opt,
+                sopt,
+                rtk.filopt_t(),
+                files,
+                len(files),
+                buf,
+                "",
+                "",
+            )
+            elapsed = time.perf_counter() - t0
+            sols = read_xyz_solution(out) if out.exists() else []
+            if ret != 0 or not sols:
+                res.failures[vid] = f"postpos returned {ret} with {len(sols)} solutions"
+            quality: Counter[str] = Counter()
+            for t, xyz, cov, q in sols:
+                tn = t.round_to(dt)
+                run.positions[vid][tn] = xyz
+                run.covariances[vid][tn] = cov
+                quality[QUALITY_NAMES.get(q, str(q))] += 1
+            res.quality[vid] = quality
+            run.solve_times_s.extend([elapsed / max(len(sols), 1)] * len(sols))
+    run.wall_time_s = time.perf_counter() - t_start
+    run.n_epochs = len(lockstep_schedule(rec, ids))
+    return res
+
+
+def run_rtklib(recording: Recording, dgnss: bool | None = None) -> MethodRun:
+    """The RTKLIB row as a MethodRun (positions per vehicle per nominal epoch); needs pyrtklib."""
+    return process_recording(recording, dgnss).run
+
+
+def evaluation_row(rec: Recording, dgnss: bool | None = None) -> tuple[MethodRun | None, str]:
+    """For `coplane eval`: the RTKLIB run (None when skipped) and the line to print and record."""
+    reason = rtklib_unavailable()
+    if reason is not None:
+        return None, f"rtklib row skipped: {reason}"
+    try:
+        res = process_recording(rec, dgnss)
+    except (OSError, ValueError, RuntimeError) as exc:
+        return None, f"rtklib row skipped: RTKLIB failed ({exc})"
+    return res.run, res.note
