@@ -46,6 +46,12 @@ class FgoConfig:
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # Innovation gate on pseudoranges against the predicted position (previous estimate + Doppler
+    # displacement), per constellation after removing the median clock residual: what an EKF's
+    # chi-square gate does, here before the graph. None turns it off. Only vehicles with a state in
+    # the window are gated, only systems with >= 3 satellites, and never below 4 pseudoranges.
+    gate_k: float | None = None
+    gate_prediction_sigma_m: float = 3.0
     # Receiver clock: random walk around the Doppler clock drift (m/sqrt(s)); converted to seconds
     # for GTSAM, whose PseudorangeFactor keys the clock in seconds.
     clock_rw_sigma: float = 1.0

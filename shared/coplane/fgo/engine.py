@@ -323,6 +323,32 @@ class FusionEstimator:
             sats[keep], num[keep, 0], num[keep, 1], num[keep, 2], [prs[i].sat[0] for i in keep]
         )
 
+    @staticmethod
+    def _gate(
+        prs: _Pseudoranges, predicted: Vec, k: float, sigma_pred: float, stats: _StepStats
+    ) -> _Pseudoranges:
+        """Drop pseudoranges whose innovation at the predicted position exceeds k sigma."""
+        resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - predicted, axis=1)
+        sys_of = np.array(prs.systems)
+        keep = np.ones(len(resid), dtype=bool)
+        for s in set(prs.systems):
+            idx = sys_of == s
+            if int(idx.sum()) < 3:
+                continue  # too few to take the clock out robustly
+            innov = resid[idx] - np.median(resid[idx])
+            keep[idx] = np.abs(innov) <= k * np.sqrt(prs.sigma[idx] ** 2 + sigma_pred**2)
+        n_out = int((~keep).sum())
+        if n_out == 0 or int(keep.sum()) < 4:
+            return prs
+        stats.reject("gated_pseudorange", n_out)
+        return _Pseudoranges(
+            prs.sat_pos[keep],
+            prs.rho[keep],
+            prs.sat_clock[keep],
+            prs.sigma[keep],
+            [s for s, kk in zip(prs.systems, keep, strict=True) if kk],
+        )
+
     def _valid_plane(self, plane: PlaneObs | None, stats: _StepStats) -> PlaneObs | None:
         if plane is None:
             return None
@@ -383,6 +409,8 @@ class FusionEstimator:
         else:
             return "no SPP position to initialise from" if prs else "no GNSS and no state in the window"
 
+        if hist and cfg.gate_k is not None and len(prs):
+            prs = self._gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
         systems = sorted(set(prs.systems))
         # initial clock per system: median residual at the initial position (robust to NLOS)
         clock_init: dict[str, float] = {}
