@@ -217,6 +217,9 @@ def _solve(
         dx, *_ = np.linalg.lstsq(a[keep][:, cols] * w[:, None], v[keep] * w, rcond=None)
         x[cols] += dx
         if float(np.linalg.norm(dx[:3])) < opt.convergence_m:
+            if atm_at is not None and float(np.linalg.norm(x[:3] - atm_at)) > 1.0:
+                refresh(x[:3].copy())  # converged on a stale atmosphere: once more, evaluated here
+                continue
             converged = True
             break
     # residuals and weights at the final state, with the atmosphere evaluated there
