@@ -30,7 +30,19 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from coplane.fgo.inputs import EpochInput, FleetSolution, VehicleEpochInput, VehicleEstimate
+from coplane.fgo.inputs import (
+    MAX_DRIFT_MPS,
+    MAX_PSEUDORANGE_M,
+    MAX_RANGE_M,
+    MAX_SIGMA_M,
+    MAX_SPEED_MPS,
+    RECEIVER_RADIUS_M,
+    SAT_RADIUS_M,
+    EpochInput,
+    FleetSolution,
+    VehicleEpochInput,
+    VehicleEstimate,
+)
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import chi2_threshold
@@ -40,14 +52,7 @@ from coplane.gtime import GpsTime
 Vec = NDArray[np.float64]
 Mat = NDArray[np.float64]
 
-# Plausibility limits for untrusted inputs (the same values as the factor graph's engine).
-SAT_RADIUS_M = (1.0e7, 5.0e7)
-RECEIVER_RADIUS_M = (5.0e6, 8.0e6)
-MAX_PSEUDORANGE_M = 1.0e8
-MAX_SIGMA_M = 1.0e4
-MAX_SPEED_MPS = 200.0
-MAX_DRIFT_MPS = 1.0e5
-MAX_RANGE_M = 1.0e5
+
 KNOWN_SYSTEMS = frozenset("GCERJIS")
 MS_LIGHT_M = C * 1e-3  # one millisecond of receiver clock, the usual clock-steering step
 

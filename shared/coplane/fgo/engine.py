@@ -27,6 +27,13 @@ from numpy.typing import NDArray
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.inputs import (
+    MAX_DRIFT_MPS,
+    MAX_PSEUDORANGE_M,
+    MAX_RANGE_M,
+    MAX_SIGMA_M,
+    MAX_SPEED_MPS,
+    RECEIVER_RADIUS_M,
+    SAT_RADIUS_M,
     EpochInput,
     FleetSolution,
     PlaneObs,
@@ -52,14 +59,7 @@ from coplane.gtime import GpsTime
 
 Vec = NDArray[np.float64]
 
-# Plausibility limits for untrusted inputs.
-SAT_RADIUS_M = (1.0e7, 5.0e7)
-RECEIVER_RADIUS_M = (5.0e6, 8.0e6)
-MAX_PSEUDORANGE_M = 1.0e8
-MAX_SIGMA_M = 1.0e4
-MAX_SPEED_MPS = 200.0
-MAX_DRIFT_MPS = 1.0e5
-MAX_RANGE_M = 1.0e5
+
 FALLBACK_CLOCK_SIGMA_S = 1e-3  # strong-prior retry: clocks only need regularising
 
 

@@ -17,6 +17,15 @@ from coplane.plane.fit import constraint_error
 
 Vec = NDArray[np.float64]
 
+# Plausibility limits every estimator applies to its (untrusted) inputs before using them.
+SAT_RADIUS_M = (1.0e7, 5.0e7)
+RECEIVER_RADIUS_M = (5.0e6, 8.0e6)
+MAX_PSEUDORANGE_M = 1.0e8
+MAX_SIGMA_M = 1.0e4
+MAX_SPEED_MPS = 200.0
+MAX_DRIFT_MPS = 1.0e5
+MAX_RANGE_M = 1.0e5
+
 
 @dataclass(frozen=True)
 class PseudorangeObs:
