@@ -6,13 +6,19 @@ PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
-# System tools the tests use (CI runs as root on a fresh Debian machine): docker-compose validates
-# docker-compose.yml (no Docker engine is needed for `config`).
-if ! command -v docker-compose >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq docker-compose >/dev/null) \
-    || echo "setup: could not install docker-compose" >&2
+# System tools the tests use, from Debian (CI runs as root on a fresh machine): docker-compose
+# validates docker-compose.yml (`config` needs no Docker engine); chromium renders the dashboard
+# headless (tests/test_api_dashboard.py). The tests fail with a clear message if they are missing.
+missing=()
+command -v docker-compose >/dev/null 2>&1 || missing+=(docker-compose)
+command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+if [ ${#missing[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ]; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null) \
+      || echo "setup: could not install ${missing[*]}" >&2
+  else
+    echo "setup: please install ${missing[*]} (Debian packages) for the full test suite" >&2
+  fi
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e '.[dev]'
-# Headless Chromium for the dashboard test (tests/test_api_dashboard.py); Debian package, needs root.
-if ! command -v chromium >/dev/null; then (apt-get update -qq && apt-get install -y -qq chromium) || echo "could not install chromium"; fi
