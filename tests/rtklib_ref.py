@@ -184,6 +184,7 @@ class RefSolution:
     ok: bool
     message: str
     pos: np.ndarray  # ECEF, m
+    vel: np.ndarray  # ECEF, m/s (RTKLIB estvel from Doppler; zeros when it had none)
     dtr_s: np.ndarray  # receiver clock (GPS) then system offsets, s, as sol_t.dtr
     cov_pos: np.ndarray  # 3x3 ECEF covariance from the weighted least squares (float32 in RTKLIB)
     azel: dict[str, tuple[float, float]]  # satellites used: azimuth, elevation (rad)
@@ -225,6 +226,7 @@ def pntpos(
         ok=ok,
         message=str(msg[0]),
         pos=np.array([sol.rr[i] for i in range(3)]),
+        vel=np.array([sol.rr[i] for i in range(3, 6)]),
         dtr_s=np.array([sol.dtr[i] for i in range(6)]),
         cov_pos=cov,
         azel=used,

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pyrtklib as rt
 import pytest
+from rtklib_ref import gtime_to_gpst, sat_id
 
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime, bdt_to_gpst, gpst_to_bdt
 from coplane.recording.model import Ephemeris, NavData
@@ -22,16 +23,10 @@ SELECTED_CODES = {"G": rt.CODE_L1C, "C": rt.CODE_L2I}
 RTKLIB_OBS_OPT = "-GL1C -CL2I"
 
 
-def sat_id(sat: int) -> str:
-    buf = rt.Arr1Dchar(8)
-    rt.satno2id(sat, buf)
-    return bytes(ord(c) if isinstance(c, str) else c for c in buf).split(b"\0")[0].decode()
-
-
 def gps_time(t: rt.gtime_t) -> GpsTime:
-    week = rt.Arr1Dint(1)
-    tow = rt.time2gpst(t, week)
-    return GpsTime(week[0], round(tow, 7))
+    """RTKLIB time as GpsTime, rounded to 0.1 us so it can key a dict against our reader's tags."""
+    g = gtime_to_gpst(t)
+    return GpsTime(g.week, round(g.tow, 7))
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pyrtklib as rt
 import pytest
+import rtklib_ref as ref
 
 from coplane.evaluate.metrics import accuracy
 from coplane.gnss.epoch_solver import EpochSolverOptions, base_corrections, solve_epoch
@@ -32,30 +32,13 @@ RTKLIB_LIKE = SppOptions(weighting="rtklib", raim="off", elevation_mask_deg=15.0
 
 
 def _rtklib_pntpos(obs_path: Path, nav_paths: list[Path]) -> dict[GpsTime, np.ndarray]:
-    """RTKLIB pntpos per epoch (position and velocity), keyed by the receiver's epoch tag."""
-    obs, nav, sta = rt.obs_t(), rt.nav_t(), rt.sta_t()
-    assert rt.readrnx(str(obs_path), 1, "", obs, nav, sta) == 1
-    for p in nav_paths:
-        assert rt.readrnx(str(p), 0, "", obs, nav, sta) == 1
-    rt.sortobs(obs)
-    rt.uniqnav(nav)
-    opt = rt.prcopt_default
-    opt.navsys = rt.SYS_GPS | rt.SYS_CMP
-    opt.ionoopt = rt.IONOOPT_BRDC
-    opt.tropopt = rt.TROPOPT_SAAS
-    opt.elmin = np.radians(15.0)
+    """RTKLIB pntpos per epoch (position then Doppler velocity), keyed by the receiver's tag."""
+    nav = ref.load_nav(nav_paths)
     out: dict[GpsTime, np.ndarray] = {}
-    i = 0
-    week = rt.Arr1Dint(1)
-    while i < obs.n:
-        n = 1
-        while i + n < obs.n and rt.timediff(obs.data[i + n].time, obs.data[i].time) == 0:
-            n += 1
-        sol, azel, ssat, msg = rt.sol_t(), rt.Arr1Ddouble(2 * n), rt.Arr1Dssat_t(rt.MAXSAT), rt.Arr1Dchar(256)
-        if rt.pntpos(obs.data[i : i + n].ptr, n, nav, opt, sol, azel, ssat.ptr, msg):
-            tow = rt.time2gpst(obs.data[i].time, week)
-            out[GpsTime(week[0], round(tow, 7))] = np.array(list(sol.rr)[:6])
-        i += n
+    for ep in ref.split_epochs(ref.load_obs(obs_path)):
+        sol = ref.pntpos(ep, nav)
+        if sol.ok:
+            out[GpsTime(ep.time.week, round(ep.time.tow, 7))] = np.concatenate([sol.pos, sol.vel])
     return out
 
 
