@@ -22,7 +22,7 @@ from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage
 from coplane.recording.reader import open_recording
-from coplane.replay import first_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
+from coplane.replay import base_by_epoch, first_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import VehicleStep, VehicleStepConfig, gps_time
 
 from .settings import AgentSettings
@@ -53,10 +53,7 @@ class VehicleAgent:
         self.schedule = vehicle_schedule(rec.vehicle_epochs(v.id), man.interval_s)
         self.use_dgnss = man.base is not None if settings.dgnss is None else settings.dgnss
         # only this vehicle's file, the base and uwb.csv are read: agents start fast
-        self.base: dict[GpsTime, Any] = {}
-        if self.use_dgnss:
-            for e in rec.base_epochs():
-                self.base.setdefault(e.time.round_to(man.interval_s), e)
+        self.base = base_by_epoch(rec) if self.use_dgnss else {}
         self.uwb = uwb_for_vehicle(rec.uwb(), v.id, (t for t, _ in self.schedule), man.interval_s)
         self.t0 = first_epoch(rec)  # the fleet's first epoch: the realtime origin
         self.skipped = 0

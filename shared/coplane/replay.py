@@ -81,3 +81,11 @@ def first_epoch(recording: Recording) -> GpsTime | None:
         if e is not None:
             firsts.append(e.time)
     return min(firsts).round_to(recording.manifest.interval_s) if firsts else None
+
+
+def base_by_epoch(recording: Recording) -> dict[GpsTime, ObsEpoch]:
+    """The reference station's epochs by nominal time (first wins), for DGNSS corrections."""
+    out: dict[GpsTime, ObsEpoch] = {}
+    for e in recording.base_epochs():
+        out.setdefault(e.time.round_to(recording.manifest.interval_s), e)
+    return out

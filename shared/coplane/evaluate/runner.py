@@ -22,7 +22,7 @@ from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
 from coplane.plane.config import PlaneConfig
 from coplane.recording.reader import Recording
-from coplane.replay import fleet_id, uwb_for_vehicle, vehicle_schedule
+from coplane.replay import base_by_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
 
 Vec = NDArray[Any]
@@ -85,10 +85,7 @@ def run_method(
         for vid in ids
     }
     fusion = FusionStep(fleet, spec, FusionStepConfig(interruption, seed, rec.manifest.interval_s))
-    base_by_t: dict[GpsTime, Any] = {}
-    if use_dgnss:
-        for e in rec.base_epochs():
-            base_by_t.setdefault(e.time.round_to(rec.manifest.interval_s), e)
+    base_by_t = base_by_epoch(rec) if use_dgnss else {}
     schedule = lockstep_schedule(rec, ids)
     uwb_rows = rec.uwb()
     uwb = {
