@@ -46,6 +46,12 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "warp-drive" in r.output and "valid methods" in r.output
     r = runner.invoke(app, ["eval", "--interruption", "150", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "0..100" in r.output
+    r = runner.invoke(app, ["fleet", "--method", "warp-drive", "--no-api"])
+    assert r.exit_code == 2 and "valid methods" in r.output
+    r = runner.invoke(app, ["fleet", str(tmp_path / "nope"), "--no-api"])
+    assert r.exit_code == 2 and "error" in r.output and "nope" in r.output
+    r = runner.invoke(app, ["fleet", "--pace", "warp", "--no-api"])
+    assert r.exit_code == 2 and "lockstep or realtime" in r.output
 
 
 def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:

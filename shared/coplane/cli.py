@@ -260,10 +260,16 @@ def fleet(
     if pace not in ("lockstep", "realtime"):
         console.print("[red]error:[/red] --pace must be lockstep or realtime")
         raise typer.Exit(2)
-    get_method(method)
-    path = _recording_or_default(recording).resolve()
-    rec = open_recording(path)
-    fleet_name, vehicles = fleet_of(path)
+    from coplane.recording.problems import RecordingError
+
+    try:
+        get_method(method)
+        path = _recording_or_default(recording).resolve()
+        rec = open_recording(path)
+        fleet_name, vehicles = fleet_of(path)
+    except (RecordingError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from exc
     n_epochs = len(
         {t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), rec.manifest.interval_s)}
     )
