@@ -16,12 +16,15 @@ from coplane.gnss.ephemeris import (
     geometric_range,
     rotate_to_receive_frame,
     sat_clock_s,
+    STATE_SLOT_S,
     sat_state,
     satellite_states,
     select_ephemeris,
     tgd_m,
     ura_variance_m2,
 )
+from coplane.gnss import ephemeris
+from coplane.gnss.geometry import sky_view
 from coplane.gtime import GpsTime, bdt_to_gpst
 from coplane.recording.model import Ephemeris, NavData
 
@@ -202,6 +205,31 @@ def test_satellite_states_emission_time_and_omissions() -> None:
     assert tgd_m(C01) == pytest.approx(C * C01.tgd)  # TGD1 for B1I
 
 
+def test_slotted_states_match_exact_states_whoever_asks_first(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The per-slot cache moves a state by ~1e-9 m (round-off aside), and its answer does not depend on the cache."""
+    t0 = G05.toe + 900.0
+    times = [t0 + k * 3.7e-6 for k in range(-60, 60)]  # receivers microseconds apart, across slots
+    ephemeris._slots.clear()
+    forward = [ephemeris.slotted_state(G05, t) for t in times]
+    ephemeris._slots.clear()
+    backward = [ephemeris.slotted_state(G05, t) for t in reversed(times)][::-1]
+    for t, a, b in zip(times, forward, backward, strict=True):
+        exact = sat_state(G05, t)
+        assert np.array_equal(a.pos, b.pos) and a.clock_s == b.clock_s  # bit-identical
+        assert np.linalg.norm(a.pos - exact.pos) < 1e-7  # the exact evaluation rounds at ~1e-8 m
+        assert abs(a.clock_s - exact.clock_s) * C < 1e-8
+        assert np.linalg.norm(a.vel - exact.vel) < 1e-4  # velocity kept at the slot centre
+    # ...and receivers within one slot share a single orbit evaluation
+    calls = []
+    monkeypatch.setattr(ephemeris, "sat_state", lambda e, t: calls.append(t) or sat_state(e, t))
+    ephemeris._slots.clear()
+    t_rx = G05.toe + 1800.0
+    pr = 2.2e7
+    for offset_m in (0.0, 150.0, -300.0, 900.0):  # a fleet a few hundred metres apart
+        satellite_states(_nav(G05), t_rx, {"G05": pr + offset_m})
+    assert len(calls) <= 2 and STATE_SLOT_S * C > 1200.0
+
+
 # --- geometry ---------------------------------------------------------------------------------
 
 
@@ -239,6 +267,27 @@ def test_rotate_to_receive_frame_agrees_with_geometric_range() -> None:
         worst = max(worst, abs(float(np.linalg.norm(rot - rx)) - r))
     print(f"\nrotate_to_receive_frame vs geometric_range: max |diff| = {worst * 1e3:.3f} mm")
     assert worst < 1e-3
+
+
+def test_sky_view_matches_scalar_geometry() -> None:
+    """The vectorised epoch geometry against the scalar RTKLIB-checked range and an ENU rotation."""
+    from coplane.geo import ecef_to_geodetic, enu_rotation
+
+    pairs = _geometries(50, seed=3)
+    rx = pairs[0][1]
+    sats = np.array([s for s, r in _geometries(400, seed=4) if np.dot(s - rx, rx) > 0][:30])
+    view = sky_view(sats, rx)
+    lat, lon, _ = ecef_to_geodetic(rx)
+    rot = enu_rotation(lat, lon)
+    moved = view.receive_frame_positions(sats)
+    for i, sat in enumerate(sats):
+        r, e = geometric_range(sat, rx)
+        enu = rot @ e
+        assert view.range_m[i] == pytest.approx(r, abs=1e-6)
+        np.testing.assert_allclose(view.los[i], e, atol=1e-12)
+        assert view.el_rad[i] == pytest.approx(math.asin(enu[2]), abs=1e-12)
+        assert view.az_rad[i] == pytest.approx(math.atan2(enu[0], enu[1]) % (2 * math.pi), abs=1e-12)
+        np.testing.assert_allclose(moved[i], rotate_to_receive_frame(sat, r / C), atol=1e-6)
 
 
 def test_rotation_sign_moves_satellite_westward() -> None:

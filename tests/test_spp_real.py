@@ -185,3 +185,10 @@ def test_spp_reports_no_solution_with_reason(real_data: Path) -> None:
     assert np.linalg.norm(faulty.position - good.position) < 1.0
     unprotected = solve_spp(prepare_epoch(replace(ep, sats=tuple(sats)), nav), nav, SppOptions(raim="detect"))
     assert not unprotected.ok and "chi-square" in (unprotected.reason or "")
+    # the re-solve after the exclusion carries the atmosphere over; it must land where a solve
+    # from scratch without the faulty satellite lands (atmosphere re-evaluated there)
+    without = prepare_epoch(replace(ep, sats=tuple(s for s in sats if s.sat not in faulty.excluded)), nav)
+    fresh = solve_spp(without, nav)
+    assert fresh.ok and not fresh.excluded and fresh.used == faulty.used
+    assert np.linalg.norm(fresh.position - faulty.position) < 1e-3
+    assert fresh.sigmas_m == pytest.approx(faulty.sigmas_m, rel=1e-6)

@@ -19,6 +19,7 @@ from coplane.gnss.weighting import (
     doppler_sigma_mps,
     pseudorange_sigma_m,
     rtklib_variance_m2,
+    standalone_pseudorange_sigma_m,
 )
 
 D = math.radians
@@ -63,6 +64,33 @@ def test_system_factor_and_custom_model() -> None:
     assert pseudorange_sigma_m(D(45.0), 40.0, "C", bds_worse) == pytest.approx(
         2.0 * pseudorange_sigma_m(D(45.0), 40.0, "G", bds_worse)
     )
+
+
+def test_epoch_arrays_give_the_per_satellite_values() -> None:
+    """SPP evaluates a whole epoch at once; each entry must be that satellite's scalar value."""
+    rng = np.random.default_rng(7)
+    n = 40
+    el = rng.uniform(-0.1, math.pi / 2, n)
+    cn0 = rng.uniform(15.0, 55.0, n)
+    cn0[::7] = math.nan
+    iono = rng.uniform(0.0, 15.0, n)
+    systems = list(rng.choice(["G", "C", "R", "S"], n))
+    model = WeightingModel(system_factor={"G": 1.0, "C": 1.7, "R": 1.5})
+    vec = {
+        "code": pseudorange_sigma_m(el, cn0, systems, model),
+        "doppler": doppler_sigma_mps(el, cn0, systems, model),
+        "standalone": standalone_pseudorange_sigma_m(el, cn0, systems, iono),
+        "rtklib": rtklib_variance_m2(el, systems),
+    }
+    for i, s in enumerate(systems):
+        assert vec["code"][i] == pytest.approx(pseudorange_sigma_m(el[i], cn0[i], s, model), rel=1e-14)
+        assert vec["doppler"][i] == pytest.approx(doppler_sigma_mps(el[i], cn0[i], s, model), rel=1e-14)
+        assert vec["standalone"][i] == pytest.approx(
+            standalone_pseudorange_sigma_m(el[i], cn0[i], s, iono[i]), rel=1e-14
+        )
+        assert vec["rtklib"][i] == pytest.approx(rtklib_variance_m2(el[i], s), rel=1e-14)
+    assert all(isinstance(v, np.ndarray) and v.shape == (n,) for v in vec.values())
+    assert isinstance(pseudorange_sigma_m(0.5, 40.0, "G"), float)  # one satellite: a plain float
 
 
 def test_rtklib_variance_reproduces_pntpos_varerr() -> None:

@@ -27,12 +27,10 @@ from coplane.fgo.inputs import (
     VelocityObs,
 )
 from coplane.fgo.methods import MethodSpec, interrupt_range
-from coplane.geo import ecef_to_geodetic, enu_rotation, up_vector
-from coplane.gnss.atmosphere import iono_delay_m, saastamoinen_m
-from coplane.gnss.constants import C
+from coplane.geo import up_vector
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.ephemeris import geometric_range, rotate_to_receive_frame
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
+from coplane.gnss.geometry import broadcast_delays, sky_view
 from coplane.gnss.weighting import pseudorange_sigma_m, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
 from coplane.messages import (
@@ -220,28 +218,34 @@ class VehicleStep:
         """Per-satellite factor inputs, modelled at the best position the vehicle has."""
         if approx is None:
             return []  # no position at all yet: elevation, Sagnac and atmosphere are unknown
-        lat, lon, h = ecef_to_geodetic(approx)
-        rot = enu_rotation(lat, lon)
+        sats = list(res.prepared.sats)
+        if corrections is not None:  # DGNSS mode uses corrected satellites only
+            sats = [m for m in sats if m.sat in corrections.corrections_m]
+        if not sats:
+            return []
+        systems = [m.system for m in sats]
+        sat_pos = np.array([m.state.pos for m in sats])
+        view = sky_view(sat_pos, approx)
+        sat_rx = view.receive_frame_positions(sat_pos)
+        cn0 = np.array([m.cn0_dbhz for m in sats])
+        if corrections is not None:
+            iono = tropo = np.zeros(len(sats))
+            sigma = pseudorange_sigma_m(view.el_rad, cn0, systems)
+        else:
+            iono, tropo = broadcast_delays(systems, res.prepared.time, view, self.nav)
+            sigma = standalone_pseudorange_sigma_m(view.el_rad, cn0, systems, iono)
         used = set(res.spp.used) if res.spp.ok else None
         excluded = set(res.spp.excluded)
         mask = math.radians(self.config.solver.spp.elevation_mask_deg)
         out: list[SatelliteReport] = []
-        for m in res.prepared.sats:
-            rng, e = geometric_range(m.state.pos, approx)
-            el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
-            az = math.atan2(float(rot[0] @ e), float(rot[1] @ e)) % (2 * math.pi)
-            sat_rx = rotate_to_receive_frame(m.state.pos, rng / C)
+        for i, m in enumerate(sats):
+            el = float(view.el_rad[i])
             if corrections is not None:
-                dg = corrections.corrections_m.get(m.sat)
-                if dg is None:
-                    continue  # DGNSS mode uses corrected satellites only
-                iono = tropo = 0.0
-                rho = m.pseudorange_m - dg
+                dg: float | None = corrections.corrections_m[m.sat]
+                rho = m.pseudorange_m - corrections.corrections_m[m.sat]
             else:
                 dg = None
-                iono = iono_delay_m(m.system, res.prepared.time, lat, lon, az, el, self.nav)
-                tropo = saastamoinen_m(lat, h, el)
-                rho = m.pseudorange_m - m.tgd_m - iono - tropo
+                rho = m.pseudorange_m - m.tgd_m - float(iono[i]) - float(tropo[i])
             reason = None
             if m.sat in excluded:
                 reason = "excluded by RAIM"
@@ -256,19 +260,15 @@ class VehicleStep:
                     doppler_hz=m.doppler_hz if math.isfinite(m.doppler_hz) else None,
                     cn0_dbhz=m.cn0_dbhz if math.isfinite(m.cn0_dbhz) else None,
                     elevation_deg=math.degrees(el),
-                    azimuth_deg=math.degrees(az),
-                    sat_pos_ecef_m=_tuple3(sat_rx),
+                    azimuth_deg=math.degrees(float(view.az_rad[i])),
+                    sat_pos_ecef_m=_tuple3(sat_rx[i]),
                     sat_clock_s=m.state.clock_s,
                     tgd_m=m.tgd_m,
-                    iono_m=iono,
-                    tropo_m=tropo,
+                    iono_m=float(iono[i]),
+                    tropo_m=float(tropo[i]),
                     dgnss_m=dg,
                     rho_m=rho,
-                    sigma_m=(
-                        pseudorange_sigma_m(el, m.cn0_dbhz, m.system)
-                        if corrections is not None
-                        else standalone_pseudorange_sigma_m(el, m.cn0_dbhz, m.system, iono)
-                    ),
+                    sigma_m=float(sigma[i]),
                     used=reason is None,
                     excluded_reason=reason,
                 )

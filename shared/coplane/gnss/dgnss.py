@@ -17,9 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
-from coplane.gnss.ephemeris import geometric_range
+from coplane.gnss.geometry import sky_view
 from coplane.gnss.measurements import PreparedEpoch
 from coplane.gtime import GpsTime
 
@@ -46,17 +45,17 @@ def dgnss_corrections(
     """Corrections delta_s = P_base - (|p_base - p_s|_sagnac - c*dts), base clock removed."""
     opt = options or DgnssOptions()
     p = np.asarray(base_position_ecef, dtype=float)
-    lat, lon, _ = ecef_to_geodetic(p)
-    up = enu_rotation(lat, lon)[2]
     raw: dict[str, float] = {}
     out = DgnssCorrections(base.time)
-    for m in base.sats:
-        rng, e = geometric_range(m.state.pos, p)
-        el = math.asin(max(-1.0, min(1.0, float(up @ e))))
-        if el < math.radians(opt.elevation_mask_deg):
+    if not base.sats:
+        return out
+    view = sky_view(np.array([m.state.pos for m in base.sats]), p)
+    mask = math.radians(opt.elevation_mask_deg)
+    for m, rng, el in zip(base.sats, view.range_m, view.el_rad, strict=True):
+        if el < mask:
             out.rejected[m.sat] = f"elevation {math.degrees(el):.1f} deg below mask at the base"
             continue
-        raw[m.sat] = m.pseudorange_m - (rng - C * m.state.clock_s)
+        raw[m.sat] = m.pseudorange_m - (float(rng) - C * m.state.clock_s)
     for sys in sorted({s[0] for s in raw}):
         vals = np.array([v for s, v in raw.items() if s[0] == sys])
         clk = float(np.median(vals))

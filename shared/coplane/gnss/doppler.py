@@ -16,9 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import OMEGA_E_GPS, C
-from coplane.gnss.ephemeris import geometric_range
+from coplane.gnss.geometry import sky_view
 from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import doppler_sigma_mps
@@ -48,25 +47,32 @@ class DopplerVelocity:
     residuals_mps: dict[str, float] = field(default_factory=dict)
 
 
-def _rows(
-    sats: list[SatMeasurement], p: Vec, rot: Vec, mask: float
-) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
-    use, rows, y, sig = [], [], [], []
-    for m in sats:
-        if not math.isfinite(m.doppler_hz):
-            continue
-        _, e = geometric_range(m.state.pos, p)
-        el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
-        if el < mask:
-            continue
-        ps, vs = m.state.pos, m.state.vel
-        # Sagnac rate with the receiver velocity part moved into the design matrix (RTKLIB resdop)
-        sag_s = OMEGA_E_GPS / C * (vs[1] * p[0] - vs[0] * p[1])
-        y.append(m.range_rate_mps - (float(vs @ e) + sag_s - C * m.state.drift_s_per_s))
-        rows.append([-e[0] + OMEGA_E_GPS / C * ps[1], -e[1] - OMEGA_E_GPS / C * ps[0], -e[2], 1.0])
-        sig.append(doppler_sigma_mps(el, m.cn0_dbhz, m.system))
-        use.append(m)
-    return use, np.array(rows).reshape(-1, 4), np.array(y), np.array(sig)
+def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
+    """Satellites with a Doppler above the mask, design rows, range-rate residuals, sigmas."""
+    sats = [m for m in sats if math.isfinite(m.doppler_hz)]
+    if not sats:
+        return [], np.zeros((0, 4)), np.zeros(0), np.zeros(0)
+    ps = np.array([m.state.pos for m in sats])
+    view = sky_view(ps, p)
+    keep = view.el_rad >= mask
+    use = [m for m, k in zip(sats, keep, strict=True) if k]
+    ps, e, el = ps[keep], view.los[keep], view.el_rad[keep]
+    vs = np.array([m.state.vel for m in use]).reshape(-1, 3)
+    rate = np.array([m.range_rate_mps for m in use])
+    drift = np.array([m.state.drift_s_per_s for m in use])
+    # Sagnac rate with the receiver velocity part moved into the design matrix (RTKLIB resdop)
+    sag_s = OMEGA_E_GPS / C * (vs[:, 1] * p[0] - vs[:, 0] * p[1])
+    y = rate - (np.einsum("ij,ij->i", vs, e) + sag_s - C * drift)
+    a = np.column_stack(
+        [
+            -e[:, 0] + OMEGA_E_GPS / C * ps[:, 1],
+            -e[:, 1] - OMEGA_E_GPS / C * ps[:, 0],
+            -e[:, 2],
+            np.ones(len(use)),
+        ]
+    )
+    cn0 = np.array([m.cn0_dbhz for m in use])
+    return use, a, y, doppler_sigma_mps(el, cn0, [m.system for m in use])
 
 
 def solve_doppler_velocity(
@@ -75,9 +81,7 @@ def solve_doppler_velocity(
     """Velocity and drift at a known (SPP) position. Linear: one weighted solve per exclusion."""
     opt = options or DopplerOptions()
     p = np.asarray(position, dtype=float)
-    lat, lon, _ = ecef_to_geodetic(p)
-    rot = enu_rotation(lat, lon)
-    sats, a, y, sig = _rows(list(epoch.sats), p, rot, math.radians(opt.elevation_mask_deg))
+    sats, a, y, sig = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
     excluded: list[str] = []
     while True:
         if len(sats) < opt.min_satellites:

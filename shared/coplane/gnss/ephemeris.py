@@ -12,7 +12,10 @@ Differences from RTKLIB, all deliberate:
   (identical except when the epoch falls exactly halfway between two toe).
 
 Everything here is scalar `math` on Python floats: SPP calls `sat_state` about 20 times per
-vehicle and epoch, and numpy's per-call overhead on 3-vectors would dominate.
+vehicle and epoch, and numpy's per-call overhead on 3-vectors would dominate. `satellite_states`
+evaluates each orbit once per 0.1 ms slot of emission time and moves that state to each receiver's
+exact emission time (see `slotted_state`): a fleet's receivers and its DGNSS base all see a
+satellite within microseconds of each other, so in one process they share the orbit evaluation.
 """
 
 from __future__ import annotations
@@ -203,6 +206,43 @@ def sat_state(eph: Ephemeris, t: GpsTime) -> SatState:
     )
 
 
+# Emission-time slot for `slotted_state`. Within half a slot of its centre a state moved along its
+# velocity is off by |a| dt^2 / 2 < 1 m/s^2 * (5e-5 s)^2 / 2 ~ 1e-9 m in position and
+# |a| dt < 5e-5 m/s in velocity: far below what RTKLIB agreement (2e-7 m) and SPP need.
+STATE_SLOT_S = 1e-4
+# The slot cache is cleared when it reaches this size: it only has to hold one epoch's satellites.
+_MAX_SLOTS = 2048
+_slots: dict[tuple[int, int, int], SatState] = {}
+
+
+def slotted_state(eph: Ephemeris, t: GpsTime) -> SatState:
+    """`sat_state(eph, t)` via the state at the centre of t's 0.1 ms slot, moved by the velocity.
+
+    The slot state is a pure function of (ephemeris, slot), so the result does not depend on
+    which receiver asked first or on the cache at all: an agent process alone and the in-process
+    evaluator with the whole fleet get the same bits. Cache keys hold `id(eph)`; the cached state
+    keeps `eph` alive, so an id cannot be reused by another ephemeris while its entry exists.
+    """
+    k = round(t.tow / STATE_SLOT_S)
+    key = (id(eph), t.week, k)
+    ref = _slots.get(key)
+    if ref is None or ref.eph is not eph:
+        if len(_slots) >= _MAX_SLOTS:
+            _slots.clear()
+        ref = sat_state(eph, GpsTime(t.week, k * STATE_SLOT_S))
+        _slots[key] = ref
+    dt = t.tow - k * STATE_SLOT_S
+    return SatState(
+        sat=ref.sat,
+        pos=ref.pos + ref.vel * dt,
+        vel=ref.vel,
+        clock_s=ref.clock_s + ref.drift_s_per_s * dt,
+        drift_s_per_s=ref.drift_s_per_s,
+        eph=eph,
+        variance_m2=ref.variance_m2,
+    )
+
+
 def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, float]) -> dict[str, SatState]:
     """States at emission time for each satellite with a pseudorange (RTKLIB `satposs`).
 
@@ -226,7 +266,7 @@ def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, flo
         if eph_tx is not eph:  # crossed a selection boundary: redo the clock with the new one
             eph = eph_tx
             t_tx = t_sv + (-sat_clock_s(eph, t_sv))
-        out[sat] = sat_state(eph, t_tx)
+        out[sat] = slotted_state(eph, t_tx)
     return out
 
 

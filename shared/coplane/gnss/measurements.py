@@ -10,8 +10,6 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-import numpy as np
-
 from coplane.gnss.constants import WAVELENGTH
 from coplane.gnss.ephemeris import SatState, satellite_states, tgd_m
 from coplane.gtime import GpsTime
@@ -69,7 +67,7 @@ def prepare_epoch(epoch: ObsEpoch, nav: NavData, systems: Iterable[str] = ("G", 
         if st is None:
             dropped.append((sat, "no usable ephemeris"))
             continue
-        if not (np.all(np.isfinite(st.pos)) and math.isfinite(st.clock_s)):
+        if not math.isfinite(st.clock_s + float(st.pos.sum())):  # one test for all four values
             dropped.append((sat, "ephemeris gave non-finite state"))
             continue
         o = obs[sat]

@@ -13,7 +13,7 @@ never as a bad position.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
-from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
-from coplane.gnss.constants import OMEGA_E_GPS, C
+from coplane.gnss.constants import C
+from coplane.gnss.geometry import broadcast_delays, sagnac_ranges, sky_view
 from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
@@ -97,43 +97,6 @@ class _Fit:
     converged: bool
 
 
-def sagnac_ranges(sat_pos: Vec, p: Vec) -> tuple[Vec, Vec]:
-    """Vectorised `ephemeris.geometric_range`: ranges with the Sagnac term and unit LOS vectors."""
-    d = sat_pos - p
-    r = np.sqrt(np.einsum("ij,ij->i", d, d))
-    e = d / r[:, None]
-    return r + OMEGA_E_GPS * (sat_pos[:, 0] * p[1] - sat_pos[:, 1] * p[0]) / C, e
-
-
-def _atmosphere(
-    m: SatMeasurement,
-    e: Vec,
-    t: GpsTime,
-    nav: NavData,
-    opt: SppOptions,
-    differential: bool,
-    lat: float,
-    lon: float,
-    h: float,
-    rot: Vec,
-) -> tuple[float, float, float]:
-    """(TGD + iono + tropo in metres, elevation, iono) for one satellite at a surface position."""
-    el = math.asin(max(-1.0, min(1.0, float(rot[2] @ e))))
-    if differential:
-        return 0.0, el, 0.0
-    delay = m.tgd_m
-    iono = 0.0
-    az = math.atan2(float(rot[0] @ e), float(rot[1] @ e)) % (2 * math.pi)
-    if opt.iono:
-        if opt.iono_model == "rtklib" and m.system == "C" and "G" in nav.iono:
-            iono = klobuchar_gps_m(t, lat, lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
-        else:
-            iono = iono_delay_m(m.system, t, lat, lon, az, el, nav)
-    if opt.tropo:
-        delay += saastamoinen_m(lat, h, el)
-    return delay + iono, el, iono
-
-
 # RTKLIB pntpos adds these to its elevation model (rescode): code bias, broadcast-iono and
 # Saastamoinen residual errors. Reproduced only in "rtklib" weighting, for like-for-like checks.
 _RTKLIB_ERR_CBIAS_M = 0.3
@@ -146,15 +109,43 @@ _RTKLIB_ERR_SAAS_M = 0.3
 _ATMOSPHERE_REFRESH_M = 1000.0
 
 
-def _sigma(m: SatMeasurement, el: float, iono: float, opt: SppOptions, differential: bool) -> float:
+def _sigmas(sats: Sequence[SatMeasurement], el: Vec, iono: Vec, opt: SppOptions, differential: bool) -> Vec:
+    """Pseudorange 1-sigma (m) of each satellite at elevations `el` with broadcast iono `iono`."""
+    systems = [m.system for m in sats]
     if opt.weighting == "rtklib":
-        var = rtklib_variance_m2(el, m.system) + m.state.variance_m2 + _RTKLIB_ERR_CBIAS_M**2
+        var_eph = np.array([m.state.variance_m2 for m in sats])
+        var = rtklib_variance_m2(el, systems) + var_eph + _RTKLIB_ERR_CBIAS_M**2
         if not differential:
-            var += (_RTKLIB_ERR_BRDCI * iono) ** 2 + (_RTKLIB_ERR_SAAS_M / (math.sin(el) + 0.1)) ** 2
-        return math.sqrt(var)
+            var = var + (_RTKLIB_ERR_BRDCI * iono) ** 2 + (_RTKLIB_ERR_SAAS_M / (np.sin(el) + 0.1)) ** 2
+        return np.sqrt(var)
+    cn0 = np.array([m.cn0_dbhz for m in sats])
     if differential:
-        return pseudorange_sigma_m(el, m.cn0_dbhz, m.system)
-    return standalone_pseudorange_sigma_m(el, m.cn0_dbhz, m.system, iono)
+        return pseudorange_sigma_m(el, cn0, systems)
+    return standalone_pseudorange_sigma_m(el, cn0, systems, iono)
+
+
+@dataclass
+class _Atmos:
+    """Per-satellite elevation, model delay and sigma, evaluated at position `at` (None: not yet)."""
+
+    at: Vec | None
+    el: Vec
+    delay: Vec  # TGD + iono + tropo (0 with DGNSS), m
+    sig: Vec
+
+    def without(self, i: int) -> _Atmos:
+        keep = np.arange(len(self.el)) != i
+        return _Atmos(self.at, self.el[keep], self.delay[keep], self.sig[keep])
+
+
+def _gauss_newton_step(a: Vec, v: Vec, w: Vec) -> Vec:
+    """Weighted least-squares step; the normal equations are well conditioned for SPP's 4-6
+    unknowns and several times cheaper than lstsq's SVD, which stays the fallback when singular."""
+    aw = a * w[:, None]
+    try:
+        return np.linalg.solve(aw.T @ aw, aw.T @ (v * w))
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(aw, v * w, rcond=None)[0]
 
 
 def _solve(
@@ -165,76 +156,84 @@ def _solve(
     nav: NavData,
     opt: SppOptions,
     differential: bool,
-) -> _Fit | None:
-    """Gauss-Newton on position + one clock per system present; None when under-determined."""
+    prior: _Atmos | None = None,
+) -> tuple[_Fit | None, _Atmos]:
+    """Gauss-Newton on position + one clock per system present; no fit when under-determined.
+
+    `prior` (for exactly `sats`) carries the atmosphere of a previous solve over, so a re-solve
+    after a fault exclusion, which starts where the last one ended, does not evaluate it again.
+    Returns the fit and the atmosphere of all `sats` where the fit ended.
+    """
     systems = sorted({m.system for m in sats})
     nx = 3 + len(systems)
     n = len(sats)
+    sat_systems = [m.system for m in sats]
     sat_pos = np.array([m.state.pos for m in sats])
     sat_clk_m = C * np.array([m.state.clock_s for m in sats])
-    sys_col = np.array([3 + systems.index(m.system) for m in sats])
+    tgd = np.zeros(n) if differential else np.array([m.tgd_m for m in sats])
+    sys_col = np.array([3 + systems.index(s) for s in sat_systems])
     x = np.zeros(nx)
     if x0 is not None:
         x[:3] = x0[:3]
     mask = math.radians(opt.elevation_mask_deg)
-    # before the position is near the surface: no atmosphere, no mask, zenith weights (RTKLIB)
-    delay = np.array([0.0 if differential else m.tgd_m for m in sats])
-    el = np.full(n, math.pi / 2)
-    sig = np.array([_sigma(m, math.pi / 2, 0.0, opt, differential) for m in sats])
-    atm_at: Vec | None = None
+    if prior is None:
+        # before the position is near the surface: no atmosphere, no mask, zenith weights (RTKLIB)
+        el = np.full(n, math.pi / 2)
+        prior = _Atmos(None, el, tgd.copy(), _sigmas(sats, el, np.zeros(n), opt, differential))
+    atmos = prior
     keep = np.ones(n, dtype=bool)
     converged = False
     it = 0
 
-    def refresh(p: Vec) -> None:
-        nonlocal atm_at
-        lat, lon, h = ecef_to_geodetic(p)
-        rot = enu_rotation(lat, lon)
-        _, e = sagnac_ranges(sat_pos, p)
-        for i, m in enumerate(sats):
-            delay[i], el[i], iono = _atmosphere(m, e[i], t, nav, opt, differential, lat, lon, h, rot)
-            sig[i] = _sigma(m, el[i], iono, opt, differential)
-        atm_at = p.copy()
+    def refresh(p: Vec) -> _Atmos:
+        view = sky_view(sat_pos, p)
+        if differential:
+            return _Atmos(p.copy(), view.el_rad, tgd, _sigmas(sats, view.el_rad, np.zeros(n), opt, True))
+        iono, tropo = broadcast_delays(sat_systems, t, view, nav, opt.iono, opt.tropo, opt.iono_model)
+        return _Atmos(p.copy(), view.el_rad, tgd + iono + tropo, _sigmas(sats, view.el_rad, iono, opt, False))
 
+    def distance_from_atmos(p: Vec) -> float:
+        return math.inf if atmos.at is None else float(np.linalg.norm(p - atmos.at))
+
+    a = np.zeros((n, nx))
+    a[np.arange(n), sys_col] = 1.0
     while it < opt.max_iterations:
         it += 1
         p = x[:3]
         near_surface = float(p @ p) > 6.0e6**2
-        if near_surface and (atm_at is None or float(np.linalg.norm(p - atm_at)) > _ATMOSPHERE_REFRESH_M):
-            refresh(p)
+        if near_surface and distance_from_atmos(p) > _ATMOSPHERE_REFRESH_M:
+            atmos = refresh(p)
         rng, e = sagnac_ranges(sat_pos, p)
-        keep = el >= mask if near_surface else np.ones(n, dtype=bool)
-        present = sorted({sats[i].system for i in np.flatnonzero(keep)})
+        keep = atmos.el >= mask if near_surface else np.ones(n, dtype=bool)
+        present = sorted({sat_systems[i] for i in np.flatnonzero(keep)})
         cols = [0, 1, 2] + [3 + systems.index(s) for s in present]
         if int(keep.sum()) < len(cols):
-            return None
-        pred = rng - sat_clk_m + delay
-        v = y - (pred + x[sys_col])
-        a = np.zeros((n, nx))
+            return None, atmos
+        v = y - (rng - sat_clk_m + atmos.delay + x[sys_col])
         a[:, :3] = -e
-        a[np.arange(n), sys_col] = 1.0
-        w = 1.0 / sig[keep]
-        dx, *_ = np.linalg.lstsq(a[keep][:, cols] * w[:, None], v[keep] * w, rcond=None)
+        dx = _gauss_newton_step(a[keep][:, cols], v[keep], 1.0 / atmos.sig[keep])
         x[cols] += dx
         if float(np.linalg.norm(dx[:3])) < opt.convergence_m:
-            if atm_at is not None and float(np.linalg.norm(x[:3] - atm_at)) > 1.0:
-                refresh(x[:3].copy())  # converged on a stale atmosphere: once more, evaluated here
+            if distance_from_atmos(x[:3]) > 1.0:
+                atmos = refresh(x[:3].copy())  # converged on a stale atmosphere: once more, evaluated here
                 continue
             converged = True
             break
-    # residuals and weights at the final state, with the atmosphere evaluated there
+    # residuals and weights at the final state, with the atmosphere evaluated there (a millimetre
+    # away from where it was last evaluated changes nothing: elevations move by nanoradians)
     p = x[:3].copy()
-    refresh(p)
+    if distance_from_atmos(p) > 1e-3:
+        atmos = refresh(p)
     rng, e = sagnac_ranges(sat_pos, p)
     idx = np.flatnonzero(keep)
     final_sats = [sats[i] for i in idx]
     systems_f = sorted({m.system for m in final_sats})
-    a = np.zeros((len(idx), 3 + len(systems_f)))
-    a[:, :3] = -e[idx]
-    a[np.arange(len(idx)), [3 + systems_f.index(m.system) for m in final_sats]] = 1.0
-    v = y[idx] - (rng[idx] - sat_clk_m[idx] + delay[idx] + x[sys_col[idx]])
+    af = np.zeros((len(idx), 3 + len(systems_f)))
+    af[:, :3] = -e[idx]
+    af[np.arange(len(idx)), [3 + systems_f.index(m.system) for m in final_sats]] = 1.0
+    v = y[idx] - (rng[idx] - sat_clk_m[idx] + atmos.delay[idx] + x[sys_col[idx]])
     xf = np.concatenate([x[:3], [x[3 + systems.index(s)] for s in systems_f]])
-    return _Fit(xf, systems_f, final_sats, v, sig[idx].copy(), a, it, converged)
+    return _Fit(xf, systems_f, final_sats, v, atmos.sig[idx].copy(), af, it, converged), atmos
 
 
 def _dops(a: Vec, p: Vec) -> Dops:
@@ -272,9 +271,10 @@ def solve_spp(
         return SppSolution(epoch.time, False, f"too few satellites: {len(sats)} < 4")
     excluded: list[str] = []
     x0 = initial_position
+    atmos: _Atmos | None = None
+    y = np.array([m.pseudorange_m - (corrections_m[m.sat] if corrections_m else 0.0) for m in sats])
     while True:
-        y = np.array([m.pseudorange_m - (corrections_m[m.sat] if corrections_m else 0.0) for m in sats])
-        fit = _solve(sats, y, x0, epoch.time, nav, opt, differential)
+        fit, atmos = _solve(sats, y, x0, epoch.time, nav, opt, differential, atmos)
         if fit is None:
             return SppSolution(
                 epoch.time, False, f"too few satellites above the mask: {len(sats)}", excluded=tuple(excluded)
@@ -294,9 +294,12 @@ def solve_spp(
                 f"chi-square test failed: {chi:.1f} > {threshold:.1f} (dof {dof}, excluded {len(excluded)})",
                 excluded=tuple(excluded),
             )
-        worst = int(np.argmax(np.abs(w_tests(fit.a, fit.v, fit.sigma))))
-        excluded.append(fit.sats[worst].sat)
-        sats = [m for m in sats if m.sat != fit.sats[worst].sat]
+        worst = fit.sats[int(np.argmax(np.abs(w_tests(fit.a, fit.v, fit.sigma))))]
+        excluded.append(worst.sat)
+        i = sats.index(worst)
+        sats = sats[:i] + sats[i + 1 :]
+        y = np.delete(y, i)
+        atmos = atmos.without(i)
         x0 = fit.x[:3]
     p = fit.x[:3]
     w = 1.0 / fit.sigma**2

@@ -20,12 +20,22 @@ residuals of the real data sets). Doppler uses the same shape with 0.05 m/s term
 
 `rtklib_variance_m2` reproduces RTKLIB 2.4.3 b34 pntpos `varerr` exactly, for an
 RTKLIB-equivalent SPP mode.
+
+Every function takes scalars or equal-length arrays (elevation, C/N0, iono) with one system
+letter or a sequence of them: SPP and the node message evaluate a whole epoch in one call.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any, overload
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Systems = str | Sequence[str]
 
 RTKLIB_DEFAULT_ERR = (100.0, 0.003, 0.003)  # prcopt_default.err[0..2]: factor, a, b
 RTKLIB_MIN_EL_RAD = math.radians(5.0)  # pntpos.c MIN_EL: elevations below are clamped
@@ -55,38 +65,82 @@ class WeightingModel:
     min_elevation_rad: float = math.radians(5.0)
     system_factor: dict[str, float] = field(default_factory=_default_system_factor)
 
-    def _variance(self, a: float, b: float, c: float, el: float, cn0: float, system: str) -> float:
-        s = math.sin(max(el, self.min_elevation_rad))
-        cn0_eff = self.cn0_ref_dbhz if not math.isfinite(cn0) else cn0
-        f = self.system_factor.get(system, 1.0)
+    def _variance(self, a: float, b: float, c: float, el: ArrayLike, cn0: ArrayLike, system: Systems) -> Any:
+        s = np.sin(np.maximum(el, self.min_elevation_rad))
+        cn0 = np.asarray(cn0, dtype=float)
+        cn0_eff = np.where(np.isfinite(cn0), cn0, self.cn0_ref_dbhz)
+        f = _system_values(self.system_factor, system)
         return f * f * (a * a + b * b / (s * s) + c * c * 10.0 ** ((self.cn0_ref_dbhz - cn0_eff) / 10.0))
+
+
+def _system_values(table: dict[str, float], system: Systems) -> Any:
+    if isinstance(system, str):
+        return table.get(system, 1.0)
+    return np.array([table.get(s, 1.0) for s in system])
+
+
+@overload
+def _out(x: Any, system: str) -> float: ...
+@overload
+def _out(x: Any, system: Sequence[str]) -> NDArray[np.float64]: ...
+def _out(x: Any, system: Systems) -> float | NDArray[np.float64]:
+    """A float for one satellite (callers format and serialise it), an array for several."""
+    return float(x) if isinstance(system, str) else np.asarray(x, dtype=float)
 
 
 DEFAULT_WEIGHTING = WeightingModel()
 
 
+@overload
+def pseudorange_sigma_m(  # type: ignore[overload-overlap]  # str is a Sequence[str]
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: str, model: WeightingModel | None = None
+) -> float: ...
+@overload
 def pseudorange_sigma_m(
-    el_rad: float, cn0_dbhz: float, system: str, model: WeightingModel | None = None
-) -> float:
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Sequence[str], model: WeightingModel | None = None
+) -> NDArray[np.float64]: ...
+def pseudorange_sigma_m(
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Systems, model: WeightingModel | None = None
+) -> float | NDArray[np.float64]:
     """1-sigma pseudorange noise (m); decreases with elevation and with C/N0."""
     m = model or DEFAULT_WEIGHTING
-    return math.sqrt(m._variance(m.code_a_m, m.code_b_m, m.code_c_m, el_rad, cn0_dbhz, system))
+    return _out(np.sqrt(m._variance(m.code_a_m, m.code_b_m, m.code_c_m, el_rad, cn0_dbhz, system)), system)
 
 
+@overload
+def doppler_sigma_mps(  # type: ignore[overload-overlap]  # str is a Sequence[str]
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: str, model: WeightingModel | None = None
+) -> float: ...
+@overload
 def doppler_sigma_mps(
-    el_rad: float, cn0_dbhz: float, system: str, model: WeightingModel | None = None
-) -> float:
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Sequence[str], model: WeightingModel | None = None
+) -> NDArray[np.float64]: ...
+def doppler_sigma_mps(
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Systems, model: WeightingModel | None = None
+) -> float | NDArray[np.float64]:
     """1-sigma range-rate noise (m/s) for a Doppler measurement; same shape as the code model."""
     m = model or DEFAULT_WEIGHTING
-    return math.sqrt(m._variance(m.doppler_a_mps, m.doppler_b_mps, m.doppler_c_mps, el_rad, cn0_dbhz, system))
+    v = m._variance(m.doppler_a_mps, m.doppler_b_mps, m.doppler_c_mps, el_rad, cn0_dbhz, system)
+    return _out(np.sqrt(v), system)
 
 
+_RTKLIB_FACT = {"R": RTKLIB_EFACT["R"], "S": RTKLIB_EFACT["S"]}
+
+
+@overload
+def rtklib_variance_m2(  # type: ignore[overload-overlap]  # str is a Sequence[str]
+    el: ArrayLike, system: str, err: tuple[float, float, float] = ..., iono_free: bool = ...
+) -> float: ...
+@overload
 def rtklib_variance_m2(
-    el: float,
-    system: str,
+    el: ArrayLike, system: Sequence[str], err: tuple[float, float, float] = ..., iono_free: bool = ...
+) -> NDArray[np.float64]: ...
+def rtklib_variance_m2(
+    el: ArrayLike,
+    system: Systems,
     err: tuple[float, float, float] = RTKLIB_DEFAULT_ERR,
     iono_free: bool = False,
-) -> float:
+) -> float | NDArray[np.float64]:
     """RTKLIB 2.4.3 b34 pntpos `varerr`: EFACT^2 * err0^2 * (err1^2 + err2^2 / sin(el)).
 
     Reproduced as written, including its quirks: sin(el) is not squared (rtkpos.c squares it),
@@ -94,12 +148,11 @@ def rtklib_variance_m2(
     err this is 0.09 + 0.09/sin(el) m^2. It is only the measurement term: RTKLIB's `rescode`
     adds the ephemeris (URA), code-bias (0.3 m), iono and troposphere variances.
     """
-    fact = {"R": RTKLIB_EFACT["R"], "S": RTKLIB_EFACT["S"]}.get(system, 1.0)
-    el = max(el, RTKLIB_MIN_EL_RAD)
-    var = err[0] ** 2 * (err[1] ** 2 + err[2] ** 2 / math.sin(el))
+    fact = _system_values(_RTKLIB_FACT, system)
+    var = err[0] ** 2 * (err[1] ** 2 + err[2] ** 2 / np.sin(np.maximum(el, RTKLIB_MIN_EL_RAD)))
     if iono_free:
-        var *= 9.0
-    return fact * fact * var
+        var = var * 9.0
+    return _out(fact * fact * var, system)
 
 
 # The broadcast Klobuchar model removes only about half of the ionospheric delay (IS-GPS-200
@@ -108,7 +161,17 @@ def rtklib_variance_m2(
 BROADCAST_IONO_ERROR_FRACTION = 0.5
 
 
-def standalone_pseudorange_sigma_m(el_rad: float, cn0_dbhz: float, system: str, iono_m: float) -> float:
+@overload
+def standalone_pseudorange_sigma_m(  # type: ignore[overload-overlap]  # str is a Sequence[str]
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: str, iono_m: ArrayLike
+) -> float: ...
+@overload
+def standalone_pseudorange_sigma_m(
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Sequence[str], iono_m: ArrayLike
+) -> NDArray[np.float64]: ...
+def standalone_pseudorange_sigma_m(
+    el_rad: ArrayLike, cn0_dbhz: ArrayLike, system: Systems, iono_m: ArrayLike
+) -> float | NDArray[np.float64]:
     """Pseudorange sigma for undifferenced use: receiver error plus the broadcast-iono residual."""
     base = pseudorange_sigma_m(el_rad, cn0_dbhz, system)
-    return math.sqrt(base * base + (BROADCAST_IONO_ERROR_FRACTION * iono_m) ** 2)
+    return _out(np.sqrt(base * base + (BROADCAST_IONO_ERROR_FRACTION * np.asarray(iono_m)) ** 2), system)

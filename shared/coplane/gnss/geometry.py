@@ -1,0 +1,99 @@
+"""What one receiver position sees of an epoch's satellites, all satellites at once.
+
+SPP (at every position update), the Doppler rows, DGNSS corrections and the node message all need
+the same per-satellite quantities at a receiver position: the Sagnac-corrected range, the line of
+sight, elevation and azimuth, and the broadcast atmosphere. They are evaluated here for the whole
+epoch in one vectorised call, so every consumer sees the same numbers and none pays numpy's
+per-call overhead once per satellite (that per-satellite loop was most of an epoch's cost).
+The scalar `ephemeris.geometric_range` stays the reference the tests compare against.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
+from coplane.gnss.constants import OMEGA_E_GPS, C
+from coplane.gtime import GpsTime
+from coplane.recording.model import NavData
+
+Vec = NDArray[Any]
+
+
+def sagnac_ranges(sat_pos: Vec, p: Vec) -> tuple[Vec, Vec]:
+    """Vectorised `ephemeris.geometric_range`: ranges with the Sagnac term and unit LOS vectors."""
+    d = sat_pos - p
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    e = d / r[:, None]
+    return r + OMEGA_E_GPS * (sat_pos[:, 0] * p[1] - sat_pos[:, 1] * p[0]) / C, e
+
+
+@dataclass(frozen=True)
+class SkyView:
+    """Satellites (rows, emission-frame ECEF positions) as seen from `position`."""
+
+    position: Vec
+    lat: float  # rad
+    lon: float  # rad
+    h: float  # ellipsoidal height, m
+    range_m: Vec  # with the Sagnac term
+    los: Vec  # (n, 3) unit vectors receiver -> satellite, ECEF
+    el_rad: Vec
+    az_rad: Vec  # [0, 2 pi), clockwise from north
+
+    def receive_frame_positions(self, sat_pos: Vec) -> Vec:
+        """Satellite positions rotated into the ECEF frame of the reception instant.
+
+        The vectorised `ephemeris.rotate_to_receive_frame` with each satellite's travel time
+        range/c: for factors such as GTSAM's that take a plain satellite position.
+        """
+        ang = OMEGA_E_GPS * self.range_m / C
+        sa, ca = np.sin(ang), np.cos(ang)
+        x, y = sat_pos[:, 0], sat_pos[:, 1]
+        return np.column_stack([ca * x + sa * y, -sa * x + ca * y, sat_pos[:, 2]])
+
+
+def sky_view(sat_pos: Vec, position: Vec) -> SkyView:
+    """Ranges, lines of sight, elevations and azimuths of `sat_pos` (n, 3) from `position`."""
+    p = np.asarray(position, dtype=float)
+    lat, lon, h = (float(v) for v in ecef_to_geodetic(p))
+    rng, los = sagnac_ranges(np.asarray(sat_pos, dtype=float).reshape(-1, 3), p)
+    enu = los @ enu_rotation(lat, lon).T
+    el = np.arcsin(np.clip(enu[:, 2], -1.0, 1.0))
+    az = np.arctan2(enu[:, 0], enu[:, 1]) % (2 * np.pi)
+    return SkyView(p, lat, lon, h, rng, los, el, az)
+
+
+def broadcast_delays(
+    systems: Sequence[str],
+    t: GpsTime,
+    view: SkyView,
+    nav: NavData,
+    iono: bool = True,
+    tropo: bool = True,
+    iono_model: Literal["broadcast", "rtklib"] = "broadcast",
+) -> tuple[Vec, Vec]:
+    """(ionospheric, tropospheric) code delays in metres per satellite of `view`.
+
+    The models are the scalar, RTKLIB-checked ones of `gnss.atmosphere`, called per satellite:
+    they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model scales the
+    GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
+    """
+    n = len(systems)
+    io, tr = np.zeros(n), np.zeros(n)
+    for i, s in enumerate(systems):
+        el, az = float(view.el_rad[i]), float(view.az_rad[i])
+        if iono:
+            if iono_model == "rtklib" and s == "C" and "G" in nav.iono:
+                io[i] = klobuchar_gps_m(t, view.lat, view.lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
+            else:
+                io[i] = iono_delay_m(s, t, view.lat, view.lon, az, el, nav)
+        if tropo:
+            tr[i] = saastamoinen_m(view.lat, view.h, el)
+    return io, tr
