@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 import rtklib_ref as ref
 
+from coplane.gnss import ephemeris
 from coplane.gnss.constants import C, is_bds_geo
 from coplane.gnss.ephemeris import (
+    STATE_SLOT_S,
     SatState,
     geometric_range,
     rotate_to_receive_frame,
     sat_clock_s,
-    STATE_SLOT_S,
     sat_state,
     satellite_states,
     select_ephemeris,
     tgd_m,
     ura_variance_m2,
 )
-from coplane.gnss import ephemeris
 from coplane.gnss.geometry import sky_view
 from coplane.gtime import GpsTime, bdt_to_gpst
 from coplane.recording.model import Ephemeris, NavData

@@ -2,10 +2,18 @@
 
 import numpy as np
 import pymap3d as pm
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation, enu_to_ecef, geodetic_to_ecef
+from coplane.geo import (
+    ecef_to_enu,
+    ecef_to_geodetic,
+    enu_rotation,
+    enu_to_ecef,
+    geodetic_to_ecef,
+    up_vector,
+)
 
 
 @given(st.floats(-89.999, 89.999), st.floats(-180, 180), st.floats(-500.0, 30000.0))
@@ -51,3 +59,23 @@ def test_vectorised_sagnac_ranges_equal_the_scalar_geodist() -> None:
     for i in range(len(sats)):
         ri, ei = geometric_range(sats[i], rx)
         assert abs(r[i] - ri) < 1e-6 and np.allclose(e[i], ei, atol=1e-12)
+
+
+def test_up_vector_one_and_many_points() -> None:
+    """(N, 3) gives each point's (3,) up, which is enu_rotation's up row, and agrees with pymap3d."""
+    rng = np.random.default_rng(3)
+    lat, lon, h = rng.uniform(-1.5, 1.5, 500), rng.uniform(-3.14, 3.14, 500), rng.uniform(-400, 5000, 500)
+    pts = np.stack(pm.geodetic2ecef(lat, lon, h, deg=False), axis=-1)
+    many = up_vector(pts)
+    assert many.shape == (500, 3)
+    want = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
+    np.testing.assert_allclose(many, want, atol=1e-12)
+    for p, u in zip(pts[:50], many[:50], strict=True):
+        la, lo, _ = ecef_to_geodetic(p)
+        assert np.array_equal(up_vector(p), u)
+        np.testing.assert_allclose(u, enu_rotation(la, lo)[2], atol=1e-15)
+    polar = np.array([[0.0, 0.0, 6356752.3 + 5.0], [0.0, 0.0, -6356752.3 - 5.0]])
+    np.testing.assert_allclose(up_vector(polar), [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], atol=1e-15)
+    assert up_vector(np.empty((0, 3))).shape == (0, 3)
+    with pytest.raises(ValueError, match="shape"):
+        up_vector(np.zeros((2, 2)))

@@ -76,9 +76,25 @@ def enu_rotation(lat: float, lon: float) -> NDArray[np.float64]:
 
 
 def up_vector(xyz: ArrayLike) -> NDArray[np.float64]:
-    """Unit ellipsoidal normal (local up) at an ECEF point."""
-    lat, lon, _ = ecef_to_geodetic(xyz)
-    return enu_rotation(lat, lon)[2]
+    """Unit ellipsoidal normal (local up) at an ECEF point (3,), or at each of (N, 3) points.
+
+    The third row of `enu_rotation` at Heikkinen's latitude and longitude, point by point: the
+    plane history converts a fleet solution's few points per epoch, where pymap3d's vectorised
+    path costs ~0.2 ms a call in guards and setup, and this costs ~2 us a point.
+    """
+    p = np.asarray(xyz, dtype=float)
+    if p.shape == (3,):
+        lat, lon, _ = _geodetic_scalar(float(p[0]), float(p[1]), float(p[2]))
+        cl = math.cos(lat)
+        return np.array([cl * math.cos(lon), cl * math.sin(lon), math.sin(lat)])
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (3,) or (N, 3), got {p.shape}")
+    out = np.empty(p.shape)
+    for i, (x, y, z) in enumerate(p.tolist()):
+        lat, lon, _ = _geodetic_scalar(x, y, z)
+        cl = math.cos(lat)
+        out[i] = (cl * math.cos(lon), cl * math.sin(lon), math.sin(lat))
+    return out
 
 
 def ecef_to_enu(xyz: ArrayLike, ref_ecef: ArrayLike) -> NDArray[np.float64]:

@@ -39,6 +39,7 @@ from coplane.plane.fit import (
     constraint_error,
     fit_plane,
     plane_through_three,
+    unit_vector,
 )
 from coplane.plane.history import PositionHistory
 
@@ -186,8 +187,7 @@ def ransac_inliers(
         return None
     cos_max = None
     if config.max_tilt_deg is not None:
-        u = up_vector(points.mean(axis=0)) if up is None else np.asarray(up, dtype=float)
-        u = u / np.linalg.norm(u)
+        u = unit_vector(up_vector(points.mean(axis=0)) if up is None else np.asarray(up, dtype=float))
         cos_max = math.cos(math.radians(config.max_tilt_deg))
     best: NDArray[np.bool_] | None = None
     best_n = 0
@@ -203,7 +203,7 @@ def ransac_inliers(
         iterations += 1
         dist = np.abs((points - points[tri[0]]) @ normal)  # eq. (15), free of ECEF cancellation
         inliers = dist < config.t_f_m  # line 7: strict
-        n_in = int(inliers.sum())
+        n_in = int(np.count_nonzero(inliers))
         if n_in > best_n:
             best, best_n = inliers, n_in
         if best_n == n or iterations == config.ransac_iterations:
@@ -277,7 +277,7 @@ def construct_plane(
     `up` overrides the local up that orients the normal (only for points in a local frame).
     """
     pts = np.asarray(points_road, dtype=float).reshape(-1, 3)
-    if not np.all(np.isfinite(pts)):
+    if not np.isfinite(pts).all():
         raise ValueError("fitting points contain NaN or infinite coordinates")
     if not (math.isfinite(antenna_height_m) and antenna_height_m >= 0.0):
         raise ValueError(f"antenna height must be finite and >= 0, got {antenna_height_m!r}")

@@ -43,9 +43,18 @@ def _as_points(points: ArrayLike) -> Vec:
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {p.shape}")
-    if not np.all(np.isfinite(p)):
+    if not np.isfinite(p).all():
         raise ValueError("points contain NaN or infinite coordinates")
     return p
+
+
+def unit_vector(v: Vec) -> Vec:
+    """`v / np.linalg.norm(v)` for a 1-D vector, bit for bit: the same sqrt of `v.dot(v)`.
+
+    Written out because RANSAC normalises a normal per hypothesis and norm's generic dispatch
+    costs more than the arithmetic on a 3-vector.
+    """
+    return np.asarray(v / np.sqrt(v.dot(v)), dtype=float)
 
 
 def centred_svd(points: Vec) -> tuple[Vec, Vec, Vec]:
@@ -56,7 +65,7 @@ def centred_svd(points: Vec) -> tuple[Vec, Vec, Vec]:
     """
     ref = points[0]
     local = points - ref
-    c_local = local.mean(axis=0)
+    c_local = np.add.reduce(local, axis=0) / local.shape[0]  # what .mean(axis=0) computes, less overhead
     a = local - c_local
     _, s, vt = np.linalg.svd(a, full_matrices=False)
     if s.shape[0] < 3:  # fewer than 3 rows: pad so that s always has 3 entries
@@ -66,7 +75,8 @@ def centred_svd(points: Vec) -> tuple[Vec, Vec, Vec]:
 
 def is_degenerate(s: Vec) -> bool:
     """Collinear or coincident: the second singular value vanishes, so the normal is undefined."""
-    return bool(s[1] <= max(DEGENERATE_ABS_M, DEGENERATE_REL * s[0]))
+    s0, s1 = float(s[0]), float(s[1])
+    return s1 <= max(DEGENERATE_ABS_M, DEGENERATE_REL * s0)
 
 
 def antenna_offset(d_road: float, antenna_height_m: float) -> float:
@@ -166,9 +176,8 @@ def fit_plane(points: ArrayLike, up: ArrayLike | None = None) -> PlaneFit | Dege
         return Degenerate(
             f"degenerate: the {n_pts} points are {what} (s2 = {s[1]:.2g} m)", n_pts, _readonly(s)
         )
-    normal = vt[2] / np.linalg.norm(vt[2])  # eq. (10): right singular vector of the smallest s
-    u = up_vector(centroid) if up is None else np.asarray(up, dtype=float)
-    u = u / np.linalg.norm(u)
+    normal = unit_vector(vt[2])  # eq. (10): right singular vector of the smallest s
+    u = unit_vector(up_vector(centroid) if up is None else np.asarray(up, dtype=float))
     if float(normal @ u) < 0.0:
         normal = -normal
     d = -float(normal @ centroid)  # eq. (11)
@@ -190,5 +199,5 @@ def plane_through_three(points: Vec) -> tuple[Vec, float] | None:
     centroid, s, vt = centred_svd(points)
     if is_degenerate(s):
         return None
-    normal = vt[2] / np.linalg.norm(vt[2])
+    normal = unit_vector(vt[2])
     return normal, -float(normal @ centroid)

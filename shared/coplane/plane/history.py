@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from coplane.geo import ecef_to_geodetic, up_vector
+from coplane.geo import up_vector
 from coplane.plane.config import PlaneConfig
 
 Vec = NDArray[np.float64]
@@ -38,8 +38,8 @@ _MAX_ANTENNA_M = 10.0
 
 def cell_key(ecef: ArrayLike, cell_size_m: float) -> CellKey:
     """The cubic ECEF cell holding a point; regions can be defined as sets of these keys."""
-    c = np.floor(np.asarray(ecef, dtype=float) / cell_size_m).astype(np.int64)
-    return (int(c[0]), int(c[1]), int(c[2]))
+    x, y, z = np.asarray(ecef, dtype=float).tolist()  # math.floor: np.floor's result, minus numpy's
+    return (math.floor(x / cell_size_m), math.floor(y / cell_size_m), math.floor(z / cell_size_m))
 
 
 def project_to_road(ecef: ArrayLike, antenna_height_m: float) -> Vec:
@@ -52,11 +52,7 @@ def project_many_to_road(ecef: ArrayLike, antenna_heights_m: ArrayLike) -> Vec:
     """Eq. (1) for (N, 3) points at once (one vectorised geodetic conversion instead of N)."""
     p = np.asarray(ecef, dtype=float).reshape(-1, 3)
     h = np.broadcast_to(np.asarray(antenna_heights_m, dtype=float), (p.shape[0],))
-    llh = ecef_to_geodetic(p)
-    lat, lon = llh[:, 0], llh[:, 1]
-    # third row of geo.enu_rotation (the up unit vector), vectorised over the points
-    up = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
-    return np.asarray(p - h[:, None] * up, dtype=float)
+    return np.asarray(p - h[:, None] * up_vector(p), dtype=float)
 
 
 class _Bucket:
@@ -240,7 +236,7 @@ class PositionHistory:
         """`select` with the times and vehicle ids of the chosen points."""
         cfg = self.config
         c = np.asarray(center_ecef, dtype=float)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
+        if c.shape != (3,) or not np.isfinite(c).all():
             raise ValueError(f"center_ecef must be 3 finite numbers, got {center_ecef!r}")
         if not math.isfinite(before_time_s):
             raise ValueError(f"before_time_s is not finite: {before_time_s!r}")
@@ -252,52 +248,51 @@ class PositionHistory:
                 [self._vid_index[v] for v in set(vehicle_ids) if v in self._vid_index], dtype=np.int32
             )
         r = cfg.range_fitting_m
-        pts, ts, vs, ss = [], [], [], []
-        for b in self._buckets_near(c, r):
-            n = b.n
-            m = b.alive[:n] & (b.t[:n] < t_hi) & (b.t[:n] >= t_lo)
-            if allowed is not None:
-                m &= np.isin(b.vid[:n], allowed)
-            if not m.any():
-                continue
-            idx = np.flatnonzero(m)
-            diff = b.xyz[idx] - c
-            near = np.einsum("ij,ij->i", diff, diff) < r * r
-            idx = idx[near]
-            if idx.size:
-                pts.append(b.xyz[idx])
-                ts.append(b.t[idx])
-                vs.append(b.vid[idx])
-                ss.append(b.sig[idx])
-        if not pts:
+        buckets = self._buckets_near(c, r)
+        if not buckets:
             return HistorySample(np.empty((0, 3)), np.empty(0), (), 0)
-        p = np.concatenate(pts)
-        t = np.concatenate(ts)
-        v = np.concatenate(vs)
-        sg = np.concatenate(ss)
-        rank = self._vehicle_rank()
-        order = np.lexsort((rank[v], t))  # by time, then vehicle id: independent of storage order
+        # the few nearby cells' rows in one set of arrays: the filters below then cost a fixed
+        # number of numpy calls per query instead of a dozen per cell
+        t_all = np.concatenate([b.t[: b.n] for b in buckets])
+        m = np.concatenate([b.alive[: b.n] for b in buckets]) & (t_all < t_hi) & (t_all >= t_lo)
+        v_all = np.concatenate([b.vid[: b.n] for b in buckets])
+        if allowed is not None:
+            m &= np.isin(v_all, allowed)
+        idx = np.flatnonzero(m)
+        xyz = np.concatenate([b.xyz[: b.n] for b in buckets])
+        diff = xyz[idx] - c
+        idx = idx[np.einsum("ij,ij->i", diff, diff) < r * r]
+        if not idx.size:
+            return HistorySample(np.empty((0, 3)), np.empty(0), (), 0)
+        v = v_all[idx]
+        # by time, then vehicle id: independent of storage order
+        order = np.lexsort((self._vehicle_rank()[v], t_all[idx]))
         n_cand = order.shape[0]
         if n_cand > cfg.n_max:
             order = order[np.sort(rng.choice(n_cand, size=cfg.n_max, replace=False))]
+        rows = idx[order]
+        vids = self._vids
         return HistorySample(
-            points=p[order].copy(),
-            times_s=t[order].copy(),
-            vehicle_ids=tuple(self._vids[i] for i in v[order]),
+            points=xyz[rows],
+            times_s=t_all[rows],
+            vehicle_ids=tuple([vids[i] for i in v[order].tolist()]),
             n_candidates=n_cand,
-            sigmas_up_m=sg[order].copy(),
+            sigmas_up_m=np.concatenate([b.sig[: b.n] for b in buckets])[rows],
         )
 
     # -- internals ---------------------------------------------------------------------------
     def _check(self, vehicle_id: str, time_s: float, ecef: ArrayLike, antenna_height_m: float) -> Vec:
+        """Reject implausible input. In Python scalars: a fleet solution's few points would spend
+        more time in numpy's per-call overhead than in the checks."""
         p = np.asarray(ecef, dtype=float)
         if not isinstance(vehicle_id, str) or not vehicle_id:
             raise ValueError(f"vehicle_id must be a non-empty string, got {vehicle_id!r}")
         if not math.isfinite(time_s):
             raise ValueError(f"time of {vehicle_id} is not finite: {time_s!r}")
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
+        xyz = p.tolist() if p.shape == (3,) else None
+        if xyz is None or not all(math.isfinite(c) for c in xyz):
             raise ValueError(f"position of {vehicle_id} must be 3 finite numbers, got {ecef!r}")
-        radius = float(np.linalg.norm(p))
+        radius = math.hypot(*xyz)
         if not _R_MIN_M <= radius <= _R_MAX_M:
             raise ValueError(f"position of {vehicle_id} is {radius:.0f} m from the Earth's centre")
         if not (math.isfinite(antenna_height_m) and 0.0 <= antenna_height_m <= _MAX_ANTENNA_M):
@@ -362,17 +357,20 @@ class PositionHistory:
     def _buckets_near(self, c: Vec, r: float) -> list[_Bucket]:
         """Buckets of all cells that intersect the ball of radius r about c, in key order."""
         size = self.config.cell_size_m
-        lo = np.floor((c - r) / size).astype(np.int64)
-        hi = np.floor((c + r) / size).astype(np.int64)
-        n_cells = int(np.prod(hi - lo + 1))
-        if n_cells > len(self._cells):  # huge radius or tiny cells: scan what exists
-            keys = sorted(k for k in self._cells if all(lo[j] <= k[j] <= hi[j] for j in range(3)))
+        # math.floor on floats, as in cell_key: np.floor's result without numpy calls on a 3-vector
+        x, y, z = float(c[0]), float(c[1]), float(c[2])
+        lo = (math.floor((x - r) / size), math.floor((y - r) / size), math.floor((z - r) / size))
+        hi = (math.floor((x + r) / size), math.floor((y + r) / size), math.floor((z + r) / size))
+        n_cells = (hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1)
+        cells = self._cells
+        if n_cells > len(cells):  # huge radius or tiny cells: scan what exists
+            keys = sorted(k for k in cells if all(lo[j] <= k[j] <= hi[j] for j in range(3)))
         else:
             keys = [
-                (int(i), int(j), int(k))
+                (i, j, k)
                 for i in range(lo[0], hi[0] + 1)
                 for j in range(lo[1], hi[1] + 1)
                 for k in range(lo[2], hi[2] + 1)
-                if (int(i), int(j), int(k)) in self._cells
+                if (i, j, k) in cells
             ]
-        return [self._cells[k] for k in keys]
+        return [cells[k] for k in keys]
