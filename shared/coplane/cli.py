@@ -198,6 +198,12 @@ def eval_(
     dgnss: Annotated[
         bool | None, typer.Option(help="Force DGNSS on/off; default: on when the recording has a base.")
     ] = None,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Processes for the vehicle steps (same results for any); default: one per core."
+        ),
+    ] = None,
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
@@ -210,7 +216,9 @@ def eval_(
             raise ValueError("interruption rates must be within 0..100 %")
         rec = open_recording(_recording_or_default(recording))
         names = [m.strip() for m in methods.split(",") if m.strip()]
-        ev = evaluate(rec, names, rates, out, seed=seed, vehicles=vehicle, dgnss=dgnss, progress=True)
+        ev = evaluate(
+            rec, names, rates, out, seed=seed, vehicles=vehicle, dgnss=dgnss, progress=True, jobs=jobs
+        )
     except (RecordingError, KeyError, ValueError) as exc:
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(2) from exc

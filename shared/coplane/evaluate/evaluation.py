@@ -36,6 +36,7 @@ def evaluate(
     vehicles: Sequence[str] | None = None,
     dgnss: bool | None = None,
     progress: bool = False,
+    jobs: int | None = None,
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
     specs = [None if m == RTKLIB_METHOD else get_method(m) for m in methods]  # validate names first
@@ -55,7 +56,9 @@ def evaluate(
         for rate in sorted(set(rates) | {0.0}):
             if rate > 0 and not spec.fgo.use_ranging:
                 continue
-            run = run_method(rec, spec, interruption=rate, seed=seed, dgnss=dgnss, progress=progress)
+            run = run_method(
+                rec, spec, interruption=rate, seed=seed, dgnss=dgnss, progress=progress, jobs=jobs
+            )
             ev.runs.append(run)
             ev.stats[run.label] = run_stats(run, rec)
             if out_dir is not None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time as _time
 from collections import defaultdict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,7 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
 from coplane.fgo.methods import MethodSpec, get_method
+from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
@@ -68,8 +71,13 @@ def run_method(
     progress: bool = False,
     on_solution: Any = None,
     plane_config: PlaneConfig | None = None,
+    jobs: int | None = None,
 ) -> MethodRun:
-    """Run one method over the recording. DGNSS is used when the recording has a base (default)."""
+    """Run one method over the recording. DGNSS is used when the recording has a base (default).
+
+    `jobs` processes share the vehicle steps (None: one per core, at most one per vehicle; 1: all
+    in this process). The result is the same bits for any `jobs` (evaluate.vehicle_workers).
+    """
     spec = get_method(method) if isinstance(method, str) else method
     fleet = fleet_id(rec.manifest.name)
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
@@ -95,23 +103,42 @@ def run_method(
         for vid in ids
     }
     run = MethodRun(spec.name, interruption)
-    t_start = _time.perf_counter()
-    for t, live in tqdm(schedule, desc=run.label, unit="epoch", disable=not progress, leave=False):
-        corr = None
-        if use_dgnss:
-            b = base_by_t.get(t)
-            assert rec.manifest.base is not None
-            if b is not None:
-                corr = base_corrections(b, np.asarray(rec.manifest.base.position_ecef_m), rec.nav)
-        msgs: dict[str, NodeMessage] = {
-            vid: steps[vid].process(t, ep, corr, uwb[vid].get(t, ())) for vid, ep in sorted(live.items())
+
+    def node_messages(
+        group: Mapping[str, VehicleStep], k: int, corr: DgnssCorrections | None
+    ) -> dict[str, NodeMessage]:
+        t, live = schedule[k]
+        return {
+            vid: group[vid].process(t, ep, corr, uwb[vid].get(t, ()))
+            for vid, ep in sorted(live.items())
+            if vid in group
         }
-        sol = fusion.solve(t, msgs)
-        for s in steps.values():
-            s.ingest(sol)
-        record_solution(run, sol, msgs)
-        if on_solution is not None:
-            on_solution(sol, msgs)
+
+    n_jobs = default_jobs(len(ids)) if jobs is None else max(1, jobs)
+    groups = split_vehicles(ids, n_jobs) if VehicleWorkers.available() else [ids]
+    own = {vid: steps[vid] for vid in groups[0]}
+    t_start = _time.perf_counter()
+    with VehicleWorkers([{vid: steps[vid] for vid in g} for g in groups[1:]], node_messages) as workers:
+        sol: SolutionMessage | None = None
+        for k, (t, _) in enumerate(
+            tqdm(schedule, desc=run.label, unit="epoch", disable=not progress, leave=False)
+        ):
+            corr = None
+            if use_dgnss:
+                b = base_by_t.get(t)
+                assert rec.manifest.base is not None
+                if b is not None:
+                    corr = base_corrections(b, np.asarray(rec.manifest.base.position_ecef_m), rec.nav)
+            workers.submit(k, corr, sol)
+            if sol is not None:
+                for s in own.values():
+                    s.ingest(sol)
+            msgs = node_messages(own, k, corr) | workers.collect()
+            msgs = dict(sorted(msgs.items()))
+            sol = fusion.solve(t, msgs)
+            record_solution(run, sol, msgs)
+            if on_solution is not None:
+                on_solution(sol, msgs)
     run.wall_time_s = _time.perf_counter() - t_start
     run.n_epochs = len(schedule)
     return run

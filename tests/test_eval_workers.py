@@ -1,0 +1,66 @@
+"""`coplane eval` on several cores: worker processes own some vehicles' steps (evaluate.vehicle_workers).
+
+Whatever the number of processes, a run must give the same bits, and a failing worker must stop
+the run with its traceback instead of hanging or dropping vehicles.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coplane.evaluate.runner import MethodRun, run_method
+from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
+from coplane.recording.reader import Recording, open_recording
+from coplane.sim.generate import simulate
+from coplane.steps import VehicleStep
+
+pytestmark = pytest.mark.skipif(not VehicleWorkers.available(), reason="needs fork")
+
+
+@pytest.fixture(scope="module")
+def rec30(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    path = simulate("urban-loop", tmp_path_factory.mktemp("rec30") / "rec", vehicles=5, duration_s=30, seed=3)
+    return open_recording(Path(path))
+
+
+def _same(a: MethodRun, b: MethodRun) -> None:
+    assert a.positions.keys() == b.positions.keys()
+    for v in a.positions:
+        assert a.positions[v].keys() == b.positions[v].keys()
+        for t, p in a.positions[v].items():
+            assert np.array_equal(p, b.positions[v][t]), (v, t)
+            assert np.array_equal(a.covariances[v][t], b.covariances[v][t])
+        assert a.planes[v] == b.planes[v] and a.ranges_used[v] == b.ranges_used[v]
+
+
+@pytest.mark.parametrize("method", ["pc", "gamp-cp"])
+def test_any_number_of_processes_gives_the_same_bits(rec30: Recording, method: str) -> None:
+    alone = run_method(rec30, method, jobs=1)
+    assert sum(len(p) for p in alone.positions.values()) > 100
+    for jobs in (2, 3):
+        _same(alone, run_method(rec30, method, jobs=jobs))
+
+
+def test_worker_failure_stops_the_run_with_its_traceback(
+    rec30: Recording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real = VehicleStep.process
+
+    def broken(self: VehicleStep, *args: object, **kwargs: object) -> object:
+        if self.vehicle_id == "u2":  # a vehicle of the worker (u1 stays in this process)
+            raise ValueError("injected failure in u2's step")
+        return real(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(VehicleStep, "process", broken)
+    with pytest.raises(RuntimeError, match=r"(?s)vehicle worker \d+ failed.*injected failure in u2"):
+        run_method(rec30, "mci", jobs=2)
+
+
+def test_vehicles_are_dealt_to_groups() -> None:
+    assert split_vehicles(["a", "b", "c", "d", "e"], 2) == [["a", "c", "e"], ["b", "d"]]
+    assert split_vehicles(["a", "b"], 4) == [["a"], ["b"]]
+    assert split_vehicles(["a", "b"], 1) == [["a", "b"]]
+    assert default_jobs(1) == 1 and 1 <= default_jobs(64) <= 64
