@@ -112,7 +112,12 @@ def test_pseudorange_factor_jacobian_matches_finite_differences() -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# plane (CustomFactor)
+# plane (native: a prior on a point of the plane with a rank-1 square-root information)
+
+
+def _plane_residual_m(f: gtsam.NoiseModelFactor, p: np.ndarray, sigma: float) -> np.ndarray:
+    """The plane factor's whitened error times sigma: (n.p + d, 0, 0) in metres."""
+    return np.asarray(f.whitenedError(_values({f.keys()[0]: p}))) * sigma
 
 
 def test_plane_factor_error_sign_and_value() -> None:
@@ -122,24 +127,49 @@ def test_plane_factor_error_sign_and_value() -> None:
     f = F.plane_factor(7, plane)
     above = on_plane + 1.0 * up + 5.0 * ENU[0]  # 1 m above, moved along the plane
     below = on_plane - 0.25 * up
-    assert float(f.unwhitenedError(_values({7: above}))[0]) == pytest.approx(1.0, abs=1e-6)
-    assert float(f.unwhitenedError(_values({7: below}))[0]) == pytest.approx(-0.25, abs=1e-6)
-    assert float(f.unwhitenedError(_values({7: above}))[0]) == pytest.approx(plane.error(above), abs=1e-9)
+    np.testing.assert_allclose(_plane_residual_m(f, above, 0.1), [1.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(_plane_residual_m(f, below, 0.1), [-0.25, 0.0, 0.0], atol=1e-6)
+    assert _plane_residual_m(f, above, 0.1)[0] == pytest.approx(plane.error(above), abs=1e-9)
     # cost 0.5 (e / sigma)^2 = 0.5 * 100 for 1 m at sigma 0.1 m
     assert f.error(_values({7: above})) == pytest.approx(50.0, rel=1e-6)
 
 
-def test_plane_factor_jacobian_is_the_normal() -> None:
-    n = np.array([0.03, -0.02, 1.0])
-    n /= np.linalg.norm(n)
-    n = ENU.T @ n
-    plane = PlaneObs(n, -float(n @ RX) - 1.7, 0.2)
+@pytest.mark.parametrize("axis_aligned", [False, True])
+def test_plane_factor_jacobian_is_the_normal(axis_aligned: bool) -> None:
+    """Linearised: one row n^T / sigma (finite differences agree), the other two rows zero."""
+    if axis_aligned:  # R is diagonal: must stay rank 1, with no division by its zeros
+        n = np.array([1.0, 0.0, 0.0])
+    else:
+        n = np.array([0.03, -0.02, 1.0])
+        n /= np.linalg.norm(n)
+        n = ENU.T @ n
+    sigma = 0.2
+    plane = PlaneObs(n, -float(n @ RX) - 1.7, sigma)
     f = F.plane_factor(3, plane)
-    entries: dict[int, np.ndarray | float] = {3: RX + np.array([1.0, 2.0, 3.0])}
-    num = _numeric_jacobian(f, entries, {3: 0.5})
-    ana = _analytic_jacobian(f, entries, 0.2)
-    np.testing.assert_allclose(ana, num, atol=1e-6)
-    np.testing.assert_allclose(ana[0], n, atol=1e-12)
+    p = RX + np.array([1.0, 2.0, 3.0])
+    a, b = f.linearize(_values({3: p})).jacobian()
+    step = 0.5
+    num = np.column_stack(
+        [
+            (_plane_residual_m(f, p + h, sigma) - _plane_residual_m(f, p - h, sigma)) / (2 * step)
+            for h in step * np.eye(3)
+        ]
+    )
+    np.testing.assert_allclose(np.asarray(a) * sigma, num, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(a)[0] * sigma, n, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(a)[1:], 0.0, atol=0.0)
+    assert -float(b[0]) * sigma == pytest.approx(plane.error(p), abs=1e-9)
+
+
+def test_plane_factor_constrains_only_the_normal_direction() -> None:
+    """With a prior of 1 m per axis, the plane at 0.1 m shrinks the marginal along n only."""
+    n = ENU[2]
+    g = gtsam.NonlinearFactorGraph()
+    g.add(F.plane_factor(1, PlaneObs(n, -float(n @ RX), 0.1)))
+    g.add(F.position_prior(1, RX, np.eye(3)))
+    cov = gtsam.Marginals(g, _values({1: RX})).marginalCovariance(1)
+    var_n = 1.0 / (1.0 + 1.0 / 0.1**2)
+    np.testing.assert_allclose(ENU @ cov @ ENU.T, np.diag([1.0, 1.0, var_n]), atol=1e-9)
 
 
 def test_plane_factor_rejects_a_zero_normal() -> None:

@@ -15,6 +15,7 @@ retried with stronger priors, then that cluster's epoch is dropped.
 from __future__ import annotations
 
 import math
+import statistics
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -312,16 +313,15 @@ class FusionEstimator:
             )
         keep: list[int] = []
         seen: set[str] = set()
-        for i, o in enumerate(prs):
+        for i, (good, o) in enumerate(zip(ok.tolist(), prs, strict=True)):
             sat = o.sat
-            if ok[i] and isinstance(sat, str) and len(sat) >= 2 and sat[0] in CLOCK_CHR and sat not in seen:
+            if good and isinstance(sat, str) and len(sat) >= 2 and sat[0] in CLOCK_CHR and sat not in seen:
                 seen.add(sat)
                 keep.append(i)
         if len(keep) < n:
             stats.reject("pseudorange", n - len(keep))
-        return _Pseudoranges(
-            sats[keep], num[keep, 0], num[keep, 1], num[keep, 2], [prs[i].sat[0] for i in keep]
-        )
+            sats, num = sats[keep], num[keep]
+        return _Pseudoranges(sats, num[:, 0], num[:, 1], num[:, 2], [prs[i].sat[0] for i in keep])
 
     @staticmethod
     def _gate(
@@ -416,8 +416,11 @@ class FusionEstimator:
         clock_init: dict[str, float] = {}
         if len(prs):
             resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - init, axis=1)
-            sys_of = np.array(prs.systems)
-            clock_init = {s: float(np.median(resid[sys_of == s])) / C for s in systems}
+            by_system: dict[str, list[float]] = {s: [] for s in systems}
+            for s, r in zip(prs.systems, resid.tolist(), strict=True):
+                by_system[s].append(r)
+            # statistics.median: np.median's value, without its overhead on a dozen numbers
+            clock_init = {s: statistics.median(by_system[s]) / C for s in systems}
         clock_links: dict[str, _ClockLink] = {}
         for s in systems:
             prev = next((b for b in reversed(hist) if s in b.clock_keys), None) if hist else None

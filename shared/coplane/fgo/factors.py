@@ -6,7 +6,8 @@ Native classes wherever GTSAM has one (C++ evaluation, no Python callback per li
   - velocity (eq. 36): gtsam.BetweenFactorPoint3 on the displacement v * dt
   - receiver clock random walk: gtsam.BetweenFactorDouble (seconds)
   - anchor / fallback priors: gtsam.PriorFactorPoint3, gtsam.PriorFactorDouble
-Only the plane constraint (eq. 24) is a gtsam.CustomFactor: GTSAM has no point-on-plane factor.
+  - plane constraint (eq. 24): gtsam.PriorFactorPoint3 with a rank-1 square-root information
+    (GTSAM has no point-on-plane factor; eq. 24 is linear in p, see `plane_factor`)
 
 Sagnac: the PseudorangeFactor of the GTSAM 4.3.0 wheel adds the Earth-rotation (Sagnac) term
 omega_e / c * (x_s * y_r - y_s * x_r) itself, i.e. it expects the satellite position in the ECEF
@@ -40,22 +41,29 @@ def isotropic(dim: int, sigma: float) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
 
 
+@functools.lru_cache(maxsize=8)
+def m_estimator(kernel: str, k: float | None) -> gtsam.noiseModel.mEstimator.Base:
+    """The Huber or Cauchy M-estimator with threshold k (one shared instance per kernel and k)."""
+    if k is None or not k > 0:
+        raise ValueError(f"robust kernel {kernel!r} needs a positive k, got {k!r}")
+    if kernel == "huber":
+        return gtsam.noiseModel.mEstimator.Huber.Create(k)
+    if kernel == "cauchy":
+        return gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+    raise ValueError(f"unknown robust kernel {kernel!r}")
+
+
+def with_kernel(base: gtsam.noiseModel.Base, kernel: str | None, k: float | None) -> gtsam.noiseModel.Base:
+    """`base` wrapped in a Huber or Cauchy M-estimator when `kernel` is set."""
+    if kernel is None:
+        return base
+    return gtsam.noiseModel.Robust.Create(m_estimator(kernel, k), base)
+
+
 @functools.lru_cache(maxsize=8192)
 def robust_isotropic(dim: int, sigma: float, kernel: str | None, k: float | None) -> gtsam.noiseModel.Base:
     """Isotropic Gaussian, wrapped in a Huber or Cauchy M-estimator when `kernel` is set."""
-    base = isotropic(dim, sigma)
-    if kernel is None:
-        return base
-    if k is None or not k > 0:
-        raise ValueError(f"robust kernel {kernel!r} needs a positive k, got {k!r}")
-    m: gtsam.noiseModel.mEstimator.Base
-    if kernel == "huber":
-        m = gtsam.noiseModel.mEstimator.Huber.Create(k)
-    elif kernel == "cauchy":
-        m = gtsam.noiseModel.mEstimator.Cauchy.Create(k)
-    else:
-        raise ValueError(f"unknown robust kernel {kernel!r}")
-    return gtsam.noiseModel.Robust.Create(m, base)
+    return with_kernel(isotropic(dim, sigma), kernel, k)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -130,25 +138,39 @@ def pseudorange_factors(
     robust: str | None = None,
     robust_k: float | None = None,
 ) -> list[gtsam.PseudorangeFactor]:
-    """All pseudorange factors of one vehicle epoch (one vectorised frame conversion)."""
+    """All pseudorange factors of one vehicle epoch (one vectorised frame conversion).
+
+    Per-satellite sigmas are all different, so their noise models bypass the caches; the scalars
+    go to GTSAM as Python floats (pybind converts numpy scalars several times more slowly).
+    """
     sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
     return [
         gtsam.PseudorangeFactor(
-            pos_key, ck, float(r), sats[i], float(sc), robust_isotropic(1, float(sg), robust, robust_k)
+            pos_key, ck, r, sat, sc, with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
         )
-        for i, (ck, r, sc, sg) in enumerate(zip(clock_keys, rho_m, sat_clock_s, sigma_m, strict=True))
+        for ck, r, sat, sc, sg in zip(
+            clock_keys, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
+        )
     ]
 
 
+def _floats(x: Sequence[float] | Vec) -> list[float]:
+    return np.asarray(x, dtype=float).reshape(-1).tolist()
+
+
 # ----------------------------------------------------------------------------------------------
-# plane constraint (eqs. 22-24): the only CustomFactor
+# plane constraint (eqs. 22-24)
 
 
-def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.CustomFactor:
-    """Eq. 24: error n.p + d (metres, + above the plane along the upward normal), Jacobian n^T.
+def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.PriorFactorPoint3:
+    """Eq. 24: whitened error (n.p + d) / sigma (+ above the plane along the upward normal).
 
-    Eq. 24 writes f = P'^D - p.u_PC with u_PC = -n: the same number. The normal is renormalised
-    so the error is a distance whatever the caller's rounding.
+    GTSAM has no point-on-plane factor, but eq. 24 is linear in p: a prior on p0 = -d n (a point
+    of the plane) whose square-root information R has the single non-zero row n^T / sigma gives
+    R (p - p0) = ((n.p + d) / sigma, 0, 0), all in C++ (a Python CustomFactor would be called back
+    at every linearisation). The two zero rows add nothing to the cost, the Hessian or the
+    marginals. Eq. 24 writes f = P'^D - p.u_PC with u_PC = -n: the same number. The normal is
+    renormalised so the error is a distance whatever the caller's rounding.
     """
     n = np.asarray(plane.normal, dtype=float).reshape(3)
     norm = float(np.linalg.norm(n))
@@ -156,15 +178,12 @@ def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.CustomFactor:
         raise ValueError(f"plane normal is not a unit vector: {plane.normal!r}")
     n = n / norm
     d = float(plane.d_m) / norm
-    jac = n.reshape(1, 3).copy()
-
-    def error(_: gtsam.CustomFactor, values: gtsam.Values, H: list[NDArray[np.float64]] | None) -> Vec:
-        p = values.atPoint3(pos_key)
-        if H is not None:
-            H[0] = jac
-        return np.array([n @ p + d])
-
-    return gtsam.CustomFactor(isotropic(1, float(plane.sigma_m)), [pos_key], error)
+    r = np.zeros((3, 3))
+    r[0] = n / float(plane.sigma_m)
+    # smart=False: always this one model (an axis-aligned normal would become a Diagonal with
+    # infinite sigmas, equivalent but a second code path in GTSAM)
+    noise = gtsam.noiseModel.Gaussian.SqrtInformation(r, False)
+    return gtsam.PriorFactorPoint3(pos_key, -d * n, noise)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -264,9 +264,9 @@ def solve_lm_window(
     """The paper's window: one LM solve over the cluster's window graph, then its marginals."""
     graph = build_graph(blocks, ranges, priors, oldest_step)
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, lm_params(cfg))
-    before = graph.error(initial)
+    before = opt.error()  # the optimizer evaluates the graph at the start and at every step
     values = opt.optimize()
-    after = graph.error(values)
+    after = opt.error()
     if not np.isfinite(after):
         raise RuntimeError(f"LM returned a non-finite error {after}")
     covs = marginal_covariances(gtsam.Marginals(graph, values), cov_keys) if cov_keys else {}
