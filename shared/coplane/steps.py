@@ -115,6 +115,7 @@ class VehicleStep:
         self.seq = 0
         self.first_epoch: GpsTime | None = None
         self._last_fused: tuple[GpsTime, Vec] | None = None
+        self._last_spp: Vec | None = None
 
     # -- the fleet's solution feeds the plane history (paper eq. 2) --------------------------
     def ingest(self, solution: SolutionMessage) -> None:
@@ -144,20 +145,39 @@ class VehicleStep:
                 self._last_fused = (t, np.asarray(v.position_ecef_m, dtype=float))
 
     # -- one epoch ---------------------------------------------------------------------------
+    def front_end(
+        self, t: GpsTime, epoch: ObsEpoch | None, corrections: DgnssCorrections | None = None
+    ) -> EpochResult:
+        """SPP and Doppler of this receiver's epoch: its own data only, nothing from the fleet.
+
+        SPP starts from this receiver's previous fix (the fused position would tie the GNSS front
+        end to the fusion step), so the front end can run ahead, e.g. while the server solves the
+        previous epoch. Call once per epoch, in order, before `process`.
+        """
+        ep = epoch if epoch is not None else ObsEpoch(t, ())
+        res = solve_epoch(ep, self.nav, corrections, self.config.solver, self._last_spp)
+        if res.spp.ok:
+            self._last_spp = res.spp.position
+        return res
+
     def process(
         self,
         t: GpsTime,
         epoch: ObsEpoch | None,
         corrections: DgnssCorrections | None = None,
         uwb: Iterable[UwbRange] = (),
+        front: EpochResult | None = None,
     ) -> NodeMessage:
-        """The node message for nominal epoch `t`; `epoch` None means the receiver had no epoch."""
+        """The node message for nominal epoch `t`; `epoch` None means the receiver had no epoch.
+
+        `front` is this epoch's `front_end` result when it was computed ahead; else it runs here.
+        """
         if epoch is None:
             epoch = ObsEpoch(t, ())
         if self.first_epoch is None:
             self.first_epoch = t
         last = self._last_fused[1] if self._last_fused is not None else None
-        res = solve_epoch(epoch, self.nav, corrections, self.config.solver, last)
+        res = front if front is not None else self.front_end(t, epoch, corrections)
         approx = res.spp.position if res.spp.ok else last
         sats = self._satellites(res, approx, corrections)
         plane = self._plane(t, approx) if self.method.planes != "none" else None

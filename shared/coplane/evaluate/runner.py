@@ -20,10 +20,11 @@ from tqdm import tqdm
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
 from coplane.fgo.methods import MethodSpec, get_method
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.epoch_solver import base_corrections
+from coplane.gnss.epoch_solver import EpochResult, base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
 from coplane.plane.config import PlaneConfig
+from coplane.recording.model import NavData, ObsEpoch
 from coplane.recording.reader import Recording
 from coplane.replay import base_by_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
@@ -103,37 +104,28 @@ def run_method(
         for vid in ids
     }
     run = MethodRun(spec.name, interruption)
-
-    def node_messages(
-        group: Mapping[str, VehicleStep], k: int, corr: DgnssCorrections | None
-    ) -> dict[str, NodeMessage]:
-        t, live = schedule[k]
-        return {
-            vid: group[vid].process(t, ep, corr, uwb[vid].get(t, ()))
-            for vid, ep in sorted(live.items())
-            if vid in group
-        }
-
+    base_position = np.asarray(rec.manifest.base.position_ecef_m) if rec.manifest.base is not None else None
+    replay = _Replay(schedule, uwb, base_by_t, base_position, rec.nav)
     n_jobs = default_jobs(len(ids)) if jobs is None else max(1, jobs)
-    groups = split_vehicles(ids, n_jobs) if VehicleWorkers.available() else [ids]
-    own = {vid: steps[vid] for vid in groups[0]}
+    workers_on = n_jobs > 1 and VehicleWorkers.available()
+    # With workers this process runs the fusion step (as the server does on the bus) and a smaller
+    # share of the vehicles: a worker's GNSS front ends run ahead while the fusion step solves, so
+    # in the critical path a worker's vehicle costs about half of one of this process's.
+    n_workers = n_jobs - 1 if workers_on else 0
+    n_own = len(ids) // (2 * n_workers + 1) if workers_on else len(ids)
+    own = {vid: steps[vid] for vid in ids[:n_own]}
+    groups = split_vehicles(ids[n_own:], n_workers) if workers_on else []
     t_start = _time.perf_counter()
-    with VehicleWorkers([{vid: steps[vid] for vid in g} for g in groups[1:]], node_messages) as workers:
+    with VehicleWorkers([{vid: steps[vid] for vid in g} for g in groups], replay, len(schedule)) as workers:
         sol: SolutionMessage | None = None
         for k, (t, _) in enumerate(
             tqdm(schedule, desc=run.label, unit="epoch", disable=not progress, leave=False)
         ):
-            corr = None
-            if use_dgnss:
-                b = base_by_t.get(t)
-                assert rec.manifest.base is not None
-                if b is not None:
-                    corr = base_corrections(b, np.asarray(rec.manifest.base.position_ecef_m), rec.nav)
-            workers.submit(k, corr, sol)
+            workers.submit(k, sol)
             if sol is not None:
                 for s in own.values():
                     s.ingest(sol)
-            msgs = node_messages(own, k, corr) | workers.collect()
+            msgs = replay.messages(own, k) | workers.collect()
             msgs = dict(sorted(msgs.items()))
             sol = fusion.solve(t, msgs)
             record_solution(run, sol, msgs)
@@ -142,6 +134,53 @@ def run_method(
     run.wall_time_s = _time.perf_counter() - t_start
     run.n_epochs = len(schedule)
     return run
+
+
+class _Replay:
+    """The vehicles' side of a lockstep replay, for `VehicleWorkers` and for this process alike."""
+
+    def __init__(
+        self,
+        schedule: list[tuple[GpsTime, dict[str, Any]]],
+        uwb: Mapping[str, Mapping[GpsTime, Any]],
+        base_by_t: Mapping[GpsTime, ObsEpoch],
+        base_position: Vec | None,
+        nav: NavData,
+    ) -> None:
+        self.schedule, self.uwb, self.base_by_t, self.base_position, self.nav = (
+            schedule,
+            uwb,
+            base_by_t,
+            base_position,
+            nav,
+        )
+        self._corrections: dict[int, DgnssCorrections | None] = {}
+        self._fronts: dict[tuple[int, str], EpochResult] = {}
+
+    def corrections(self, k: int) -> DgnssCorrections | None:
+        """DGNSS corrections of epoch k (each process computes them itself: same bits)."""
+        if k not in self._corrections:
+            b = self.base_by_t.get(self.schedule[k][0])
+            corr = None
+            if b is not None and self.base_position is not None:
+                corr = base_corrections(b, self.base_position, self.nav)
+            self._corrections = {k: corr}  # only the current epoch is ever asked for again
+        return self._corrections[k]
+
+    def ahead(self, steps: Mapping[str, VehicleStep], k: int) -> None:
+        t, live = self.schedule[k]
+        for vid, ep in sorted(live.items()):
+            if vid in steps:
+                self._fronts[(k, vid)] = steps[vid].front_end(t, ep, self.corrections(k))
+
+    def messages(self, steps: Mapping[str, VehicleStep], k: int) -> dict[str, NodeMessage]:
+        t, live = self.schedule[k]
+        corr = self.corrections(k) if any(vid in steps for vid in live) else None
+        return {
+            vid: steps[vid].process(t, ep, corr, self.uwb[vid].get(t, ()), self._fronts.pop((k, vid), None))
+            for vid, ep in sorted(live.items())
+            if vid in steps
+        }
 
 
 def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMessage]) -> None:
