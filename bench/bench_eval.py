@@ -2,7 +2,9 @@
 
 Issue 4's target: the bundled 4-vehicle, 600-epoch recording evaluates in under 10 s per method
 on this 2-core machine. Median of `--repeats` runs (recording already loaded, as in `coplane eval`
-after the first method), printed as a Markdown table for docs/performance.md.
+after the first method), with the default jobs (one process per core: vehicle workers + the
+fusion step, evaluate.vehicle_workers) and with everything in one process (`--jobs 1`), printed
+as a Markdown table for docs/performance.md.
 
     .venv/bin/python bench/bench_eval.py --repeats 3
 """
@@ -16,6 +18,7 @@ import time
 import numpy as np
 
 from coplane.evaluate.runner import run_method
+from coplane.evaluate.vehicle_workers import default_jobs
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import bundled_default_path
 
@@ -34,25 +37,30 @@ def main() -> None:
     _ = rec.nav, rec.base_epochs(), rec.uwb()
     load_s = time.perf_counter() - t0
     rows = []
+    jobs = default_jobs(len(rec.manifest.vehicles))
     for m in args.methods.split(","):
-        walls, solves = [], []
+        walls, walls_1, solves = [], [], []
         for _ in range(args.repeats):
             run = run_method(rec, m)
             walls.append(run.wall_time_s)
             solves.extend(run.solve_times_s)
+            walls_1.append(run_method(rec, m, jobs=1).wall_time_s)
         s = np.array(solves) * 1000
+        w, w1 = float(np.median(walls)), float(np.median(walls_1))
         rows.append(
-            f"| {m} | {run.n_epochs} | {np.median(walls):.1f} | {min(walls):.1f} | "
-            f"{np.median(s):.1f} | {np.percentile(s, 99):.1f} | {'yes' if np.median(walls) < 10 else 'no'} |"
+            f"| {m} | {run.n_epochs} | {w:.1f} | {min(walls):.1f} | {w1:.1f} | {w1 / w:.2f} | "
+            f"{np.median(s):.1f} | {np.percentile(s, 99):.1f} | {'yes' if w < 10 else 'no'} |"
         )
         print(rows[-1], flush=True)
     print(
         f"\n## coplane eval on the bundled recording (bench/bench_eval.py, {dt.date.today()}, 2 cores)\n\n"
         f"4 vehicles x 600 epochs, DGNSS, LM window of 5 epochs, Huber. Loading the recording: "
         f"{load_s:.1f} s (once). Wall time per method = every vehicle's SPP, Doppler, plane and node "
-        f"message plus the fusion solve, median of {args.repeats} runs.\n\n"
-        "| method | epochs | wall s (median) | wall s (min) | solve ms/epoch (median) | solve ms p99 | < 10 s |\n"
-        "|---|---|---|---|---|---|---|"
+        f"message plus the fusion solve, median of {args.repeats} runs, with the default {jobs} jobs and "
+        "with `--jobs 1`.\n\n"
+        "| method | epochs | wall s (median) | wall s (min) | wall s, 1 job | 1 job / default | "
+        "solve ms/epoch (median) | solve ms p99 | < 10 s |\n"
+        "|---|---|---|---|---|---|---|---|---|"
     )
     print("\n".join(rows))
 
