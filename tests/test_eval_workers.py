@@ -64,3 +64,8 @@ def test_vehicles_are_dealt_to_groups() -> None:
     assert split_vehicles(["a", "b"], 4) == [["a"], ["b"]]
     assert split_vehicles(["a", "b"], 1) == [["a", "b"]]
     assert 1 <= default_jobs(1) <= 2 and 1 <= default_jobs(64) <= 65  # one per vehicle + the fusion
+
+
+def test_jobs_below_one_is_a_clear_error(rec30: Recording) -> None:
+    with pytest.raises(ValueError, match="jobs must be >= 1, got 0"):
+        run_method(rec30, "non-cp", jobs=0)

@@ -49,7 +49,7 @@ def test_enu_rotation_is_orthonormal_and_round_trips() -> None:
 
 def test_vectorised_sagnac_ranges_equal_the_scalar_geodist() -> None:
     from coplane.gnss.ephemeris import geometric_range
-    from coplane.gnss.spp import sagnac_ranges
+    from coplane.gnss.geometry import sagnac_ranges
 
     rng = np.random.default_rng(1)
     rx = geodetic_to_ecef(0.69, 2.03, 50.0)

@@ -76,9 +76,12 @@ def run_method(
 ) -> MethodRun:
     """Run one method over the recording. DGNSS is used when the recording has a base (default).
 
-    `jobs` processes share the vehicle steps (None: one per core, at most one per vehicle; 1: all
-    in this process). The result is the same bits for any `jobs` (evaluate.vehicle_workers).
+    `jobs` processes share the work (None: one per core, at most one per vehicle plus one for the
+    fusion step; 1: all in this process). The result is the same bits for any `jobs`
+    (evaluate.vehicle_workers).
     """
+    if jobs is not None and jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
     spec = get_method(method) if isinstance(method, str) else method
     fleet = fleet_id(rec.manifest.name)
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
@@ -106,7 +109,7 @@ def run_method(
     run = MethodRun(spec.name, interruption)
     base_position = np.asarray(rec.manifest.base.position_ecef_m) if rec.manifest.base is not None else None
     replay = _Replay(schedule, uwb, base_by_t, base_position, rec.nav)
-    n_jobs = default_jobs(len(ids)) if jobs is None else max(1, jobs)
+    n_jobs = default_jobs(len(ids)) if jobs is None else jobs
     workers_on = n_jobs > 1 and VehicleWorkers.available()
     # With workers this process runs the fusion step (as the server does on the bus) and a smaller
     # share of the vehicles: a worker's GNSS front ends run ahead while the fusion step solves, so
@@ -136,26 +139,17 @@ def run_method(
     return run
 
 
+@dataclass
 class _Replay:
     """The vehicles' side of a lockstep replay, for `VehicleWorkers` and for this process alike."""
 
-    def __init__(
-        self,
-        schedule: list[tuple[GpsTime, dict[str, Any]]],
-        uwb: Mapping[str, Mapping[GpsTime, Any]],
-        base_by_t: Mapping[GpsTime, ObsEpoch],
-        base_position: Vec | None,
-        nav: NavData,
-    ) -> None:
-        self.schedule, self.uwb, self.base_by_t, self.base_position, self.nav = (
-            schedule,
-            uwb,
-            base_by_t,
-            base_position,
-            nav,
-        )
-        self._corrections: dict[int, DgnssCorrections | None] = {}
-        self._fronts: dict[tuple[int, str], EpochResult] = {}
+    schedule: list[tuple[GpsTime, dict[str, Any]]]
+    uwb: Mapping[str, Mapping[GpsTime, Any]]
+    base_by_t: Mapping[GpsTime, ObsEpoch]
+    base_position: Vec | None
+    nav: NavData
+    _corrections: dict[int, DgnssCorrections | None] = field(default_factory=dict)
+    _fronts: dict[tuple[int, str], EpochResult] = field(default_factory=dict)
 
     def corrections(self, k: int) -> DgnssCorrections | None:
         """DGNSS corrections of epoch k (each process computes them itself: same bits)."""

@@ -292,16 +292,18 @@ def geometric_range(sat_pos: np.ndarray, rx_pos: np.ndarray) -> tuple[float, np.
 
 
 def rotate_to_receive_frame(
-    sat_pos: np.ndarray, travel_time_s: float, omega: float = OMEGA_E_GPS
+    sat_pos: np.ndarray, travel_time_s: float | np.ndarray, omega: float = OMEGA_E_GPS
 ) -> np.ndarray:
-    """Satellite position expressed in the ECEF frame of the reception instant.
+    """Satellite position(s), (3,) or (n, 3), expressed in the ECEF frame of the reception instant.
 
     The Earth turns by omega*tau while the signal travels, so an emission-frame position is
     rotated by -omega*tau about Z. Then the plain distance |s' - r| is the Sagnac-corrected
     range (for factors such as GTSAM's PseudorangeFactor that have no Sagnac term). It is the
-    exact rotation, which `geometric_range` linearises: they differ by < 1 mm.
+    exact rotation, which `geometric_range` linearises: they differ by < 1 mm. With (n, 3)
+    positions `travel_time_s` holds one travel time per satellite.
     """
-    ang = omega * travel_time_s
-    sa, ca = math.sin(ang), math.cos(ang)
-    x, y, z = float(sat_pos[0]), float(sat_pos[1]), float(sat_pos[2])
-    return np.array([ca * x + sa * y, -sa * x + ca * y, z])
+    s = np.asarray(sat_pos, dtype=float)
+    ang = omega * np.asarray(travel_time_s, dtype=float)
+    sa, ca = np.sin(ang), np.cos(ang)
+    x, y = s[..., 0], s[..., 1]
+    return np.stack([ca * x + sa * y, -sa * x + ca * y, s[..., 2]], axis=-1)

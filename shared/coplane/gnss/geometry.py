@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
 from coplane.gnss.constants import OMEGA_E_GPS, C
+from coplane.gnss.ephemeris import rotate_to_receive_frame
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData
 
@@ -48,15 +49,9 @@ class SkyView:
     az_rad: Vec  # [0, 2 pi), clockwise from north
 
     def receive_frame_positions(self, sat_pos: Vec) -> Vec:
-        """Satellite positions rotated into the ECEF frame of the reception instant.
-
-        The vectorised `ephemeris.rotate_to_receive_frame` with each satellite's travel time
-        range/c: for factors such as GTSAM's that take a plain satellite position.
-        """
-        ang = OMEGA_E_GPS * self.range_m / C
-        sa, ca = np.sin(ang), np.cos(ang)
-        x, y = sat_pos[:, 0], sat_pos[:, 1]
-        return np.column_stack([ca * x + sa * y, -sa * x + ca * y, sat_pos[:, 2]])
+        """Satellite positions rotated into the ECEF frame of the reception instant, each by its
+        travel time range/c: for factors such as GTSAM's that take a plain satellite position."""
+        return rotate_to_receive_frame(sat_pos, self.range_m / C)
 
 
 def sky_view(sat_pos: Vec, position: Vec) -> SkyView:
