@@ -31,7 +31,7 @@ from fgo_synthetic import error_stats, make_fleet
 
 from coplane.fgo.config import SOLVERS
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.methods import get_method
+from coplane.methods import get_method
 
 
 def _cpu() -> str:

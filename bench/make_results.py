@@ -15,7 +15,7 @@ from pathlib import Path
 
 from coplane.evaluate.evaluation import evaluate
 from coplane.evaluate.report import markdown_table
-from coplane.fgo.methods import METHODS
+from coplane.methods import METHODS
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import bundled_default_path, simulate
 

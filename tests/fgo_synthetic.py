@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.fgo.inputs import (
+from coplane.estimation.contract import (
     EpochInput,
     FleetSolution,
     PlaneObs,

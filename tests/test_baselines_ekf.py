@@ -18,7 +18,7 @@ import pytest
 from fgo_synthetic import REF_H, REF_LAT, REF_LON, _satellites
 
 from coplane.baselines.ekf import EkfConfig, NonCpEkf, clock_residuals, validate_vehicle
-from coplane.fgo.inputs import EpochInput, PseudorangeObs, VehicleEpochInput, VelocityObs
+from coplane.estimation.contract import EpochInput, PseudorangeObs, VehicleEpochInput, VelocityObs
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
@@ -285,11 +285,11 @@ def test_vehicle_without_spp_is_skipped_until_it_has_one() -> None:
 
 @pytest.mark.parametrize("name", ["non-cp-ekf", "dd-cp", "gamp-cp"])
 def test_registered_methods_build_estimators(name: str) -> None:
-    from coplane.fgo.methods import get_method
+    from coplane.methods import get_method
 
     spec = get_method(name)
-    assert spec.planes == "none" and spec.estimator_factory is not None
-    assert spec.fgo.use_ranging == (name == "gamp-cp")
+    assert spec.planes == "none" and spec.factory is not None
+    assert spec.uses_ranging == (name == "gamp-cp")
     sc = scene({"a": (0.0, 0.0, 0.0), "b": (30.0, 0.0, 0.0)}, 3, seed=7)
     est = spec.build_estimator()
     sols = [est.step(e) for e in sc.epochs]

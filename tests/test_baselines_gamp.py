@@ -13,8 +13,8 @@ from fgo_synthetic import error_stats, make_fleet
 from coplane.baselines.dd_cp import DdCpEkf
 from coplane.baselines.ekf import NonCpEkf
 from coplane.baselines.gamp_cp import GampConfig, GampCp, RangeRow, cooperative_gamp, gamp, scalar_gamp
+from coplane.estimation.contract import RangeObs
 from coplane.fgo import factors as F
-from coplane.fgo.inputs import RangeObs
 
 Vec = np.ndarray
 

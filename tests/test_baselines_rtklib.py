@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import coplane.baselines.rtklib_row as rr
+import coplane.evaluate.rtklib_row as rr
 from coplane.evaluate.evaluation import evaluate
 from coplane.evaluate.report import run_stats
 from coplane.gtime import GpsTime

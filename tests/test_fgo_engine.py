@@ -23,9 +23,7 @@ from fgo_synthetic import SyntheticFleet, error_stats, make_fleet
 from hypothesis import given, settings
 from hypothesis import strategies as hst
 
-from coplane.fgo.config import FgoConfig, Solver
-from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.inputs import (
+from coplane.estimation.contract import (
     EpochInput,
     FleetSolution,
     PlaneObs,
@@ -34,10 +32,30 @@ from coplane.fgo.inputs import (
     VehicleEpochInput,
     VelocityObs,
 )
-from coplane.fgo.methods import METHODS, MethodSpec, get_method, interrupt_range, interrupt_ranges
+from coplane.fgo.config import FgoConfig, Solver
+from coplane.fgo.engine import FusionEstimator
+from coplane.methods import INTERRUPTION_BLOCK, METHODS, MethodSpec, get_method, interrupt_range
 
 SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
 NLOS: dict[str, Any] = {"nlos_per_vehicle": 1, "nlos_bias": (10.0, 30.0)}
+
+
+def interrupt_ranges(  # the offline form of interrupt_range, for these tests
+    ranges_by_epoch: Sequence[Sequence[RangeObs]],
+    rate: float,
+    rng_seed: int = 0,
+    *,
+    block: int = INTERRUPTION_BLOCK,
+) -> list[tuple[RangeObs, ...]]:
+    """Per-epoch range lists (index = epoch index) with the interrupted ones removed.
+
+    The same decisions as `interrupt_range`, so offline and streaming runs agree.
+    """
+    interrupt_range(("a", "b"), 0, rate)  # validates the rate
+    return [
+        tuple(r for r in ranges if not interrupt_range((r.a, r.b), k, rate, rng_seed, block=block))
+        for k, ranges in enumerate(ranges_by_epoch)
+    ]
 
 
 def run(
@@ -354,7 +372,7 @@ import hashlib, json, sys
 sys.path.insert(0, {tests!r})
 from fgo_synthetic import make_fleet
 from test_fgo_engine import _fingerprint, run
-from coplane.fgo.methods import get_method
+from coplane.methods import get_method
 fleet = make_fleet(4, 12, seed=7, nlos_per_vehicle=1)
 out = {{s: hashlib.sha256(repr(_fingerprint(run(fleet, get_method("pc", solver=s).fgo))).encode()).hexdigest()
        for s in ("lm-window", "isam2-fixed-lag")}}
@@ -542,7 +560,7 @@ def test_methods_registry() -> None:
         "dd-cp",
         "gamp-cp",
     ]
-    assert all(METHODS[m].estimator_factory is not None for m in ("non-cp-ekf", "dd-cp", "gamp-cp"))
+    assert all(METHODS[m].factory is not None for m in ("non-cp-ekf", "dd-cp", "gamp-cp"))
     pc = get_method("pc")
     assert pc.fgo.use_ranging and pc.fgo.use_planes and pc.planes == "fleet" and pc.plane_fault_exclusion
     assert not get_method("non-cp").fgo.use_planes and not get_method("non-cp").fgo.use_ranging

@@ -8,8 +8,8 @@ import gtsam
 import numpy as np
 import pytest
 
+from coplane.estimation.contract import PlaneObs
 from coplane.fgo import factors as F
-from coplane.fgo.inputs import PlaneObs
 from coplane.fgo.keys import KeyRegistry, clock_key, decode_key, position_key
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import OMEGA_E_GPS, C

@@ -17,9 +17,9 @@ from typing import Any
 import zenoh
 
 from coplane.bus import BadMessage, KeySpace, decode, encode, payload_bytes, session_config
-from coplane.fgo.methods import get_method
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, VehicleCounters
+from coplane.methods import get_method
 from coplane.recording.manifest import load_manifest
 from coplane.replay import fleet_id
 from coplane.steps import FusionStep, FusionStepConfig, epoch_time, gps_time

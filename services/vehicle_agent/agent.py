@@ -17,10 +17,10 @@ import numpy as np
 import zenoh
 
 from coplane.bus import BadMessage, KeySpace, decode, encode, payload_bytes, session_config
-from coplane.fgo.methods import get_method
 from coplane.gnss.epoch_solver import base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage
+from coplane.methods import get_method
 from coplane.recording.reader import open_recording
 from coplane.replay import base_by_epoch, first_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import VehicleStep, VehicleStepConfig, gps_time

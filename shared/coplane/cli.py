@@ -252,7 +252,6 @@ def fleet(
     from tqdm import tqdm
 
     from coplane.evaluate.report import run_stats, write_solutions
-    from coplane.fgo.methods import get_method
     from coplane.fleet import (
         Collector,
         FleetProcesses,
@@ -262,6 +261,7 @@ def fleet(
         router_spec,
         wait_for_port,
     )
+    from coplane.methods import get_method
     from coplane.recording.reader import open_recording
     from coplane.replay import vehicle_schedule
 

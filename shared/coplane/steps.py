@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.fgo.inputs import (
+from coplane.estimation.contract import (
     EpochInput,
     PlaneObs,
     PseudorangeObs,
@@ -26,7 +26,6 @@ from coplane.fgo.inputs import (
     VehicleEpochInput,
     VelocityObs,
 )
-from coplane.fgo.methods import MethodSpec, interrupt_range
 from coplane.geo import up_vector
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
@@ -45,6 +44,7 @@ from coplane.messages import (
     VehicleState,
     VelocityReport,
 )
+from coplane.methods import MethodSpec, interrupt_range
 from coplane.plane.config import PlaneConfig
 from coplane.plane.detect import PlaneStatus, RoadPlane, construct_plane, offset_sigma_m
 from coplane.plane.history import PositionHistory
@@ -406,7 +406,7 @@ class FusionStep:
         )
         vel = None
         if m.velocity is not None:
-            vel = VelocityObs(np.array(m.velocity.velocity_ecef_mps), self.method.fgo.sigma_v)
+            vel = VelocityObs(np.array(m.velocity.velocity_ecef_mps), self.method.velocity_sigma_mps)
         plane = None
         if m.plane is not None and m.plane.status != "unavailable":
             assert (

@@ -46,7 +46,7 @@ from coplane.baselines.ekf import (
     validate_vehicle,
     vehicle_estimate,
 )
-from coplane.fgo.inputs import EpochInput, FleetSolution, VehicleEstimate
+from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
 from coplane.gtime import GpsTime
 
 

@@ -30,7 +30,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from coplane.fgo.inputs import (
+from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEpochInput, VehicleEstimate
+from coplane.estimation.limits import (
     MAX_DRIFT_MPS,
     MAX_PSEUDORANGE_M,
     MAX_RANGE_M,
@@ -38,10 +39,6 @@ from coplane.fgo.inputs import (
     MAX_SPEED_MPS,
     RECEIVER_RADIUS_M,
     SAT_RADIUS_M,
-    EpochInput,
-    FleetSolution,
-    VehicleEpochInput,
-    VehicleEstimate,
 )
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C

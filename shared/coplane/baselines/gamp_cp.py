@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coplane.baselines.ekf import EkfConfig, Mat, NonCpEkf, Rows, Vec, VehicleMeasurements, valid_ranges
-from coplane.fgo.inputs import EpochInput, FleetSolution, VehicleEstimate
+from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import chi2_threshold
 

@@ -12,11 +12,10 @@ import numpy as np
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.plots import plot_cdfs, plot_error_vs_time, plot_plane_map, plot_rmse_vs_interruption
 from coplane.evaluate.report import run_stats, write_solutions, write_tables
+from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
-from coplane.fgo.methods import get_method
+from coplane.methods import get_method
 from coplane.recording.reader import Recording
-
-RTKLIB_METHOD = "rtklib"  # coplane.baselines.rtklib_row; imported only when asked for
 
 
 @dataclass
@@ -43,8 +42,6 @@ def evaluate(
     ev = Evaluation()
     for spec in specs:
         if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
-            from coplane.baselines.rtklib_row import evaluation_row
-
             rtk_run, ev.notes[RTKLIB_METHOD] = evaluation_row(rec, dgnss)
             print(ev.notes[RTKLIB_METHOD], file=sys.stderr)
             if rtk_run is not None:
@@ -54,7 +51,7 @@ def evaluate(
                     write_solutions(rtk_run, out_dir)
             continue
         for rate in sorted(set(rates) | {0.0}):
-            if rate > 0 and not spec.fgo.use_ranging:
+            if rate > 0 and not spec.uses_ranging:
                 continue
             run = run_method(
                 rec, spec, interruption=rate, seed=seed, dgnss=dgnss, progress=progress, jobs=jobs

@@ -18,11 +18,11 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
-from coplane.fgo.methods import MethodSpec, get_method
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult, base_corrections
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
+from coplane.methods import MethodSpec, get_method
 from coplane.plane.config import PlaneConfig
 from coplane.recording.model import NavData, ObsEpoch
 from coplane.recording.reader import Recording

@@ -25,16 +25,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.fgo import factors as F
-from coplane.fgo.config import FgoConfig
-from coplane.fgo.inputs import (
-    MAX_DRIFT_MPS,
-    MAX_PSEUDORANGE_M,
-    MAX_RANGE_M,
-    MAX_SIGMA_M,
-    MAX_SPEED_MPS,
-    RECEIVER_RADIUS_M,
-    SAT_RADIUS_M,
+from coplane.estimation.contract import (
     EpochInput,
     FleetSolution,
     PlaneObs,
@@ -43,6 +34,17 @@ from coplane.fgo.inputs import (
     VehicleEpochInput,
     VehicleEstimate,
 )
+from coplane.estimation.limits import (
+    MAX_DRIFT_MPS,
+    MAX_PSEUDORANGE_M,
+    MAX_RANGE_M,
+    MAX_SIGMA_M,
+    MAX_SPEED_MPS,
+    RECEIVER_RADIUS_M,
+    SAT_RADIUS_M,
+)
+from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
 from coplane.fgo.keys import CLOCK_CHR, KeyRegistry, clock_key, position_key
 from coplane.fgo.window import (
     ClusterResult,

@@ -27,7 +27,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from coplane.fgo.inputs import PlaneObs
+from coplane.estimation.contract import PlaneObs
 from coplane.gnss.constants import OMEGA_E_GPS, C
 
 Vec = NDArray[np.float64]

@@ -1,4 +1,4 @@
-"""What the fusion step consumes and produces: one epoch of the fleet, measurement by measurement.
+"""The estimator contract: one epoch of the fleet in (`EpochInput`), the fleet's estimates out.
 
 These are plain frozen dataclasses (no GTSAM types), built by the per-vehicle step from its node
 message, so the estimator can be fed from the bus, from `coplane eval` or from a unit test alike.
@@ -9,22 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Protocol
 
-import numpy as np
-from numpy.typing import NDArray
-
 from coplane.gtime import GpsTime
 from coplane.plane.fit import constraint_error
-
-Vec = NDArray[np.float64]
-
-# Plausibility limits every estimator applies to its (untrusted) inputs before using them.
-SAT_RADIUS_M = (1.0e7, 5.0e7)
-RECEIVER_RADIUS_M = (5.0e6, 8.0e6)
-MAX_PSEUDORANGE_M = 1.0e8
-MAX_SIGMA_M = 1.0e4
-MAX_SPEED_MPS = 200.0
-MAX_DRIFT_MPS = 1.0e5
-MAX_RANGE_M = 1.0e5
+from coplane.typing import Vec
 
 
 @dataclass(frozen=True)
@@ -132,8 +119,9 @@ class FleetSolution:
 class Estimator(Protocol):
     """What the fusion step drives: one fleet epoch in, the fleet's estimates out.
 
-    The factor graph (fgo.engine.FusionEstimator) and the non-FGO baselines implement it, so every
-    method runs through the same VehicleStep/FusionStep, evaluator and services.
+    The factor graph (`coplane.fgo.FusionEstimator`) and the baselines (`coplane.baselines`)
+    implement it; each starts from `coplane.estimation.validate_epoch`, so every method sees the
+    same validated measurements and runs through the same steps, evaluator and services.
     """
 
     def step(self, epoch: EpochInput) -> FleetSolution: ...

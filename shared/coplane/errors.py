@@ -1,0 +1,18 @@
+"""The root of every error coplane raises on purpose.
+
+Library code raises a subclass of `CoplaneError` for anything a user can fix (a bad recording, an
+unknown method, an invalid option). The command line catches this one root, prints its message and
+exits with its `exit_code`; any other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class CoplaneError(Exception):
+    """A problem with the user's input or environment, with a message that names what and where."""
+
+    exit_code: int = 2
+
+
+class ConfigError(CoplaneError, ValueError):
+    """An invalid option or configuration value (unknown method, rate out of range, ...)."""

@@ -1,0 +1,163 @@
+"""The methods users choose by name, and how each one builds its estimator.
+
+A method is what the per-vehicle step must do about planes (`planes`: none / fitted from the whole
+fleet's solved positions / from the vehicle's own solved positions only, and whether the plane
+availability detection + RANSAC fault exclusion runs) plus a recipe for its estimator. The paper's
+methods are configurations of the one factor graph and carry its `FgoConfig`; the comparison
+methods of Table I that are not factor graphs (`coplane.baselines`) carry only their own settings.
+Every estimator takes the same `EpochInput` and returns the same `FleetSolution`
+(`coplane.estimation.Estimator`), so the steps, the evaluator and the services run them alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+from coplane.baselines import DdCpEkf, GampConfig, GampCp, NonCpEkf
+from coplane.errors import ConfigError
+from coplane.estimation.contract import Estimator
+from coplane.fgo.config import FgoConfig, Solver
+
+PlaneSource = Literal["none", "fleet", "self"]
+
+# Doppler velocity 1-sigma (m/s, per axis) the fusion step attaches to each node's velocity: the
+# factor graph's own sigma_v for FGO methods; the same default for the baselines
+DEFAULT_VELOCITY_SIGMA_MPS = FgoConfig().sigma_v
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A named method: plane handling in the vehicle step and a recipe for the fusion estimator."""
+
+    name: str
+    description: str
+    planes: PlaneSource  # where the per-vehicle step takes the points for its road plane
+    plane_fault_exclusion: bool  # plane availability detection + RANSAC FE (paper Sec. 3.2)
+    uses_ranging: bool  # whether inter-vehicle ranges reach the estimator at all
+    # the factor graph's settings (FGO methods only; None for the baselines)
+    fgo: FgoConfig | None = None
+    # the estimator of a method that is not this factor graph (None: the factor graph on `fgo`)
+    factory: Callable[[], Estimator] | None = None
+
+    def __post_init__(self) -> None:
+        if (self.fgo is None) == (self.factory is None):
+            raise ConfigError(f"method {self.name!r} needs exactly one of an FgoConfig or a factory")
+
+    @property
+    def velocity_sigma_mps(self) -> float:
+        """The 1-sigma given to each node's Doppler velocity in the estimator's input."""
+        return self.fgo.sigma_v if self.fgo is not None else DEFAULT_VELOCITY_SIGMA_MPS
+
+    def build_estimator(self) -> Estimator:
+        """A fresh estimator for this method."""
+        if self.factory is not None:
+            return self.factory()
+        from coplane.fgo.engine import FusionEstimator  # GTSAM is imported only when used
+
+        return FusionEstimator(self.fgo)
+
+    def with_solver(self, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
+        """The same method on another solver and/or window length (FGO methods only)."""
+        if self.fgo is None:
+            raise ConfigError(f"method {self.name!r} is not a factor graph: it has no solver or window")
+        changes: dict[str, object] = {}
+        if solver is not None:
+            changes["solver"] = solver
+        if window_epochs is not None:
+            changes["window_epochs"] = window_epochs
+        return dataclasses.replace(self, fgo=dataclasses.replace(self.fgo, **changes))  # type: ignore[arg-type]
+
+
+def _fgo(
+    name: str, description: str, planes: PlaneSource, fault_exclusion: bool, *, ranging: bool
+) -> MethodSpec:
+    # Huber on pseudoranges and ranges for every method alike: our stand-in for the paper's
+    # cooperative integrity monitoring (ref. [28]), which removed NLOS/multipath faults before the
+    # FGO. Without it, NLOS biases dominate all methods on urban data (docs/results.md compares).
+    cfg = FgoConfig(use_ranging=ranging, use_planes=planes != "none", use_velocity=True, robust="huber")
+    return MethodSpec(name, description, planes, fault_exclusion, ranging, fgo=cfg)
+
+
+def _baseline(name: str, description: str, factory: Callable[[], Estimator], *, ranging: bool) -> MethodSpec:
+    return MethodSpec(name, description, "none", False, ranging, factory=factory)
+
+
+METHODS: dict[str, MethodSpec] = {
+    m.name: m
+    for m in (
+        _fgo(
+            "non-cp",
+            "Each vehicle alone: pseudorange + Doppler velocity factors in the sliding window.",
+            "none",
+            False,
+            ranging=False,
+        ),
+        _fgo(
+            "mci",
+            "Multi-agent collaborative integration: GNSS + inter-vehicle (UWB) ranging factors.",
+            "none",
+            False,
+            ranging=True,
+        ),
+        _fgo(
+            "pc",
+            "Proposed: plane constraints fitted from the fleet's solved positions (with detection"
+            " and fault exclusion) + ranging.",
+            "fleet",
+            True,
+            ranging=True,
+        ),
+        _fgo(
+            "pc-no-ir",
+            "Proposed without inter-vehicle ranging (range-free CP through the fleet's planes).",
+            "fleet",
+            True,
+            ranging=False,
+        ),
+        _fgo(
+            "pc-no-ir-no-fe",
+            "As pc-no-ir but planes are used without availability detection / fault exclusion.",
+            "fleet",
+            False,
+            ranging=False,
+        ),
+        _fgo(
+            "pc-self",
+            "A vehicle alone, constrained by a plane fitted from its own solved history (no fleet).",
+            "self",
+            True,
+            ranging=False,
+        ),
+        # Table I comparison methods that are not this factor graph (docs/methods.md)
+        _baseline(
+            "non-cp-ekf",
+            "Non-CP baseline: per-vehicle EKF with pseudorange + Doppler updates and innovation gating.",
+            NonCpEkf,
+            ranging=False,
+        ),
+        _baseline(
+            "dd-cp",
+            "GNSS-based CP: centralised EKF with absolute and inter-vehicle double-differenced pseudoranges.",
+            DdCpEkf,
+            ranging=False,
+        ),
+        _baseline(
+            "gamp-cp",
+            "GAMP CP: damped GAMP over pseudoranges + UWB ranges; priors from each vehicle's EKF prediction.",
+            lambda: GampCp(GampConfig(use_ranging=True)),
+            ranging=True,
+        ),
+    )
+}
+
+
+def get_method(name: str, *, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
+    """The named method, optionally on another solver / window length."""
+    try:
+        spec = METHODS[name]
+    except KeyError:
+        raise ConfigError(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from None
+    return spec.with_solver(solver, window_epochs) if (solver or window_epochs) else spec
