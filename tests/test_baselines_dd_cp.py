@@ -16,7 +16,15 @@ from coplane.baselines.dd_cp import (
     double_differences,
     spanning_pairs,
 )
-from coplane.baselines.ekf import EkfConfig, VehicleMeasurements, validate_vehicle
+from coplane.baselines.fleet_filter import EkfConfig
+from coplane.baselines.measurements import VehicleMeasurements, vehicle_measurements
+from coplane.estimation.validate import validate_vehicle as _validate_vehicle
+
+
+def validate_vehicle(vid: str, vin: object, t: object, rejected: object) -> VehicleMeasurements | str:
+    """The baselines' measurements of one validated vehicle epoch (or why it was skipped)."""
+    v = _validate_vehicle(vid, vin, t, rejected)  # type: ignore[arg-type]
+    return v if isinstance(v, str) else vehicle_measurements(v)
 
 
 def measurements(sc_epoch: object, vids: list[str]) -> dict[str, VehicleMeasurements]:
@@ -153,7 +161,7 @@ def test_dd_cp_filter_gets_the_relative_position_from_biased_pseudoranges() -> N
 
 
 def test_dd_cp_matches_non_cp_for_a_single_vehicle_and_never_raises() -> None:
-    from coplane.baselines.ekf import NonCpEkf
+    from coplane.baselines.non_cp import NonCpEkf
 
     sc = scene({"a": (0.0, 0.0, 0.0)}, 10, seed=13)
     dd, ekf = DdCpEkf(), NonCpEkf()

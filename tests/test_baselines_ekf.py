@@ -17,13 +17,22 @@ import numpy as np
 import pytest
 from fgo_synthetic import REF_H, REF_LAT, REF_LON, _satellites
 
-from coplane.baselines.ekf import EkfConfig, NonCpEkf, clock_residuals, validate_vehicle
+from coplane.baselines.fleet_filter import EkfConfig
+from coplane.baselines.measurements import VehicleMeasurements, clock_residuals, vehicle_measurements
+from coplane.baselines.non_cp import NonCpEkf
 from coplane.estimation.contract import EpochInput, PseudorangeObs, VehicleEpochInput, VelocityObs
+from coplane.estimation.validate import validate_vehicle as _validate_vehicle
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 
 Vec = np.ndarray
+
+
+def validate_vehicle(vid: str, vin: object, t: object, rejected: object) -> VehicleMeasurements | str:
+    """The baselines' measurements of one validated vehicle epoch (or why it was skipped)."""
+    v = _validate_vehicle(vid, vin, t, rejected)  # type: ignore[arg-type]
+    return v if isinstance(v, str) else vehicle_measurements(v)
 
 
 @dataclass

@@ -11,8 +11,8 @@ import pytest
 from fgo_synthetic import error_stats, make_fleet
 
 from coplane.baselines.dd_cp import DdCpEkf
-from coplane.baselines.ekf import NonCpEkf
 from coplane.baselines.gamp_cp import GampConfig, GampCp, RangeRow, cooperative_gamp, gamp, scalar_gamp
+from coplane.baselines.non_cp import NonCpEkf
 from coplane.estimation.contract import RangeObs
 from coplane.fgo import factors as F
 

@@ -28,26 +28,18 @@ come from the same receiver errors; docs/methods.md discusses what that costs.
 from __future__ import annotations
 
 import math
-import time
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from coplane.baselines.ekf import (
-    EkfConfig,
-    FleetFilter,
-    Mat,
-    Rows,
-    Vec,
-    VehicleMeasurements,
-    gate_pseudoranges,
-    out_of_order,
-    validate_vehicle,
-    vehicle_estimate,
-)
-from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
-from coplane.gtime import GpsTime
+from coplane.baselines.fleet_filter import EkfConfig, FleetFilter
+from coplane.baselines.measurements import VehicleMeasurements, vehicle_measurements
+from coplane.baselines.non_cp import gate_pseudoranges, vehicle_estimate
+from coplane.baselines.rows import Rows
+from coplane.baselines.skeleton import BaselineEstimator, EpochOutcome
+from coplane.estimation.validate import ValidEpoch
+from coplane.typing import Mat, Vec
 
 
 @dataclass(frozen=True)
@@ -155,65 +147,38 @@ def spanning_pairs(
     return sorted(out)
 
 
-class DdCpEkf:
+class DdCpEkf(BaselineEstimator):
     """Estimator: the centralised DD-CP EKF over the whole fleet."""
 
     def __init__(self, config: DdCpConfig | None = None) -> None:
+        super().__init__()
         self.config = config or DdCpConfig()
         self.filter = FleetFilter(self.config.ekf)
-        self._last: GpsTime | None = None
 
-    def step(self, epoch: EpochInput) -> FleetSolution:
-        t0 = time.perf_counter()
-        bad = out_of_order(epoch, self._last, t0)
-        if bad is not None:
-            return bad
-        t = epoch.time
-        self._last = t
-        rejected: Counter[str] = Counter()
-        counts: Counter[str] = Counter()
-        skipped: dict[str, str] = {}
-        estimates: dict[str, VehicleEstimate] = {}
+    def solve(self, valid: ValidEpoch, out: EpochOutcome) -> None:
         try:
-            self._step(epoch, t, rejected, counts, skipped, estimates)
+            self._step(valid, out)
         except Exception as exc:  # never raise on data: restart the fleet filter
             self.filter = FleetFilter(self.config.ekf)
-            rejected["filter_failure"] += 1
-            estimates.clear()
-            for vid in sorted(epoch.vehicles):
-                skipped.setdefault(vid, f"filter failure ({type(exc).__name__}): restarts next epoch")
-        return FleetSolution(
-            time=t,
-            estimates=estimates,
-            solve_time_s=time.perf_counter() - t0,
-            factor_counts={k: n for k, n in sorted(counts.items()) if n},
-            skipped=skipped,
-            rejected={k: n for k, n in sorted(rejected.items()) if n},
-            n_clusters=1 if estimates else 0,
-        )
+            out.rejected["filter_failure"] += 1
+            out.estimates.clear()
+            for vid in sorted({*valid.vehicles, *valid.skipped}):
+                out.skipped.setdefault(vid, f"filter failure ({type(exc).__name__}): restarts next epoch")
+        out.n_clusters = 1 if out.estimates else 0
 
-    def _step(
-        self,
-        epoch: EpochInput,
-        t: GpsTime,
-        rejected: Counter[str],
-        counts: Counter[str],
-        skipped: dict[str, str],
-        estimates: dict[str, VehicleEstimate],
-    ) -> None:
+    def _step(self, valid: ValidEpoch, out: EpochOutcome) -> None:
+        t = valid.time
+        rejected, counts = out.rejected, out.counts
         filt = self.filter
         filt.predict(t)
         meas: dict[str, VehicleMeasurements] = {}
-        for vid in sorted(epoch.vehicles):
-            got = validate_vehicle(vid, epoch.vehicles[vid], t, rejected)
-            if isinstance(got, str):
-                skipped[vid] = got
-                continue
-            reason = filt.prepare_vehicle(got, t, rejected)
+        for vid, vehicle in valid.vehicles.items():
+            m = vehicle_measurements(vehicle)
+            reason = filt.prepare_vehicle(m, t, rejected)
             if reason is not None:
-                skipped[vid] = reason
+                out.skipped[vid] = reason
                 continue
-            meas[vid] = got
+            meas[vid] = m
         filt.drop_stale(t)
         # gate every vehicle before building rows: a restart re-indexes the state
         good = {vid: gate_pseudoranges(filt, m, t, rejected) for vid, m in sorted(meas.items())}
@@ -244,7 +209,7 @@ class DdCpEkf:
             n_pr = len(good[vid]) if keep else 0
             if n_pr:
                 filt.last_gnss[vid] = t
-            estimates[vid] = vehicle_estimate(filt, vid, t, n_pr)
+            out.estimates[vid] = vehicle_estimate(filt, vid, t, n_pr)
         counts["dd_vehicles"] = len(dd_per_vehicle)
 
     def _dd_rows(self, rows: Rows, good: dict[str, VehicleMeasurements], counts: Counter[str]) -> None:

@@ -28,17 +28,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from coplane.baselines.ekf import EkfConfig, Mat, NonCpEkf, Rows, Vec, VehicleMeasurements, valid_ranges
-from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
+from coplane.baselines.fleet_filter import EkfConfig
+from coplane.baselines.measurements import VehicleMeasurements
+from coplane.baselines.non_cp import NonCpEkf
+from coplane.baselines.rows import Rows
+from coplane.baselines.skeleton import BaselineEstimator, EpochOutcome
+from coplane.estimation.contract import VehicleEstimate
+from coplane.estimation.validate import ValidEpoch
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import chi2_threshold
+from coplane.typing import Mat, Vec
 
 
 @dataclass(frozen=True)
@@ -268,38 +273,32 @@ def cooperative_gamp(
     return res, n_relin
 
 
-class GampCp:
+class GampCp(BaselineEstimator):
     """Estimator: per-vehicle predicted priors + damped GAMP over pseudoranges and ranges."""
 
     def __init__(self, config: GampConfig | None = None) -> None:
+        super().__init__()
         self.config = config or GampConfig()
+        self.uses_ranges = self.config.use_ranging
         # prediction, clock handling, gating, Doppler velocity and drift; no pseudorange update
         self.local = NonCpEkf(self.config.ekf, apply_pseudoranges=False)
 
-    def step(self, epoch: EpochInput) -> FleetSolution:
-        t0 = time.perf_counter()
-        sol = self.local.step(epoch)
-        if not sol.estimates:
-            return dataclasses.replace(sol, solve_time_s=time.perf_counter() - t0)
-        rejected: Counter[str] = Counter(sol.rejected)
-        counts: Counter[str] = Counter(sol.factor_counts)
+    def solve(self, valid: ValidEpoch, out: EpochOutcome) -> None:
+        self.local.solve(valid, out)
+        if not out.estimates:
+            return
         try:
-            estimates = self._gamp(epoch, sol, rejected, counts)
+            out.estimates = self._gamp(valid, out.estimates, out.rejected, out.counts)
         except Exception:  # never raise on data: fall back to the exact local update
-            rejected["gamp_failure"] += 1
-            estimates = self._local_update(sol, counts)
-        return dataclasses.replace(
-            sol,
-            estimates=estimates,
-            solve_time_s=time.perf_counter() - t0,
-            factor_counts={k: n for k, n in sorted(counts.items()) if n},
-            rejected={k: n for k, n in sorted(rejected.items()) if n},
-        )
+            out.rejected["gamp_failure"] += 1
+            out.estimates = self._local_update(out.estimates, out.counts)
 
-    def _local_update(self, sol: FleetSolution, counts: Counter[str]) -> dict[str, VehicleEstimate]:
+    def _local_update(
+        self, local: dict[str, VehicleEstimate], counts: Counter[str]
+    ) -> dict[str, VehicleEstimate]:
         """The Non-CP EKF pseudorange update: what each vehicle has without message passing."""
         out = {}
-        for v, e in sol.estimates.items():
+        for v, e in local.items():
             f = self.local.filters[v]
             m = self.local.gated.get(v)
             if m is not None and len(m):
@@ -321,11 +320,15 @@ class GampCp:
         )
 
     def _gamp(
-        self, epoch: EpochInput, sol: FleetSolution, rejected: Counter[str], counts: Counter[str]
+        self,
+        valid: ValidEpoch,
+        local: dict[str, VehicleEstimate],
+        rejected: Counter[str],
+        counts: Counter[str],
     ) -> dict[str, VehicleEstimate]:
         cfg = self.config
         filters = self.local.filters
-        vids = sorted(sol.estimates)
+        vids = sorted(local)
         means = {v: filters[v].x.copy() for v in vids}
         covs = {v: filters[v].P.copy() for v in vids}
         pidx = {v: filters[v].pos_idx(v) for v in vids}
@@ -333,7 +336,8 @@ class GampCp:
         used: list[RangeRow] = []
         if cfg.use_ranging:
             gate = chi2_threshold(cfg.range_gate_probability, 1)
-            for a, b, rng, sg in valid_ranges(epoch, set(vids), rejected):
+            for r in valid.ranges_between(set(vids)):
+                a, b, rng, sg = r.a, r.b, r.range_m, r.sigma_or(cfg.range_sigma)
                 d = means[a][pidx[a]] - means[b][pidx[b]]
                 dist = float(np.linalg.norm(d))
                 if dist <= 0:
@@ -351,7 +355,7 @@ class GampCp:
         counts["gamp_relinearisations"] += n_relin
         if not res.converged or not all(np.all(np.isfinite(m)) for m in res.means):
             rejected["gamp_not_converged"] += 1
-            return self._local_update(sol, counts)
+            return self._local_update(local, counts)
         counts["pseudorange"] += sum(len(m) for m in self.local.gated.values())
         counts["range"] += len(used)
         n_ranges: Counter[str] = Counter()
@@ -363,5 +367,5 @@ class GampCp:
             f = filters[v]
             f.x = res.means[k].copy()
             f.P = 0.5 * (res.covariances[k] + res.covariances[k].T)
-            out[v] = self._estimate(v, sol.estimates[v], n_ranges[v])
+            out[v] = self._estimate(v, local[v], n_ranges[v])
         return out

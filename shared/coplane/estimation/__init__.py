@@ -17,6 +17,13 @@ from coplane.estimation.contract import (
     VehicleEstimate,
     VelocityObs,
 )
+from coplane.estimation.validate import (
+    ValidEpoch,
+    ValidPseudoranges,
+    ValidRange,
+    ValidVehicle,
+    validate_epoch,
+)
 
 __all__ = [
     "EpochInput",
@@ -25,7 +32,12 @@ __all__ = [
     "PlaneObs",
     "PseudorangeObs",
     "RangeObs",
+    "ValidEpoch",
+    "ValidPseudoranges",
+    "ValidRange",
+    "ValidVehicle",
     "VehicleEpochInput",
     "VehicleEstimate",
     "VelocityObs",
+    "validate_epoch",
 ]

@@ -7,22 +7,26 @@ boundary is never rejected at the next for a different limit.
 
 from __future__ import annotations
 
-import re
+from coplane.ids import VEHICLE_ID, VEHICLE_ID_PATTERN
+
+__all__ = ["VEHICLE_ID", "VEHICLE_ID_PATTERN"]  # re-exported: every limit importable from here
 
 # Identifiers -------------------------------------------------------------------------------
-VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_-]{1,32}$"  # a Zenoh key chunk, a file stem and a URL segment
-VEHICLE_ID = re.compile(VEHICLE_ID_PATTERN)
 # GNSS systems an estimator keeps a receiver clock for (RINEX system letters)
 KNOWN_SYSTEMS = frozenset("GCERJIS")
+SAT_ID_PATTERN = r"^[CEGIJRS][0-9]{2}$"  # a satellite of a known system, RINEX 3 style ("G05")
 
 # Geometry (metres from the Earth's centre) -----------------------------------------------------
 SAT_RADIUS_M = (1.0e7, 5.0e7)  # GNSS orbits: GPS about 2.66e7, BeiDou GEO/IGSO about 4.22e7
 RECEIVER_RADIUS_M = (5.0e6, 8.0e6)  # a road vehicle's antenna, with margin for bad SPP fixes
 
 # Measurements ----------------------------------------------------------------------------------
-MAX_PSEUDORANGE_M = 1.0e8  # corrected pseudorange magnitude
+PSEUDORANGE_M = (1.0e7, 6.0e7)  # raw or corrected, GPS to BeiDou GEO, with receiver clock margin
 MAX_SAT_CLOCK_S = 1.0  # satellite clock offset magnitude
-MAX_SIGMA_M = 1.0e4  # any 1-sigma in metres (pseudorange, range, plane)
+MAX_SIGMA_M = 1.0e4  # a pseudorange 1-sigma (down-weighted NLOS can be large)
 MAX_SPEED_MPS = 200.0  # a road vehicle's speed (Doppler velocity)
 MAX_DRIFT_MPS = 1.0e5  # receiver clock drift, m/s
-MAX_RANGE_M = 1.0e5  # an inter-vehicle range
+MAX_RANGE_M = 2.0e3  # an inter-vehicle (UWB) range
+MAX_RANGE_SIGMA_M = 100.0  # its 1-sigma
+MAX_PLANE_SIGMA_M = 100.0  # a road plane's 1-sigma at the antenna
+MAX_NORMAL_ERROR = 1e-3  # a plane normal's length may differ this much from 1

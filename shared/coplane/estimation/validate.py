@@ -1,0 +1,308 @@
+"""One input check for every estimator: an untrusted `EpochInput` in, validated arrays out.
+
+Estimator inputs come from the bus (or a recording) and are untrusted even after the wire models
+checked them: an estimator must never raise on data, never let a NaN or an absurd value reach its
+solver, and must count what it dropped. The factor graph and every baseline used to do this each
+in its own way, with drifted limits; `validate_epoch` is now the one place. It never raises: bad
+measurements are dropped and counted in `ValidEpoch.rejected` by kind, and a vehicle that cannot be
+used at all is listed in `ValidEpoch.skipped` with the reason.
+
+Limits: `coplane.estimation.limits`. Model of the arrays: docs/fgo.md (pseudorange factor).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from coplane.estimation.contract import EpochInput, FleetSolution, PlaneObs, PseudorangeObs, VehicleEpochInput
+from coplane.estimation.limits import (
+    KNOWN_SYSTEMS,
+    MAX_DRIFT_MPS,
+    MAX_RANGE_M,
+    MAX_RANGE_SIGMA_M,
+    MAX_SAT_CLOCK_S,
+    MAX_SIGMA_M,
+    MAX_SPEED_MPS,
+    PSEUDORANGE_M,
+    RECEIVER_RADIUS_M,
+    SAT_RADIUS_M,
+)
+from coplane.gtime import GpsTime
+from coplane.typing import Mat, Vec
+
+MAX_EPOCH_MISMATCH_S = 0.5  # a vehicle's epoch time may differ this much from the fleet epoch's
+
+
+def finite(x: object) -> float | None:
+    """`x` as a finite float, or None (for values of unknown type from untrusted input)."""
+    try:
+        f = float(x)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def finite_vec3(v: object) -> Vec | None:
+    """`v` as a finite 3-vector (a fresh array), or None."""
+    try:
+        a = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    return a.copy() if a.shape == (3,) and bool(np.all(np.isfinite(a))) else None
+
+
+@dataclass(frozen=True)
+class ValidPseudoranges:
+    """One vehicle epoch's plausible, de-duplicated pseudoranges as arrays (one row per satellite).
+
+    Model: rho = |p - sat_pos| + c (clock[system] - sat_clock) + noise(sigma), with sat_pos in the
+    ECEF frame at reception; elevation and C/N0 are NaN where the node did not report them.
+    """
+
+    sats: list[str]
+    systems: list[str]  # the system letter of each row (sats[i][0])
+    sat_pos: Mat  # (n, 3) metres
+    rho: Vec  # (n,) metres
+    sat_clock: Vec  # (n,) seconds
+    sigma: Vec  # (n,) metres
+    elevation: Vec  # (n,) radians
+    cn0: Vec  # (n,) dB-Hz
+
+    def __len__(self) -> int:
+        return len(self.sats)
+
+    def subset(self, keep: Sequence[int] | Vec) -> ValidPseudoranges:
+        """The rows `keep` (indices or a boolean mask), in order."""
+        idx = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep, dtype=int)
+        rows = idx.tolist()
+        return ValidPseudoranges(
+            [self.sats[i] for i in rows],
+            [self.systems[i] for i in rows],
+            self.sat_pos[idx].reshape(-1, 3),
+            self.rho[idx],
+            self.sat_clock[idx],
+            self.sigma[idx],
+            self.elevation[idx],
+            self.cn0[idx],
+        )
+
+
+@dataclass(frozen=True)
+class ValidVehicle:
+    """One vehicle's validated epoch: what an estimator may use, and nothing that could hurt it."""
+
+    vehicle_id: str
+    pseudoranges: ValidPseudoranges
+    velocity: Vec | None = None  # Doppler velocity, ECEF m/s
+    velocity_sigma: float = math.nan  # its 1-sigma per axis (finite when velocity is given)
+    plane: PlaneObs | None = None
+    spp: Vec | None = None  # the node's SPP fix (initial guess)
+    drift: float | None = None  # Doppler receiver clock drift, m/s
+
+
+@dataclass(frozen=True)
+class ValidRange:
+    """An inter-vehicle range with a < b; sigma_m is NaN when the node gave no usable sigma."""
+
+    a: str
+    b: str
+    range_m: float
+    sigma_m: float
+
+    def sigma_or(self, default: float) -> float:
+        """The range's own sigma, or the estimator's default when it had none."""
+        return self.sigma_m if math.isfinite(self.sigma_m) else default
+
+
+@dataclass
+class ValidEpoch:
+    """A fleet epoch after validation: per-vehicle arrays, ranges, and what was dropped."""
+
+    time: GpsTime
+    vehicles: dict[str, ValidVehicle]
+    ranges: list[ValidRange]  # one per pair, sorted by pair; vehicles may be absent from `vehicles`
+    skipped: dict[str, str] = field(default_factory=dict)  # vehicle -> why it cannot be used
+    rejected: Counter[str] = field(default_factory=Counter)  # kind -> measurements dropped
+
+    def ranges_between(self, present: Collection[str]) -> list[ValidRange]:
+        """The ranges whose two vehicles are both in `present`."""
+        return [r for r in self.ranges if r.a in present and r.b in present]
+
+
+def out_of_order_reason(epoch: EpochInput, last: GpsTime | None) -> str | None:
+    """Why `epoch` cannot follow the previous epoch `last` (time not after it, or malformed)."""
+    try:
+        ok = last is None or epoch.time - last > 0.0
+    except Exception:  # untrusted input: a malformed time is out of order too
+        ok = False
+    return None if ok else f"epoch time {getattr(epoch, 'time', '?')} is not after the previous epoch {last}"
+
+
+def validate_epoch(epoch: EpochInput, *, planes: bool = True, ranges: bool = True) -> ValidEpoch:
+    """Validate every vehicle and range of one fleet epoch; never raises.
+
+    `planes=False` / `ranges=False`: the estimator does not use them, so they are neither checked
+    nor counted as rejected.
+    """
+    out = ValidEpoch(epoch.time, {}, [])
+    for vid in sorted(epoch.vehicles):
+        got = validate_vehicle(vid, epoch.vehicles[vid], epoch.time, out.rejected, planes=planes)
+        if isinstance(got, str):
+            out.skipped[vid] = got
+        else:
+            out.vehicles[vid] = got
+    if ranges:
+        out.ranges = _valid_ranges(epoch, out.rejected)
+    return out
+
+
+def validate_vehicle(
+    vid: str, vin: object, t: GpsTime, rejected: Counter[str], *, planes: bool = True
+) -> ValidVehicle | str:
+    """One vehicle's validated measurements, or the reason it cannot be used at all."""
+    if not isinstance(vin, VehicleEpochInput) or vin.vehicle_id != vid:
+        rejected["vehicle"] += 1
+        return "vehicle input does not match its id"
+    try:
+        dt = abs(vin.time - t)
+    except (TypeError, AttributeError):
+        dt = math.inf
+    if not dt <= MAX_EPOCH_MISMATCH_S:
+        rejected["vehicle"] += 1
+        return f"vehicle epoch time {vin.time} is not the epoch's time {t}"
+    prs = _valid_pseudoranges(vin.pseudoranges or (), rejected)
+    velocity, vsig = None, math.nan
+    if vin.velocity is not None:
+        velocity = finite_vec3(getattr(vin.velocity, "velocity_mps", None))
+        s = finite(getattr(vin.velocity, "sigma_mps", None))
+        if velocity is None or float(np.linalg.norm(velocity)) > MAX_SPEED_MPS or s is None or not s > 0:
+            rejected["velocity"] += 1
+            velocity = None
+        else:
+            vsig = s
+    drift = None
+    if vin.clock_drift_mps is not None:
+        drift = finite(vin.clock_drift_mps)
+        if drift is None or abs(drift) > MAX_DRIFT_MPS:
+            rejected["clock_drift"] += 1
+            drift = None
+    spp = None
+    if vin.spp_position is not None:
+        spp = finite_vec3(vin.spp_position)
+        if spp is None or not RECEIVER_RADIUS_M[0] < float(np.linalg.norm(spp)) < RECEIVER_RADIUS_M[1]:
+            rejected["spp"] += 1
+            spp = None
+    plane = _valid_plane(vin.plane, rejected) if planes else None
+    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift)
+
+
+def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -> ValidPseudoranges:
+    """Plausible, de-duplicated pseudoranges as arrays (vectorised: this runs per vehicle epoch)."""
+    n = len(prs)
+    sats = np.full((n, 3), np.nan)
+    num = np.full((n, 5), np.nan)  # rho, satellite clock, sigma, elevation, C/N0
+    try:
+        sats[:] = [o.sat_pos_m for o in prs]
+        num[:] = [(o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz) for o in prs]
+    except (TypeError, ValueError, AttributeError):  # a malformed one somewhere: one by one
+        for i, o in enumerate(prs):
+            v = finite_vec3(getattr(o, "sat_pos_m", None))
+            if v is not None:
+                sats[i] = v
+            num[i] = [
+                x if (x := finite(getattr(o, name, None))) is not None else np.nan
+                for name in ("rho_m", "sat_clock_s", "sigma_m", "elevation_rad", "cn0_dbhz")
+            ]
+    with np.errstate(invalid="ignore", over="ignore"):
+        radius = np.sqrt(np.einsum("ij,ij->i", sats, sats))
+        ok = (
+            (radius > SAT_RADIUS_M[0])
+            & (radius < SAT_RADIUS_M[1])
+            & (num[:, 0] > PSEUDORANGE_M[0])
+            & (num[:, 0] < PSEUDORANGE_M[1])
+            & (np.abs(num[:, 1]) < MAX_SAT_CLOCK_S)
+            & (num[:, 2] > 0.0)
+            & (num[:, 2] < MAX_SIGMA_M)
+        )
+    keep: list[int] = []
+    seen: set[str] = set()
+    for i, good in enumerate(ok.tolist()):
+        sat = getattr(prs[i], "sat", None)
+        if good and isinstance(sat, str) and len(sat) >= 2 and sat[0] in KNOWN_SYSTEMS and sat not in seen:
+            seen.add(sat)
+            keep.append(i)
+    if len(keep) < n:
+        rejected["pseudorange"] += n - len(keep)
+        sats, num = sats[keep], num[keep]
+    ids = [prs[i].sat for i in keep]
+    extra = num[:, 3:]  # elevation and C/N0 are optional: anything not finite means unknown
+    extra[~np.isfinite(extra)] = np.nan
+    return ValidPseudoranges(
+        ids, [s[0] for s in ids], sats, num[:, 0], num[:, 1], num[:, 2], num[:, 3], num[:, 4]
+    )
+
+
+def _valid_plane(plane: PlaneObs | None, rejected: Counter[str]) -> PlaneObs | None:
+    if plane is None:
+        return None
+    n = finite_vec3(getattr(plane, "normal", None))
+    d = finite(getattr(plane, "d_m", None))
+    sg = finite(getattr(plane, "sigma_m", None))
+    if (
+        n is None
+        or d is None
+        or sg is None
+        or not (0.0 < sg < MAX_SIGMA_M)
+        or abs(np.linalg.norm(n) - 1.0) > 1e-3
+    ):
+        rejected["plane"] += 1
+        return None
+    return plane
+
+
+def _valid_ranges(epoch: EpochInput, rejected: Counter[str]) -> list[ValidRange]:
+    """One range per pair (the first), a < b, sorted; malformed ones and repeats counted."""
+    out: dict[tuple[str, str], ValidRange] = {}
+    seen: set[tuple[str, str]] = set()
+    for r in epoch.ranges or ():
+        a, b = getattr(r, "a", None), getattr(r, "b", None)
+        rng = finite(getattr(r, "range_m", None))
+        if (
+            not isinstance(a, str)
+            or not isinstance(b, str)
+            or a == b
+            or rng is None
+            or not 0 < rng < MAX_RANGE_M
+        ):
+            rejected["range"] += 1
+            continue
+        pair = (a, b) if a < b else (b, a)
+        if pair in seen:
+            rejected["range"] += 1  # a pair at most once per epoch
+            continue
+        seen.add(pair)
+        sg = finite(getattr(r, "sigma_m", None))
+        usable = sg is not None and 0.0 < sg < MAX_RANGE_SIGMA_M
+        out[pair] = ValidRange(pair[0], pair[1], rng, sg if usable and sg is not None else math.nan)
+    return [out[p] for p in sorted(out)]
+
+
+def skipped_epoch(epoch: EpochInput, last: GpsTime | None, reason: str, solve_time_s: float) -> FleetSolution:
+    """The solution of an epoch an estimator refuses as a whole (out of order or malformed)."""
+    try:
+        vids = sorted(epoch.vehicles)
+    except Exception:  # untrusted input
+        vids = []
+    return FleetSolution(
+        getattr(epoch, "time", last) or GpsTime(0, 0.0),
+        {},
+        solve_time_s,
+        {},
+        skipped={v: reason for v in vids},
+        rejected={"epoch": 1},
+    )

@@ -1,0 +1,190 @@
+"""From a validated vehicle epoch to what its factors need: initial values, links, clock steps.
+
+This is the stage between `coplane.estimation.validate_epoch` and the factors (`blocks`): it
+predicts the new position from the vehicle's last state (velocity, paper eqs. 35-36), optionally
+gates pseudoranges against that prediction, initialises one clock per GNSS system, links each
+clock to its previous value unless the receiver clock jumped, and counts the independent position
+constraints the vehicle brings, so that a vehicle whose first position would be indeterminate is
+left out instead of making the whole cluster singular.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from coplane.estimation.contract import PlaneObs
+from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
+from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.state import GraphState, StepStats
+from coplane.fgo.window import StateBlock
+from coplane.gnss.constants import C
+from coplane.gtime import GpsTime
+from coplane.typing import Vec
+
+
+@dataclass
+class MotionLink:
+    """The inter-epoch position factor of a new state: velocity (eq. 36) or motion fallback."""
+
+    prev_key: int
+    prev_step: int
+    displacement: Vec
+    sigma: float
+    kind: str  # "velocity" | "motion"
+
+
+@dataclass
+class ClockLink:
+    """Receiver clock random walk to the vehicle's last clock of the same system."""
+
+    prev_key: int
+    prev_step: int
+    step_m: float  # mean change (Doppler drift x dt), metres
+    sigma_m: float
+
+
+@dataclass
+class Prepared:
+    """A vehicle epoch after preparation, before its factors exist (needed for the rank check)."""
+
+    vid: str
+    prs: ValidPseudoranges
+    systems: list[str]
+    plane: PlaneObs | None
+    velocity: Vec | None
+    drift: float | None
+    init_pos: Vec
+    link: MotionLink | None
+    clock_init: dict[str, float]  # system -> seconds
+    clock_links: dict[str, ClockLink]
+    rank_self: int  # independent position constraints of its own (pseudoranges, clock links, plane)
+
+
+def prepare_vehicle(
+    v: ValidVehicle, t: GpsTime, state: GraphState, cfg: FgoConfig, stats: StepStats
+) -> Prepared | str:
+    """Initial values and links of one vehicle's new state, or why it cannot get one."""
+    prs = v.pseudoranges
+    plane = v.plane if cfg.use_planes else None
+    velocity, spp = v.velocity, v.spp
+    hist = state.window.by_vehicle.get(v.vehicle_id)
+    link: MotionLink | None = None
+    if hist:
+        last = hist[-1]
+        dt = t - last.time
+        p_last = state.position(last.pos_key)
+        if cfg.use_velocity:
+            link = displacement(hist, velocity, dt, state, cfg)
+            init = p_last + link.displacement
+        elif spp is not None:
+            init = spp
+        else:
+            init = p_last + (velocity * dt if velocity is not None else 0.0)
+    elif spp is not None:
+        init = spp
+    else:
+        return "no SPP position to initialise from" if len(prs) else "no GNSS and no state in the window"
+
+    if hist and cfg.gate_k is not None and len(prs):
+        prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
+    systems = sorted(set(prs.systems))
+    # initial clock per system: median residual at the initial position (robust to NLOS)
+    clock_init: dict[str, float] = {}
+    if len(prs):
+        resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - init, axis=1)
+        by_system: dict[str, list[float]] = {s: [] for s in systems}
+        for s, r in zip(prs.systems, resid.tolist(), strict=True):
+            by_system[s].append(r)
+        # statistics.median: np.median's value, without its overhead on a dozen numbers
+        clock_init = {s: statistics.median(by_system[s]) / C for s in systems}
+    clock_links: dict[str, ClockLink] = {}
+    for s in systems:
+        prev = next((b for b in reversed(hist) if s in b.clock_keys), None) if hist else None
+        if prev is None:
+            continue
+        dt = t - prev.time
+        drifts = [d for d in (v.drift, prev.clock_drift_mps) if d is not None]
+        mean = sum(drifts) / len(drifts) if v.drift is not None else 0.0  # mean of both when known
+        sigma = F.clock_step_sigma_m(dt, v.drift is not None, cfg.clock_rw_sigma, cfg.clock_drift_sigma)
+        ck = prev.clock_keys[s]
+        predicted_m = C * state.clock(ck) + mean * dt
+        if abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * sigma):
+            stats.reject("clock_link")  # a receiver clock jump (e.g. 1 ms steering): restart
+            continue
+        clock_links[s] = ClockLink(ck, prev.step, mean * dt, sigma)
+    rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
+        1 if plane is not None else 0
+    )
+    return Prepared(
+        v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank
+    )
+
+
+def gate(
+    prs: ValidPseudoranges, predicted: Vec, k: float, sigma_pred: float, stats: StepStats
+) -> ValidPseudoranges:
+    """Drop pseudoranges whose innovation at the predicted position exceeds k sigma."""
+    resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - predicted, axis=1)
+    sys_of = np.array(prs.systems)
+    keep = np.ones(len(resid), dtype=bool)
+    for s in set(prs.systems):
+        idx = sys_of == s
+        if int(idx.sum()) < 3:
+            continue  # too few to take the clock out robustly
+        innov = resid[idx] - np.median(resid[idx])
+        keep[idx] = np.abs(innov) <= k * np.sqrt(prs.sigma[idx] ** 2 + sigma_pred**2)
+    n_out = int((~keep).sum())
+    if n_out == 0 or int(keep.sum()) < 4:
+        return prs
+    stats.reject("gated_pseudorange", n_out)
+    return prs.subset(keep)
+
+
+def displacement(
+    hist: deque[StateBlock], velocity: Vec | None, dt: float, state: GraphState, cfg: FgoConfig
+) -> MotionLink:
+    """Eq. 35-36 displacement to the previous state, or the motion fallback without Doppler.
+
+    Both Doppler velocities known: their mean (exact for constant acceleration); only the new
+    one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
+    state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
+    zero with sigma max_speed * dt.
+    """
+    last = hist[-1]
+    if velocity is not None:
+        v = 0.5 * (velocity + last.velocity) if last.velocity is not None else velocity
+        return MotionLink(last.pos_key, last.step, v * dt, cfg.sigma_v * dt, "velocity")
+    v_last: Vec | None = last.velocity
+    if v_last is None and len(hist) >= 2:
+        prev = hist[-2]
+        v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / (last.time - prev.time)
+    if v_last is not None:
+        return MotionLink(last.pos_key, last.step, v_last * dt, cfg.motion_sigma * dt, "motion")
+    return MotionLink(last.pos_key, last.step, np.zeros(3), cfg.max_speed * dt, "motion")
+
+
+def undetermined(preps: dict[str, Prepared], ranges: list[ValidRange]) -> list[str]:
+    """Vehicles whose new position would be indeterminate (rank < 3), ranges propagating.
+
+    A vehicle linked to its previous state is determined; otherwise count its own independent
+    position constraints plus ranges to vehicles already determined, until nothing changes.
+    """
+    det = {v for v, p in preps.items() if p.link is not None or p.rank_self >= 3}
+    changed = True
+    while changed:
+        changed = False
+        for v in sorted(preps):
+            if v in det:
+                continue
+            n = preps[v].rank_self + sum(
+                1 for r in ranges if (r.a == v and r.b in det) or (r.b == v and r.a in det)
+            )
+            if n >= 3:
+                det.add(v)
+                changed = True
+    return [v for v in sorted(preps) if v not in det]

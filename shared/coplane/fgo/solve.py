@@ -1,0 +1,213 @@
+"""Solving one cluster of the window with the configured solver, and recovering when GTSAM fails.
+
+A cluster is a set of vehicles linked by ranges within the window (`Window.partition`). With
+`lm-window` it is solved from scratch each epoch with loose anchor priors on the oldest states;
+with a fixed-lag smoother (`isam2-fixed-lag`, `batch-fixed-lag`) each cluster keeps a smoother
+that is fed only the new epoch, and is rebuilt from the window when the cluster merges, splits or
+an update fails. A GTSAM failure is retried once with strong priors on every state; if that fails
+too, the cluster's new epoch is dropped (`ClusterFailure`), never the estimator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.state import GraphState, StepStats
+from coplane.fgo.window import (
+    ClusterResult,
+    ClusterView,
+    SmootherCluster,
+    StateBlock,
+    StepRecord,
+    solve_lm_window,
+)
+
+FALLBACK_CLOCK_SIGMA_S = 1e-3  # strong-prior retry: clocks only need regularising
+
+
+class ClusterFailure(RuntimeError):
+    """GTSAM could not solve a cluster, even with strong priors."""
+
+
+@dataclass
+class _Slot:
+    """A fixed-lag smoother that owns some vehicles' window states."""
+
+    smoother: SmootherCluster
+    vehicles: set[str]
+    dirty: bool = False  # split: its remaining vehicles must be rebuilt before they are solved again
+
+
+class ClusterSolver:
+    """Solves the clusters of each epoch and writes estimates and covariances into the state."""
+
+    def __init__(self, cfg: FgoConfig, state: GraphState) -> None:
+        self.cfg = cfg
+        self.state = state
+        self._slots: list[_Slot] = []
+
+    def forget(self, in_window: set[str]) -> None:
+        """Smoothers keep only vehicles still in the window; empty ones are dropped."""
+        for slot in self._slots:
+            slot.vehicles &= in_window
+        self._slots = [s for s in self._slots if s.vehicles]
+
+    def solve(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> None:
+        """Solve one cluster and store its result; on failure drop its vehicles' new states."""
+        new = [v for v in view.vehicles if v in rec.blocks]
+        try:
+            if self.cfg.solver == "lm-window":
+                res = self._solve_lm(view, rec, stats)
+            else:
+                res = self._solve_smoother(view, rec, stats)
+        except ClusterFailure as exc:
+            self._drop_new(new, rec, f"solver failed, epoch dropped: {exc}", stats)
+            self._slots = [s for s in self._slots if not (s.vehicles & set(view.vehicles))]
+            return
+        self.state.values.update(res.values)
+        for key, cov in res.covariances.items():
+            self.state.cov[key] = 0.5 * (cov + cov.T)
+        stats.iterations = max(stats.iterations, res.iterations)
+        stats.error_before += res.error_before
+        stats.error_after += res.error_after
+
+    # ------------------------------------------------------------------------------------------
+
+    def _initial(self, blocks: Sequence[StateBlock]) -> gtsam.Values:
+        return self.state.values.extract([key for b in blocks for key in b.keys])
+
+    def _anchors(self, vehicles: Sequence[str]) -> list[gtsam.NonlinearFactor]:
+        """Loose priors on each vehicle's oldest window state that was solved before.
+
+        Mean: its latest estimate. Covariance: what was reported for it when it was the newest
+        state (a filtered, hence conservative, marginal) with eigenvalues floored at
+        anchor_sigma^2: negligible next to GNSS in the window, and during an outage longer than the
+        window it grows like dead reckoning instead of pinning the vehicle.
+        """
+        st = self.state
+        out: list[gtsam.NonlinearFactor] = []
+        for v in vehicles:
+            oldest = st.window.by_vehicle[v][0]
+            if oldest.step == st.step:
+                continue  # created this epoch: nothing to anchor to
+            cov = F.floored_covariance(st.cov.get(oldest.pos_key), self.cfg.anchor_sigma)
+            out.append(F.position_prior(oldest.pos_key, st.position(oldest.pos_key), cov))
+        return out
+
+    def _strong_priors(self, blocks: Sequence[StateBlock]) -> list[gtsam.NonlinearFactor]:
+        """Retry after a GTSAM failure: every state gets a prior at its current value."""
+        cov = np.eye(3) * self.cfg.anchor_sigma**2
+        out: list[gtsam.NonlinearFactor] = []
+        for b in blocks:
+            out.append(F.position_prior(b.pos_key, self.state.position(b.pos_key), cov))
+            for ck in b.clock_keys.values():
+                out.append(F.clock_prior(ck, self.state.clock(ck), FALLBACK_CLOCK_SIGMA_S))
+        return out
+
+    def _drop_new(self, vehicles: Sequence[str], rec: StepRecord, reason: str, stats: StepStats) -> None:
+        for v in vehicles:
+            blk = rec.blocks.get(v)
+            if blk is None:
+                continue
+            for key in blk.keys:
+                self.state.values.erase(key)
+            stats.skipped[v] = reason
+        self.state.window.drop_new(vehicles)
+
+    def _cov_keys(self, view: ClusterView, rec: StepRecord) -> list[int]:
+        if not self.cfg.compute_covariance:
+            return []
+        return [rec.blocks[v].pos_key for v in view.vehicles if v in rec.blocks]
+
+    def _solve_lm(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> ClusterResult:
+        cfg = self.cfg
+        oldest = self.state.step - cfg.window_epochs + 1
+        anchors = self._anchors(view.vehicles)
+        initial = self._initial(view.blocks)
+        cov_keys = self._cov_keys(view, rec)
+        try:
+            res = solve_lm_window(cfg, view.blocks, view.ranges, anchors, initial, cov_keys, oldest)
+        except Exception:  # GTSAM raises RuntimeError subclasses (IndeterminantLinearSystem...)
+            try:
+                priors = anchors + self._strong_priors(view.blocks)
+                res = solve_lm_window(cfg, view.blocks, view.ranges, priors, initial, cov_keys, oldest)
+            except Exception as exc:
+                raise ClusterFailure(short_error(exc)) from exc
+        stats.anchors += len(anchors)
+        return res
+
+    def _solve_smoother(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> ClusterResult:
+        """Feed the cluster's smoother the new epoch, or (re)build one from the window.
+
+        A smoother can take the new epoch when it already owns exactly this cluster's vehicles
+        (plus vehicles seen for the first time). A merge of clusters, a split, a vehicle whose
+        earlier states belong to no smoother, or a failed update rebuild it from the window with
+        the same anchor priors as lm-window, since what was marginalised cannot be moved between
+        smoothers.
+        """
+        cfg = self.cfg
+        k = self.state.step
+        by_vehicle = self.state.window.by_vehicle
+        members = set(view.vehicles)
+        slots = [s for s in self._slots if s.vehicles & members]
+        cov_keys = self._cov_keys(view, rec)
+        oldest = k - cfg.window_epochs + 1
+        keys = [key for b in view.blocks for key in b.keys]
+        if len(slots) == 1 and not slots[0].dirty and slots[0].vehicles <= members:
+            slot = slots[0]
+            if all(v in slot.vehicles or by_vehicle[v][0].step == k for v in view.vehicles):
+                blocks = [rec.blocks[v] for v in view.vehicles if v in rec.blocks]
+                ranges = [r for r in rec.ranges if r.a in members]
+                stamps = {key: float(k) for b in blocks for key in b.keys}
+                fresh = any(len(by_vehicle[b.vehicle_id]) == 1 for b in blocks)  # from SPP
+                try:
+                    res = slot.smoother.update(
+                        blocks,
+                        ranges,
+                        [],
+                        self._initial(blocks),
+                        stamps,
+                        cov_keys,
+                        oldest,
+                        keys,
+                        converge=fresh,
+                    )
+                    slot.vehicles |= members
+                    return res
+                except Exception:
+                    pass  # rebuild below; the smoother's state is unknown after a failed update
+        for s in slots:
+            s.vehicles -= members
+            s.dirty = True  # what remains of it was split off: rebuild before solving it again
+        self._slots = [s for s in self._slots if s.vehicles]
+        anchors = self._anchors(view.vehicles)
+        stamps = {key: float(b.step) for b in view.blocks for key in b.keys}
+        initial = self._initial(view.blocks)
+        last_exc: Exception | None = None
+        for priors in (anchors, anchors + self._strong_priors(view.blocks)):
+            sm = SmootherCluster(cfg, members)
+            try:
+                res = sm.update(
+                    view.blocks, view.ranges, priors, initial, stamps, cov_keys, oldest, keys, converge=True
+                )
+            except Exception as exc:
+                last_exc = exc
+                continue
+            self._slots.append(_Slot(sm, set(members)))
+            stats.anchors += len(anchors)
+            return res
+        assert last_exc is not None
+        raise ClusterFailure(short_error(last_exc)) from last_exc
+
+
+def short_error(exc: BaseException) -> str:
+    """The first line of an exception, for a `skipped` reason."""
+    text = f"{type(exc).__name__}: {exc}".strip()
+    first = text.splitlines()[0] if text else type(exc).__name__
+    return first[:200]

@@ -1,0 +1,9 @@
+"""Identifier rules shared by every boundary (recording manifests, the bus, the HTTP API)."""
+
+from __future__ import annotations
+
+import re
+
+# A vehicle or fleet id: a Zenoh key chunk, a file stem and a URL path segment at once.
+VEHICLE_ID_PATTERN = r"^[A-Za-z0-9_-]{1,32}$"
+VEHICLE_ID = re.compile(VEHICLE_ID_PATTERN)
