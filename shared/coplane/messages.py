@@ -4,7 +4,8 @@ The per-vehicle step produces a `NodeMessage`, the fusion step consumes node mes
 a `SolutionMessage`; the in-process evaluator passes the very same objects, so a lockstep replay
 over the bus and `coplane eval` compute on identical inputs (JSON floats round-trip exactly).
 Every field is validated at the boundary: non-finite numbers, absurd magnitudes, malformed ids and
-oversized lists are rejected with a reason (design principle 4).
+oversized lists are rejected with a reason. The bounds are `coplane.estimation.limits`, the
+same the estimators apply, so what passes here is never rejected there for another limit.
 """
 
 from __future__ import annotations
@@ -13,12 +14,27 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from coplane.estimation.limits import (
+    MAX_DRIFT_MPS,
+    MAX_PLANE_SIGMA_M,
+    MAX_RANGE_M,
+    MAX_RANGE_SIGMA_M,
+    MAX_SAT_CLOCK_S,
+    MAX_SIGMA_M,
+    MAX_SPEED_MPS,
+    PSEUDORANGE_M,
+    RECEIVER_RADIUS_M,
+    SAT_ID_PATTERN,
+    SAT_RADIUS_M,
+    VEHICLE_ID_PATTERN,
+)
+
 NODE_SCHEMA = "coplane.node/1"
 SOLUTION_SCHEMA = "coplane.solution/1"
 DIAGNOSTICS_SCHEMA = "coplane.diagnostics/1"
 
-VehicleId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
-SatId = Annotated[str, Field(pattern=r"^[GC][0-9]{2}$")]
+VehicleId = Annotated[str, Field(pattern=VEHICLE_ID_PATTERN)]
+SatId = Annotated[str, Field(pattern=SAT_ID_PATTERN)]
 Ecef = Annotated[tuple[float, float, float], Field(description="WGS-84 ECEF metres")]
 Cov3 = Annotated[list[float], Field(min_length=9, max_length=9, description="3x3 row-major, m^2")]
 Metres = Annotated[float, Field(ge=-1e8, le=1e8)]
@@ -36,7 +52,8 @@ class EpochTime(_Model):
     tow: float = Field(ge=0.0, lt=604800.0)
 
 
-def _check_ecef(v: tuple[float, float, float], what: str, lo: float = 6.0e6, hi: float = 8.0e7) -> None:
+def _check_ecef(v: tuple[float, float, float], what: str, bounds: tuple[float, float]) -> None:
+    lo, hi = bounds
     r = (v[0] ** 2 + v[1] ** 2 + v[2] ** 2) ** 0.5
     if not lo <= r <= hi:
         raise ValueError(f"{what} is {r:.0f} m from the Earth's centre (expected {lo:.0f}..{hi:.0f})")
@@ -46,25 +63,25 @@ class SatelliteReport(_Model):
     """One tracked satellite: raw measurements, the states and corrections used, the factor input."""
 
     sat: SatId
-    pseudorange_m: float = Field(ge=1.5e7, le=5.0e7)
+    pseudorange_m: float = Field(ge=PSEUDORANGE_M[0], le=PSEUDORANGE_M[1])
     doppler_hz: float | None = Field(default=None, ge=-1e5, le=1e5)
     cn0_dbhz: float | None = Field(default=None, ge=0.0, le=70.0)
     elevation_deg: float = Field(ge=-90.0, le=90.0)
     azimuth_deg: float = Field(ge=0.0, le=360.0)
     sat_pos_ecef_m: Ecef  # in the ECEF frame at reception (Sagnac applied)
-    sat_clock_s: float = Field(ge=-1.0, le=1.0)
+    sat_clock_s: float = Field(ge=-MAX_SAT_CLOCK_S, le=MAX_SAT_CLOCK_S)
     tgd_m: float = Field(ge=-100.0, le=100.0)
     iono_m: float = Field(ge=-100.0, le=200.0)
     tropo_m: float = Field(ge=0.0, le=100.0)
     dgnss_m: float | None = Field(default=None, ge=-500.0, le=500.0)
-    rho_m: float = Field(ge=1.0e7, le=6.0e7)  # corrected pseudorange fed to the factor
-    sigma_m: float = Field(gt=0.0, le=1e4)
+    rho_m: float = Field(ge=PSEUDORANGE_M[0], le=PSEUDORANGE_M[1])  # corrected, fed to the factor
+    sigma_m: float = Field(gt=0.0, le=MAX_SIGMA_M)
     used: bool = True  # False: excluded by the vehicle's RAIM
     excluded_reason: str | None = Field(default=None, max_length=200)
 
     @model_validator(mode="after")
     def _sat_far_away(self) -> SatelliteReport:
-        _check_ecef(self.sat_pos_ecef_m, f"satellite {self.sat} position", 1.0e7, 6.0e7)
+        _check_ecef(self.sat_pos_ecef_m, f"satellite {self.sat} position", SAT_RADIUS_M)
         return self
 
 
@@ -86,20 +103,20 @@ class SppReport(_Model):
         if self.ok and self.position_ecef_m is None:
             raise ValueError("an SPP fix needs position_ecef_m")
         if self.position_ecef_m is not None:
-            _check_ecef(self.position_ecef_m, "SPP position")
+            _check_ecef(self.position_ecef_m, "SPP position", RECEIVER_RADIUS_M)
         return self
 
 
 class VelocityReport(_Model):
     velocity_ecef_mps: tuple[float, float, float]
     sigma_mps: float = Field(gt=0.0, le=100.0)
-    clock_drift_mps: float = Field(ge=-1e6, le=1e6)
+    clock_drift_mps: float = Field(ge=-MAX_DRIFT_MPS, le=MAX_DRIFT_MPS)
     n_used: int = Field(ge=0, le=MAX_SATELLITES)
 
     @model_validator(mode="after")
     def _plausible(self) -> VelocityReport:
-        if sum(v * v for v in self.velocity_ecef_mps) ** 0.5 > 150.0:
-            raise ValueError("velocity above 150 m/s is not a road vehicle")
+        if sum(v * v for v in self.velocity_ecef_mps) ** 0.5 > MAX_SPEED_MPS:
+            raise ValueError(f"velocity above {MAX_SPEED_MPS:.0f} m/s is not a road vehicle")
         return self
 
 
@@ -114,7 +131,7 @@ class PlaneReport(_Model):
     normal: tuple[float, float, float] | None = None  # unit, upward, ECEF
     d_antenna_m: float | None = None
     d_road_m: float | None = None
-    sigma_m: float | None = Field(default=None, gt=0.0, le=100.0)  # what the factor uses
+    sigma_m: float | None = Field(default=None, gt=0.0, le=MAX_PLANE_SIGMA_M)  # what the factor uses
     offset_sigma_m: float | None = Field(default=None, ge=0.0, le=100.0)  # from the points' own sigma
     residual_max_m: float | None = Field(default=None, ge=0.0)
     residual_rms_m: float | None = Field(default=None, ge=0.0)
@@ -135,8 +152,8 @@ class PlaneReport(_Model):
 
 class RangeReport(_Model):
     to: VehicleId
-    range_m: float = Field(gt=0.0, le=2000.0)
-    sigma_m: float = Field(gt=0.0, le=100.0)
+    range_m: float = Field(gt=0.0, le=MAX_RANGE_M)
+    sigma_m: float = Field(gt=0.0, le=MAX_RANGE_SIGMA_M)
 
 
 class NodeMessage(_Model):
