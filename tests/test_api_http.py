@@ -12,6 +12,7 @@ from api_support import FLEET, SyntheticFleet, feed, filled_app, serve
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
+from coplane.api import views
 from coplane.api.app import create_app
 from coplane.api.bus_client import LocalBus
 from coplane.api.models import StreamEvent
@@ -47,7 +48,7 @@ def test_endpoints_on_a_filled_state(fleet: SyntheticFleet) -> None:
         assert d["covariance_m2"] == list(last.vehicles[1].covariance_m2 or [])
         assert d["counters"]["received"] == fleet.n_epochs + 3 and d["server_online"] is True
         assert d["track_points"] == fleet.n_epochs
-        tr = c.get("/vehicles/v2/track", params={"since": st.track("v2").points[-5].gps_s}).json()
+        tr = c.get("/vehicles/v2/track", params={"since": views.track(st, "v2").points[-5].gps_s}).json()
         assert len(tr["points"]) == 4
         r = c.get("/vehicles/v2/track", params={"format": "geojson", "limit": 10})
         assert r.headers["content-type"].startswith("application/geo+json")
@@ -173,6 +174,6 @@ def test_sse_stream_delivers_solutions_and_limits_clients(fleet: SyntheticFleet)
         last = seen[-1]
         assert len(last.vehicles) == 4 and last.fleet == FLEET
         assert last.latency_s is not None and 0.0 <= last.latency_s < 5.0
-        v1 = app.state.fleet.vehicle_detail("v1", time.time())
+        v1 = views.vehicle_detail(app.state.fleet, "v1", time.time())
         assert last.vehicles[0].enu_m == pytest.approx(v1.enu_m)
         assert app.state.fleet.solutions == 12

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from api_support import FLEET, T0, SyntheticFleet, ecef_at, solution, vehicle_state
 
+from coplane.api import views
 from coplane.api.bus_client import Ingest
 from coplane.api.hub import StreamHub
 from coplane.api.settings import ApiSettings
@@ -27,7 +28,7 @@ def test_latest_state_covariance_and_enu() -> None:
         solution(0, T0, [vehicle_state("a", ecef_at(0, 0)), vehicle_state("b", ecef_at(30, 40))]), 10.0
     )
     st.on_solution(solution(1, T0 + 1.0, [vehicle_state("a", ecef_at(3, 4, 1), "unavailable", 0.5)]), 11.0)
-    d = st.vehicle_detail("a", 12.5)
+    d = views.vehicle_detail(st, "a", 12.5)
     assert d is not None
     assert d.seq == 1 and d.epoch is not None and d.epoch.tow == T0.tow + 1
     assert d.position_ecef_m == pytest.approx(ecef_at(3, 4, 1), abs=1e-9)
@@ -39,30 +40,30 @@ def test_latest_state_covariance_and_enu() -> None:
     assert d.age_s == pytest.approx(1.5)
     lat, lon, _ = ecef_to_geodetic(ecef_at(3, 4, 1))
     assert (d.lat_deg, d.lon_deg) == pytest.approx((math.degrees(lat), math.degrees(lon)))
-    lst = st.vehicle_list(12.5)
+    lst = views.vehicle_list(st, 12.5)
     assert [v.vehicle_id for v in lst.vehicles] == ["a", "b"]
     assert lst.vehicles[1].seq == 0 and lst.vehicles[1].enu_m == pytest.approx((30, 40, 0), abs=1e-6)
-    assert st.vehicle_detail("nope", 0.0) is None
+    assert views.vehicle_detail(st, "nope", 0.0) is None
 
 
 def test_track_is_bounded_filtered_and_geojson_is_lon_lat() -> None:
     st = FleetState(FLEET, history_per_vehicle=5)
     for k in range(12):
         st.on_solution(solution(k, T0 + float(k), [vehicle_state("a", ecef_at(k, 0))]), 100.0 + k)
-    tr = st.track("a")
+    tr = views.track(st, "a")
     assert tr is not None and tr.capacity == 5
     assert [p.tow for p in tr.points] == [T0.tow + k for k in range(7, 12)]
-    since = st.track("a", since=(T0 + 9.0).seconds)
+    since = views.track(st, "a", since=(T0 + 9.0).seconds)
     assert since is not None and [p.tow for p in since.points] == [T0.tow + 10, T0.tow + 11]
-    last = st.track("a", limit=2)
+    last = views.track(st, "a", limit=2)
     assert last is not None and [p.tow for p in last.points] == [T0.tow + 10, T0.tow + 11]
-    gj = st.track_geojson("a")
+    gj = views.track_geojson(st, "a")
     assert gj is not None and gj.features[0].geometry.type == "LineString"
     lon, lat, _ = gj.features[0].geometry.coordinates[-1]  # type: ignore[misc]
     assert (lat, lon) == pytest.approx((tr.points[-1].lat_deg, tr.points[-1].lon_deg))
-    one = st.track_geojson("a", limit=1)
+    one = views.track_geojson(st, "a", limit=1)
     assert one is not None and one.features[0].geometry.type == "Point"
-    empty = st.track_geojson("a", since=(T0 + 99.0).seconds)
+    empty = views.track_geojson(st, "a", since=(T0 + 99.0).seconds)
     assert empty is not None and empty.features == []
 
 
@@ -77,7 +78,7 @@ def test_accuracy_equals_offline_metrics_with_known_errors() -> None:
         st.on_solution(sol, 0.0)
         for vs in sol.vehicles:
             solved[vs.vehicle_id][T0 + float(k)] = np.array(vs.position_ecef_m)
-    rep = st.accuracy_report()
+    rep = views.accuracy_report(st)
     assert rep.truth_vehicles == fleet.ids and len(rep.entries) == 3
     for e in rep.entries:
         ref = accuracy(solved[e.vehicle_id], {t: np.array(p) for t, p in fleet.truth[e.vehicle_id].items()})
@@ -105,13 +106,13 @@ def test_accuracy_simple_known_numbers() -> None:
     st = FleetState(FLEET, truth={"a": {T0: ecef_at(0, 0), t1: ecef_at(10, 0), T0 + 2.0: ecef_at(20, 0)}})
     st.on_solution(solution(0, T0, [vehicle_state("a", ecef_at(3, 4))]), 0.0)
     st.on_solution(solution(1, t1, [vehicle_state("a", ecef_at(10, 0, -2))]), 0.0)
-    (e,) = st.accuracy_report().entries
+    (e,) = views.accuracy_report(st).entries
     assert e.n_solved == 2 and e.n_truth == 2 and e.availability == 1.0  # T0+2 is not reached yet
     assert e.h_rmse_m == pytest.approx(math.sqrt(12.5), abs=1e-6)
     assert e.v_rmse_m == pytest.approx(math.sqrt(2.0), abs=1e-6)
     assert e.h_max_m == pytest.approx(5.0, abs=1e-6) and e.v_max_m == pytest.approx(2.0, abs=1e-6)
     assert e.v_bias_m == pytest.approx(-1.0, abs=1e-5) and e.last_error_h_m == pytest.approx(0.0, abs=1e-5)
-    v = st.vehicle_detail("a", 0.0)
+    v = views.vehicle_detail(st, "a", 0.0)
     assert v is not None and v.error_v_m == pytest.approx(-2.0, abs=1e-6)
 
 
@@ -121,7 +122,7 @@ def test_cep95_window_is_bounded_but_rmse_is_all_time() -> None:
         st.on_solution(
             solution(k, T0 + float(k), [vehicle_state("a", ecef_at(1.0 if k < 20 else 2.0, 0))]), 0
         )
-    (e,) = st.accuracy_report().entries
+    (e,) = views.accuracy_report(st).entries
     assert e.n_solved == 30 and e.cep95_samples == 10
     assert e.cep95_m == pytest.approx(2.0, abs=1e-6)  # only the last 10 errors (all 2 m)
     assert e.h_rmse_m == pytest.approx(math.sqrt((20 * 1 + 10 * 4) / 30), abs=1e-6)
@@ -135,9 +136,9 @@ def test_duplicates_and_restarted_replay() -> None:
     assert st.duplicates == 1
     assert st.on_solution(solution(0, T0, [vehicle_state("a", ecef_at(2, 0))], method="mci"), 0.0)
     assert st.rewinds == 1
-    tr = st.track("a")
+    tr = views.track(st, "a")
     assert tr is not None and len(tr.points) == 1  # the new run's track only
-    by_method = {e.method: e for e in st.accuracy_report().entries}
+    by_method = {e.method: e for e in views.accuracy_report(st).entries}
     assert by_method["pc"].n_solved == 3 and by_method["mci"].n_solved == 1  # other method kept
     assert not st.on_solution(solution(5, T0 + 5.0, [vehicle_state("a", ecef_at(1, 0))], fleet="other"), 0)
     assert st.rejected["solution", "wrong-fleet"] == 1
@@ -151,7 +152,7 @@ def test_planes_counts_and_ratio() -> None:
     seq = ["available", "available", "available-after-fe", "unavailable", None]
     for k, s in enumerate(seq):
         st.on_solution(solution(k, T0 + float(k), [vehicle_state("a", ecef_at(k, 0), s)]), 0.0)
-    p = st.planes()
+    p = views.planes(st)
     (a,) = p.vehicles
     assert (a.counts.available, a.counts.available_after_fe, a.counts.unavailable, a.counts.none) == (
         2,
@@ -173,30 +174,30 @@ def test_liveliness_diagnostics_and_bounds() -> None:
     assert sorted(st.vehicles) == ["a", "b", "c"]
     assert st.rejected["vehicle", "bad-vehicle-id"] == 1 and st.rejected["vehicle", "too-many-vehicles"] == 1
     st.on_alive("agent", "b", False)
-    assert [v.vehicle_id for v in st.vehicle_list(0).vehicles if v.online] == ["a", "c"]
+    assert [v.vehicle_id for v in views.vehicle_list(st, 0).vehicles if v.online] == ["a", "c"]
     fleet = SyntheticFleet(n_vehicles=2)
     d = fleet.diagnostics(4)
     st2 = fleet.state()
     assert st2.on_diagnostics(d)
-    det = st2.vehicle_detail("v1", 0)
+    det = views.vehicle_detail(st2, "v1", 0)
     assert det is not None and det.server_online and det.counters is not None and det.counters.received == 7
 
 
 def test_readiness_transitions() -> None:
     st = FleetState(FLEET, stale_after_s=5.0)
-    r = st.readiness(0.0, bus_connected=False)
+    r = views.readiness(st, 0.0, bus_connected=False)
     assert not r.ready and len(r.reasons) == 3
     st.on_alive("fusion", "0", True)
     st.on_solution(solution(0, T0, [vehicle_state("a", ecef_at(0, 0))]), 100.0)
-    assert st.readiness(101.0, True).ready
-    assert not st.readiness(101.0, False).ready
+    assert views.readiness(st, 101.0, True).ready
+    assert not views.readiness(st, 101.0, False).ready
     st.on_alive("agent", "a", True)
-    r = st.readiness(110.0, True)  # agents live but no solution for 10 s
+    r = views.readiness(st, 110.0, True)  # agents live but no solution for 10 s
     assert not r.ready and "no solution for" in r.reasons[0]
     st.on_alive("agent", "a", False)
-    assert st.readiness(110.0, True).ready  # replay over: idle is fine
+    assert views.readiness(st, 110.0, True).ready  # replay over: idle is fine
     st.on_alive("fusion", "0", False)
-    r = st.readiness(110.0, True)
+    r = views.readiness(st, 110.0, True)
     assert not r.ready and "fusion" in r.reasons[0]
 
 

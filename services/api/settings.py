@@ -11,6 +11,7 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
 
+from coplane.estimation.limits import VEHICLE_ID_PATTERN
 from coplane.runtime import ServiceSettings
 
 
@@ -23,7 +24,7 @@ class ApiSettings(ServiceSettings):
     )
     fleet: str | None = Field(
         default=None,
-        pattern=r"^[A-Za-z0-9_-]{1,32}$",
+        pattern=VEHICLE_ID_PATTERN,  # a fleet id is a key chunk too, under the same rule
         description="Bus fleet id; default: derived from the recording's name",
     )
     connect: list[str] = Field(

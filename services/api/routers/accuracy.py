@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query
 
+from coplane.estimation.limits import VEHICLE_ID_PATTERN
+
+from .. import views
+from ..deps import StateDep
 from ..models import AccuracyReport
-from . import fleet_state, problems
+from . import problems
 
 router = APIRouter(tags=["accuracy"])
 
@@ -19,13 +23,13 @@ router = APIRouter(tags=["accuracy"])
     summary="Running H/V RMSE, CEP95, max errors and availability (needs truth)",
 )
 async def get_accuracy(
-    request: Request,
+    state: StateDep,
     method: Annotated[str | None, Query(max_length=64, description="Only this method")] = None,
     vehicle_id: Annotated[
-        str | None, Query(pattern=r"^[A-Za-z0-9_-]{1,32}$", description="Only this vehicle")
+        str | None, Query(pattern=VEHICLE_ID_PATTERN, description="Only this vehicle")
     ] = None,
 ) -> AccuracyReport:
-    rep = fleet_state(request).accuracy_report()
+    rep = views.accuracy_report(state)
     if method is not None or vehicle_id is not None:
         rep.entries = [
             e

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from importlib import resources
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from fastapi.responses import HTMLResponse
+
+from ..deps import DashboardHtmlDep
 
 router = APIRouter(tags=["dashboard"])
 
@@ -23,5 +25,5 @@ def load_dashboard() -> str:
     },
     summary="Live dashboard (ENU plot, plane status, per-vehicle error; fed by /stream)",
 )
-async def dashboard(request: Request) -> HTMLResponse:
-    return HTMLResponse(request.app.state.dashboard_html)
+async def dashboard(html: DashboardHtmlDep) -> HTMLResponse:
+    return HTMLResponse(html)

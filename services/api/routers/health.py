@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from fastapi.responses import JSONResponse, Response
 
+from .. import views
+from ..deps import BusDep, NowDep, StateDep
 from ..models import Health, Readiness
-from . import bus, fleet_state, now
 
 router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=Health, summary="Liveness: the process serves HTTP")
-async def healthz(request: Request) -> Health:
-    return fleet_state(request).health(now(request))
+async def healthz(state: StateDep, now: NowDep) -> Health:
+    return views.health(state, now)
 
 
 @router.get(
@@ -22,8 +23,8 @@ async def healthz(request: Request) -> Health:
     responses={503: {"model": Readiness, "description": "Not ready; `reasons` says why"}},
     summary="Readiness: 503 until the bus is connected, a fusion server is alive and a solution arrived",
 )
-async def readyz(request: Request) -> Response | Readiness:
-    r = fleet_state(request).readiness(now(request), bus(request).connected())
+async def readyz(state: StateDep, bus: BusDep, now: NowDep) -> Response | Readiness:
+    r = views.readiness(state, now, bus.connected())
     if not r.ready:
         return JSONResponse(r.model_dump(mode="json"), status_code=503)
     return r

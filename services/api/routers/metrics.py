@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, ProcessCollector, generate_latest
 from prometheus_client.core import (
@@ -22,7 +22,9 @@ from prometheus_client.core import (
 )
 from prometheus_client.registry import Collector
 
+from .. import views
 from ..bus_client import Bus, Ingest
+from ..deps import RegistryDep
 from ..hub import StreamHub
 from ..state import FleetState
 
@@ -90,12 +92,12 @@ class FleetCollector(Collector):
         )
         for vid in sorted(st.vehicles):
             online.add_metric([vid], 1.0 if st.vehicles[vid].online else 0.0)
-            pr = st.plane_ratio(vid)
+            pr = views.plane_ratio(st, vid)
             if pr is not None:
                 ratio.add_metric([vid], pr)
         yield online
         yield ratio
-        fleet_ratio = st.planes().availability_ratio
+        fleet_ratio = views.planes(st).availability_ratio
         fr = GaugeMetricFamily(
             "coplane_fleet_plane_availability_ratio", "Plane availability over all vehicles"
         )
@@ -144,7 +146,7 @@ class FleetCollector(Collector):
         yield clients
         now = self.clock()
         ready = GaugeMetricFamily("coplane_api_ready", "1 when /readyz would answer 200")
-        ready.add_metric([], 1.0 if st.readiness(now, self.bus.connected()).ready else 0.0)
+        ready.add_metric([], 1.0 if views.readiness(st, now, self.bus.connected()).ready else 0.0)
         yield ready
         age = GaugeMetricFamily(
             "coplane_api_last_solution_age_seconds", "Wall seconds since the last solution"
@@ -172,6 +174,5 @@ def make_registry(collector: FleetCollector) -> CollectorRegistry:
     },
     summary="Prometheus metrics",
 )
-async def metrics(request: Request) -> Response:
-    reg: CollectorRegistry = request.app.state.registry
-    return Response(generate_latest(reg), media_type=CONTENT_TYPE_LATEST)
+async def metrics(registry: RegistryDep) -> Response:
+    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

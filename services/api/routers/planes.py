@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 
+from .. import views
+from ..deps import StateDep
 from ..models import PlaneList
-from . import fleet_state
 
 router = APIRouter(tags=["planes"])
 
 
 @router.get("/planes", response_model=PlaneList, summary="Road-plane status per vehicle and counts")
-async def list_planes(request: Request) -> PlaneList:
-    return fleet_state(request).planes()
+async def list_planes(state: StateDep) -> PlaneList:
+    return views.planes(state)

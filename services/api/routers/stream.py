@@ -9,18 +9,18 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, HTTPException
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 
+from ..deps import HubDep
 from ..hub import StreamHub
-from . import hub, problems
+from . import problems
 
 router = APIRouter(tags=["stream"])
 
 
-def _slot(request: Request) -> StreamHub:
+def _slot(h: HubDep) -> StreamHub:
     """Refuse before the stream starts (a status code cannot change once events flow)."""
-    h = hub(request)
     if h.full:
         raise HTTPException(503, f"at most {h.max_clients} stream clients, or the API is stopping")
     return h

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query, Request
+from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import JSONResponse, Response
 
+from coplane.estimation.limits import VEHICLE_ID_PATTERN
+
+from .. import views
+from ..deps import NowDep, StateDep
 from ..models import Track, VehicleDetail, VehicleList
-from . import fleet_state, now, problems
+from . import problems
 
 router = APIRouter(tags=["vehicles"])
 
-VehicleIdPath = Annotated[str, Path(pattern=r"^[A-Za-z0-9_-]{1,32}$", description="Vehicle id as on the bus")]
+VehicleIdPath = Annotated[str, Path(pattern=VEHICLE_ID_PATTERN, description="Vehicle id as on the bus")]
 GEOJSON = "application/geo+json"
 
 
@@ -21,8 +25,8 @@ def _unknown(vid: str) -> HTTPException:
 
 
 @router.get("/vehicles", response_model=VehicleList, summary="Latest state of every vehicle")
-async def list_vehicles(request: Request) -> VehicleList:
-    return fleet_state(request).vehicle_list(now(request))
+async def list_vehicles(state: StateDep, now: NowDep) -> VehicleList:
+    return views.vehicle_list(state, now)
 
 
 @router.get(
@@ -31,8 +35,8 @@ async def list_vehicles(request: Request) -> VehicleList:
     responses=problems(404, 422),
     summary="Latest state of one vehicle with covariance, plane and message counters",
 )
-async def get_vehicle(vehicle_id: VehicleIdPath, request: Request) -> VehicleDetail:
-    out = fleet_state(request).vehicle_detail(vehicle_id, now(request))
+async def get_vehicle(vehicle_id: VehicleIdPath, state: StateDep, now: NowDep) -> VehicleDetail:
+    out = views.vehicle_detail(state, vehicle_id, now)
     if out is None:
         raise _unknown(vehicle_id)
     return out
@@ -52,7 +56,7 @@ async def get_vehicle(vehicle_id: VehicleIdPath, request: Request) -> VehicleDet
 )
 async def get_track(
     vehicle_id: VehicleIdPath,
-    request: Request,
+    state: StateDep,
     since: Annotated[
         float | None,
         Query(
@@ -63,13 +67,12 @@ async def get_track(
     limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
     format: Annotated[Literal["json", "geojson"], Query(description="json or geojson")] = "json",
 ) -> Response | Track:
-    st = fleet_state(request)
     if format == "geojson":
-        fc = st.track_geojson(vehicle_id, since, limit)
+        fc = views.track_geojson(state, vehicle_id, since, limit)
         if fc is None:
             raise _unknown(vehicle_id)
         return JSONResponse(fc.model_dump(mode="json"), media_type=GEOJSON)
-    tr = st.track(vehicle_id, since, limit)
+    tr = views.track(state, vehicle_id, since, limit)
     if tr is None:
         raise _unknown(vehicle_id)
     return tr

@@ -1,0 +1,50 @@
+"""FastAPI dependencies: what a router may use, as `Annotated` types.
+
+`create_app` puts the store, the stream hub, the bus and the clock on `app.state`; only this
+module reads them back, so a router declares `state: StateDep` and never learns where state lives
+(tests swap any of them through `create_app`'s arguments). See docs/api.md, "How it is built".
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Request
+from prometheus_client import CollectorRegistry
+
+from .bus_client import Bus
+from .hub import StreamHub
+from .state import FleetState
+
+
+def get_state(request: Request) -> FleetState:
+    return request.app.state.fleet  # type: ignore[no-any-return]
+
+
+def get_hub(request: Request) -> StreamHub:
+    return request.app.state.hub  # type: ignore[no-any-return]
+
+
+def get_bus(request: Request) -> Bus:
+    return request.app.state.bus  # type: ignore[no-any-return]
+
+
+def get_now(request: Request) -> float:
+    """The app's clock (wall time; tests inject a fixed one), read once per request."""
+    return float(request.app.state.clock())
+
+
+def get_registry(request: Request) -> CollectorRegistry:
+    return request.app.state.registry  # type: ignore[no-any-return]
+
+
+def get_dashboard_html(request: Request) -> str:
+    return request.app.state.dashboard_html  # type: ignore[no-any-return]
+
+
+StateDep = Annotated[FleetState, Depends(get_state)]
+HubDep = Annotated[StreamHub, Depends(get_hub)]
+BusDep = Annotated[Bus, Depends(get_bus)]
+NowDep = Annotated[float, Depends(get_now)]
+RegistryDep = Annotated[CollectorRegistry, Depends(get_registry)]
+DashboardHtmlDep = Annotated[str, Depends(get_dashboard_html)]
