@@ -162,7 +162,7 @@ def test_underpass_blocks_gnss_for_8_to_15_seconds() -> None:
 
 
 def test_cli_writes_a_recording(tmp_path: Path) -> None:
-    from coplane.sim.cli import simulate_command
+    from coplane.cli.simulate import simulate_command
 
     app = typer.Typer()
     app.command()(simulate_command)

@@ -1,4 +1,4 @@
-"""`coplane simulate`: the typer command function (the lead registers it on the main app)."""
+"""`coplane simulate`: simulate a fleet drive and write it as a fleet recording."""
 
 from __future__ import annotations
 

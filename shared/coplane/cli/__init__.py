@@ -1,0 +1,54 @@
+"""The `coplane` command: one module per subcommand, registered here on one typer app.
+
+Each command parses its options, calls a library function and renders what it returns.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Annotated
+
+import typer
+
+from coplane.cli.compose import compose
+from coplane.cli.eval import eval_
+from coplane.cli.fleet import fleet
+from coplane.cli.simulate import simulate_command
+from coplane.cli.spp import spp
+
+app = typer.Typer(
+    name="coplane",
+    help="Plane-constraint-aided cooperative positioning for vehicle fleets.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+
+@app.callback()
+def main(
+    verbose: Annotated[
+        bool, typer.Option("--verbose", "-v", help="Log input problems as they are found.")
+    ] = False,
+) -> None:
+    """coplane: replay fleet recordings, run SPP and the cooperative estimators, serve results."""
+    logging.basicConfig(
+        level=logging.WARNING if verbose else logging.ERROR, format="%(levelname)s %(name)s: %(message)s"
+    )
+
+
+def version() -> None:
+    """Print the coplane version."""
+    from coplane import __version__
+
+    typer.echo(__version__)
+
+
+app.command("simulate")(simulate_command)
+app.command()(version)
+app.command()(spp)
+app.command("eval")(eval_)
+app.command()(fleet)
+app.command()(compose)
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,62 @@
+"""`coplane eval`: every method in-process on one recording; the paper's tables and figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from coplane.cli.options import recording_or_default
+from coplane.cli.render import console, print_accuracy
+
+
+def eval_(
+    recording: Annotated[
+        Path | None, typer.Argument(help="Fleet recording; default: the bundled one.")
+    ] = None,
+    methods: Annotated[
+        str, typer.Option(help="Comma-separated methods (see docs/fgo.md).")
+    ] = "non-cp,mci,pc,pc-no-ir,pc-no-ir-no-fe",
+    interruption: Annotated[
+        str, typer.Option(help="Comma-separated ranging interruption rates in %, e.g. 0,20,40,60,80,100.")
+    ] = "0",
+    vehicle: Annotated[
+        list[str] | None, typer.Option(help="Vehicles for tables and figures (repeatable); default all.")
+    ] = None,
+    out: Annotated[
+        Path, typer.Option(help="Output folder: accuracy.md/json, figures, solutions/<method>/<vehicle>.csv.")
+    ] = Path("out/eval"),
+    seed: Annotated[int, typer.Option(help="Seed for plane down-selection, RANSAC and interruption.")] = 0,
+    dgnss: Annotated[
+        bool | None, typer.Option(help="Force DGNSS on/off; default: on when the recording has a base.")
+    ] = None,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Processes for the vehicle steps (same results for any); default: one per core."
+        ),
+    ] = None,
+) -> None:
+    """Run the estimators in-process and write the paper's tables and figures."""
+    from coplane.evaluate.evaluation import evaluate
+    from coplane.recording.problems import RecordingError
+    from coplane.recording.reader import open_recording
+
+    try:
+        rates = [float(x) / 100.0 for x in interruption.split(",") if x.strip()]
+        if any(not 0.0 <= r <= 1.0 for r in rates):
+            raise ValueError("interruption rates must be within 0..100 %")
+        rec = open_recording(recording_or_default(recording))
+        names = [m.strip() for m in methods.split(",") if m.strip()]
+        ev = evaluate(
+            rec, names, rates, out, seed=seed, vehicles=vehicle, dgnss=dgnss, progress=True, jobs=jobs
+        )
+    except (RecordingError, KeyError, ValueError) as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from exc
+    shown = list(vehicle or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
+    print_accuracy(rec.manifest.name, ev.stats, shown)
+    for r in ev.runs:
+        console.print(f"{r.label}: {r.n_epochs} epochs in {r.wall_time_s:.1f} s")
+    console.print(f"wrote {out}/accuracy.md, {len(ev.figures)} figures and solutions/")

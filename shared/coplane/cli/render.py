@@ -1,0 +1,45 @@
+"""Terminal output shared by the commands: the console and the accuracy tables."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+
+
+def fmt(x: float) -> str:
+    return "-" if not np.isfinite(x) else f"{x:.2f}"
+
+
+def print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
+    """One table per vehicle (rows: methods); with a single method, one table (rows: vehicles)."""
+    from coplane.evaluate.report import TABLE_COLUMNS
+
+    def row(st: Any) -> list[str]:
+        vals = (st.h_rmse_m, st.v_rmse_m, st.cep95_m, st.h_max_m, st.v_max_m)
+        return [*(fmt(x) for x in vals), f"{100 * st.availability:.1f}"]
+
+    if len(stats) == 1:
+        ((label, per),) = stats.items()
+        table = Table(title=f"{title}: {label}")
+        table.add_column("vehicle")
+        for col in TABLE_COLUMNS:
+            table.add_column(col, justify="right")
+        for vid in vehicles:
+            if vid in per:
+                table.add_row(vid, *row(per[vid]))
+        console.print(table)
+        return
+    for vid in vehicles:
+        table = Table(title=f"{title}: vehicle {vid}")
+        table.add_column("method")
+        for col in TABLE_COLUMNS:
+            table.add_column(col, justify="right")
+        for label, per in stats.items():
+            if vid in per:
+                table.add_row(label, *row(per[vid]))
+        console.print(table)
