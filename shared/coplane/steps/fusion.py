@@ -1,0 +1,139 @@
+"""`FusionStep`: the server's epoch, node messages in, the fleet's solution message out (pure).
+
+It turns the node messages of one epoch into the estimator's `EpochInput` (only satellites the
+vehicle used, one range per pair, the ranging-interruption experiment applied by time so a
+restarted server decides alike), steps the method's estimator and wraps its estimates with what
+the vehicles reported (plane status, satellites) into a `SolutionMessage`. No I/O: `coplane eval`
+and the fusion server call the same object (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from coplane.estimation.contract import (
+    EpochInput,
+    PlaneObs,
+    PseudorangeObs,
+    RangeObs,
+    VehicleEpochInput,
+    VelocityObs,
+)
+from coplane.gtime import GpsTime
+from coplane.messages import NodeMessage, SolutionMessage, VehicleState
+from coplane.methods import MethodSpec, interrupt_range
+from coplane.steps.wire import cov9, epoch_time, plane_summary, tuple3
+
+
+@dataclass
+class FusionStepConfig:
+    interruption_rate: float = 0.0  # paper 5.3: share of ranges removed per pair (seeded)
+    interruption_seed: int = 0
+    interval_s: float = 1.0  # the epoch index for interruption comes from time, not a counter
+
+
+class FusionStep:
+    """The server's epoch: node messages -> factor-graph inputs -> solution message (pure)."""
+
+    def __init__(self, fleet: str, method: MethodSpec, config: FusionStepConfig | None = None) -> None:
+        self.fleet = fleet
+        self.method = method
+        self.config = config or FusionStepConfig()
+        self.estimator = method.build_estimator()
+        self.seq = 0
+
+    def inputs(self, t: GpsTime, messages: Mapping[str, NodeMessage]) -> EpochInput:
+        vehicles: dict[str, VehicleEpochInput] = {}
+        for vid in sorted(messages):
+            vehicles[vid] = self._vehicle_input(t, messages[vid])
+        ranges: dict[tuple[str, str], RangeObs] = {}
+        for vid in sorted(messages):
+            for r in messages[vid].ranges:
+                if r.to not in messages:
+                    continue
+                pair = (vid, r.to) if vid < r.to else (r.to, vid)
+                if pair in ranges:
+                    continue  # a pair at most once per epoch (spec); first reporter wins
+                k = round(t.seconds / self.config.interval_s)  # same decision after a server restart
+                if interrupt_range(pair, k, self.config.interruption_rate, self.config.interruption_seed):
+                    continue
+                ranges[pair] = RangeObs(pair[0], pair[1], r.range_m, r.sigma_m)
+        return EpochInput(t, vehicles, tuple(ranges[k] for k in sorted(ranges)))
+
+    def _vehicle_input(self, t: GpsTime, m: NodeMessage) -> VehicleEpochInput:
+        prs = tuple(
+            PseudorangeObs(
+                sat=s.sat,
+                rho_m=s.rho_m,
+                sat_pos_m=np.array(s.sat_pos_ecef_m),
+                sat_clock_s=s.sat_clock_s,
+                sigma_m=s.sigma_m,
+                elevation_rad=math.radians(s.elevation_deg),
+                cn0_dbhz=s.cn0_dbhz if s.cn0_dbhz is not None else math.nan,
+            )
+            for s in m.satellites
+            if s.used
+        )
+        vel = None
+        if m.velocity is not None:
+            vel = VelocityObs(np.array(m.velocity.velocity_ecef_mps), self.method.velocity_sigma_mps)
+        plane = None
+        if m.plane is not None and m.plane.status != "unavailable":
+            assert (
+                m.plane.normal is not None and m.plane.d_antenna_m is not None and m.plane.sigma_m is not None
+            )
+            plane = PlaneObs(np.array(m.plane.normal), m.plane.d_antenna_m, m.plane.sigma_m, m.plane.status)
+        return VehicleEpochInput(
+            vehicle_id=m.vehicle_id,
+            time=t,
+            pseudoranges=prs,
+            velocity=vel,
+            plane=plane,
+            spp_position=np.array(m.spp.position_ecef_m) if m.spp.position_ecef_m is not None else None,
+            clock_drift_mps=m.velocity.clock_drift_mps if m.velocity is not None else None,
+        )
+
+    def solve(
+        self, t: GpsTime, messages: Mapping[str, NodeMessage], missing: Iterable[str] = ()
+    ) -> SolutionMessage:
+        sol = self.estimator.step(self.inputs(t, messages))
+        states = []
+        for vid in sorted(sol.estimates):
+            est = sol.estimates[vid]
+            msg = messages[vid]
+            states.append(
+                VehicleState(
+                    vehicle_id=vid,
+                    position_ecef_m=tuple3(est.position_m),
+                    covariance_m2=cov9(est.covariance_m2),
+                    clocks_s=dict(est.clocks_s),
+                    antenna_height_m=msg.antenna_height_m,
+                    n_pseudoranges=est.n_pseudoranges,
+                    n_ranges=est.n_ranges,
+                    plane_used=est.plane_used,
+                    plane_status=msg.plane.status if msg.plane is not None else None,
+                    plane=plane_summary(msg.plane),
+                    has_gnss_fix=est.has_gnss_fix,
+                    n_satellites=sum(1 for s in msg.satellites if s.used),
+                    spp_ok=msg.spp.ok,
+                )
+            )
+        out = SolutionMessage(
+            fleet=self.fleet,
+            method=self.method.name,
+            seq=self.seq,
+            epoch=epoch_time(t),
+            vehicles=states,
+            solve_time_s=sol.solve_time_s,
+            factor_counts=dict(sol.factor_counts),
+            missing=sorted(missing),
+            oldest_node_sent_unix_s=min(
+                (m.sent_unix_s for m in messages.values() if m.sent_unix_s is not None), default=None
+            ),
+        )
+        self.seq += 1
+        return out

@@ -1,0 +1,274 @@
+"""`VehicleStep`: one vehicle's epoch, its measurements and the fleet's solution in, a node message out.
+
+SPP + Doppler velocity (DGNSS when corrections are given), the road plane fitted from the fleet's
+solved positions (paper Sec. III) and the per-satellite factor inputs, packed as the `NodeMessage`
+the fusion step consumes. Pure and deterministic (no I/O): `coplane eval` calls it in-process and
+the vehicle agent over the bus, so a lockstep replay over the bus reproduces the in-process
+positions (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from coplane.estimation.limits import MAX_SPEED_MPS
+from coplane.geo import up_vector
+from coplane.gnss.dgnss import DgnssCorrections
+from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
+from coplane.gnss.geometry import broadcast_delays, sky_view
+from coplane.gnss.weighting import pseudorange_sigma_m, standalone_pseudorange_sigma_m
+from coplane.gtime import GpsTime
+from coplane.messages import (
+    NodeMessage,
+    PlaneReport,
+    RangeReport,
+    SatelliteReport,
+    SolutionMessage,
+    SppReport,
+    VehicleState,
+    VelocityReport,
+)
+from coplane.methods import MethodSpec
+from coplane.plane.config import PlaneConfig
+from coplane.plane.detect import construct_plane, offset_sigma_m
+from coplane.plane.history import PositionHistory
+from coplane.recording.model import NavData, ObsEpoch, UwbRange
+from coplane.steps.wire import cov9, epoch_time, gps_time, plane_report, stable_seed, tuple3
+from coplane.typing import AnyArray as Vec
+
+
+@dataclass
+class VehicleStepConfig:
+    solver: EpochSolverOptions = field(default_factory=EpochSolverOptions)
+    plane: PlaneConfig = field(default_factory=PlaneConfig)
+    uwb_sigma_m: float = 0.3
+    seed: int = 0
+
+
+class VehicleStep:
+    """One vehicle: measurements + the fleet's solved positions -> node message (pure)."""
+
+    def __init__(
+        self,
+        fleet: str,
+        vehicle_id: str,
+        antenna_height_m: float,
+        nav: NavData,
+        method: MethodSpec,
+        config: VehicleStepConfig | None = None,
+    ) -> None:
+        self.fleet = fleet
+        self.vehicle_id = vehicle_id
+        self.antenna_height_m = antenna_height_m
+        self.nav = nav
+        self.method = method
+        self.config = config or VehicleStepConfig()
+        pc = self.config.plane
+        if not method.plane_fault_exclusion:
+            pc = replace(pc, fault_exclusion=False)
+        self.plane_config = pc
+        self.history = PositionHistory(pc)
+        self.seq = 0
+        self.first_epoch: GpsTime | None = None
+        self._last_fused: tuple[GpsTime, Vec] | None = None
+        self._last_spp: Vec | None = None
+
+    # -- the fleet's solution feeds the plane history (paper eq. 2) --------------------------
+    def ingest(self, solution: SolutionMessage) -> None:
+        """Add a fleet solution to the plane history.
+
+        Solutions of epochs before this vehicle's first epoch are ignored: a vehicle joins the
+        cooperation when it starts reporting. Over the bus a late joiner cannot know what was
+        solved before it subscribed, so the in-process run follows the same rule and both paths
+        stay identical.
+        """
+        t = gps_time(solution.epoch)
+        if self.first_epoch is None or t < self.first_epoch:
+            return
+        states = [
+            v for v in solution.vehicles if self.method.planes != "self" or v.vehicle_id == self.vehicle_id
+        ]
+        if states and self.method.planes != "none":  # no plane, no history to keep
+            self.history.add_many(
+                [v.vehicle_id for v in states],
+                t.seconds,
+                [v.position_ecef_m for v in states],
+                [v.antenna_height_m for v in states],
+                [_sigma_up(v) for v in states],
+            )
+        for v in states:
+            if v.vehicle_id == self.vehicle_id:
+                self._last_fused = (t, np.asarray(v.position_ecef_m, dtype=float))
+
+    # -- one epoch ---------------------------------------------------------------------------
+    def front_end(
+        self, t: GpsTime, epoch: ObsEpoch | None, corrections: DgnssCorrections | None = None
+    ) -> EpochResult:
+        """SPP and Doppler of this receiver's epoch: its own data only, nothing from the fleet.
+
+        SPP starts from this receiver's previous fix (the fused position would tie the GNSS front
+        end to the fusion step), so the front end can run ahead, e.g. while the server solves the
+        previous epoch. Call once per epoch, in order, before `process`.
+        """
+        ep = epoch if epoch is not None else ObsEpoch(t, ())
+        res = solve_epoch(ep, self.nav, corrections, self.config.solver, self._last_spp)
+        if res.spp.ok:
+            self._last_spp = res.spp.position
+        return res
+
+    def process(
+        self,
+        t: GpsTime,
+        epoch: ObsEpoch | None,
+        corrections: DgnssCorrections | None = None,
+        uwb: Iterable[UwbRange] = (),
+        front: EpochResult | None = None,
+    ) -> NodeMessage:
+        """The node message for nominal epoch `t`; `epoch` None means the receiver had no epoch.
+
+        `front` is this epoch's `front_end` result when it was computed ahead; else it runs here.
+        """
+        if epoch is None:
+            epoch = ObsEpoch(t, ())
+        if self.first_epoch is None:
+            self.first_epoch = t
+        last = self._last_fused[1] if self._last_fused is not None else None
+        res = front if front is not None else self.front_end(t, epoch, corrections)
+        approx = res.spp.position if res.spp.ok else last
+        sats = self._satellites(res, approx, corrections)
+        plane = self._plane(t, approx) if self.method.planes != "none" else None
+        msg = NodeMessage(
+            fleet=self.fleet,
+            vehicle_id=self.vehicle_id,
+            seq=self.seq,
+            epoch=epoch_time(t),
+            rx_time=epoch_time(epoch.time),
+            antenna_height_m=self.antenna_height_m,
+            spp=self._spp_report(res),
+            velocity=self._velocity_report(res),
+            satellites=sats,
+            plane=plane,
+            ranges=[
+                RangeReport(to=r.b, range_m=r.range_m, sigma_m=self.config.uwb_sigma_m)
+                for r in uwb
+                if r.a == self.vehicle_id and r.b != self.vehicle_id
+            ],
+        )
+        self.seq += 1
+        return msg
+
+    def _spp_report(self, res: EpochResult) -> SppReport:
+        s = res.spp
+        if not s.ok:
+            return SppReport(ok=False, reason=s.reason, excluded=list(s.excluded))
+        d = s.dops
+        return SppReport(
+            ok=True,
+            position_ecef_m=tuple3(s.position),
+            covariance_m2=cov9(s.covariance),
+            clocks_m=dict(s.clocks_m),
+            n_used=s.n_used,
+            excluded=list(s.excluded),
+            gdop=d.gdop if d else None,
+            pdop=d.pdop if d else None,
+            hdop=d.hdop if d else None,
+            vdop=d.vdop if d else None,
+        )
+
+    @staticmethod
+    def _velocity_report(res: EpochResult) -> VelocityReport | None:
+        v = res.velocity
+        if v is None or not v.ok or np.linalg.norm(v.velocity_mps) > MAX_SPEED_MPS:
+            return None
+        sig = float(math.sqrt(max(np.trace(v.covariance) / 3.0, 1e-6)))
+        return VelocityReport(
+            velocity_ecef_mps=tuple3(v.velocity_mps),
+            sigma_mps=min(sig, 100.0),
+            clock_drift_mps=v.drift_mps,
+            n_used=len(v.used),
+        )
+
+    def _satellites(
+        self, res: EpochResult, approx: Vec | None, corrections: DgnssCorrections | None
+    ) -> list[SatelliteReport]:
+        """Per-satellite factor inputs, modelled at the best position the vehicle has."""
+        if approx is None:
+            return []  # no position at all yet: elevation, Sagnac and atmosphere are unknown
+        sats = list(res.prepared.sats)
+        if corrections is not None:  # DGNSS mode uses corrected satellites only
+            sats = [m for m in sats if m.sat in corrections.corrections_m]
+        if not sats:
+            return []
+        systems = [m.system for m in sats]
+        sat_pos = np.array([m.state.pos for m in sats])
+        view = sky_view(sat_pos, approx)
+        sat_rx = view.receive_frame_positions(sat_pos)
+        cn0 = np.array([m.cn0_dbhz for m in sats])
+        if corrections is not None:
+            iono = tropo = np.zeros(len(sats))
+            sigma = pseudorange_sigma_m(view.el_rad, cn0, systems)
+        else:
+            iono, tropo = broadcast_delays(systems, res.prepared.time, view, self.nav)
+            sigma = standalone_pseudorange_sigma_m(view.el_rad, cn0, systems, iono)
+        used = set(res.spp.used) if res.spp.ok else None
+        excluded = set(res.spp.excluded)
+        mask = math.radians(self.config.solver.spp.elevation_mask_deg)
+        out: list[SatelliteReport] = []
+        for i, m in enumerate(sats):
+            el = float(view.el_rad[i])
+            if corrections is not None:
+                dg: float | None = corrections.corrections_m[m.sat]
+                rho = m.pseudorange_m - corrections.corrections_m[m.sat]
+            else:
+                dg = None
+                rho = m.pseudorange_m - m.tgd_m - float(iono[i]) - float(tropo[i])
+            reason = None
+            if m.sat in excluded:
+                reason = "excluded by RAIM"
+            elif el < mask:
+                reason = "below elevation mask"
+            elif used is not None and m.sat not in used:
+                reason = "not used by SPP"
+            out.append(
+                SatelliteReport(
+                    sat=m.sat,
+                    pseudorange_m=m.pseudorange_m,
+                    doppler_hz=m.doppler_hz if math.isfinite(m.doppler_hz) else None,
+                    cn0_dbhz=m.cn0_dbhz if math.isfinite(m.cn0_dbhz) else None,
+                    elevation_deg=math.degrees(el),
+                    azimuth_deg=math.degrees(float(view.az_rad[i])),
+                    sat_pos_ecef_m=tuple3(sat_rx[i]),
+                    sat_clock_s=m.state.clock_s,
+                    tgd_m=m.tgd_m,
+                    iono_m=float(iono[i]),
+                    tropo_m=float(tropo[i]),
+                    dgnss_m=dg,
+                    rho_m=rho,
+                    sigma_m=float(sigma[i]),
+                    used=reason is None,
+                    excluded_reason=reason,
+                )
+            )
+        return out
+
+    def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
+        if centre is None:
+            return PlaneReport(status="unavailable", reason="no position to centre the fitting region")
+        rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
+        only = {self.vehicle_id} if self.method.planes == "self" else None
+        sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only)
+        plane = construct_plane(sample.points, self.antenna_height_m, self.plane_config, rng)
+        return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids))
+
+
+def _sigma_up(v: VehicleState) -> float:
+    """Vertical 1-sigma of a solved position (from its ECEF covariance), NaN when not given."""
+    if v.covariance_m2 is None:
+        return math.nan
+    up = up_vector(np.asarray(v.position_ecef_m))
+    var = float(up @ np.asarray(v.covariance_m2).reshape(3, 3) @ up)
+    return math.sqrt(var) if var > 0 else math.nan

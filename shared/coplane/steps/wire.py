@@ -1,0 +1,86 @@
+"""Conversions between the library's values and the wire models the steps exchange.
+
+The steps speak `coplane.messages` at their edges; these helpers keep every conversion (times,
+vectors, covariances, planes) in one place so both steps and the evaluator convert alike.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+
+import numpy as np
+
+from coplane.gtime import GpsTime
+from coplane.messages import EpochTime, PlaneReport, PlaneSummary
+from coplane.plane.detect import PlaneStatus, RoadPlane
+from coplane.typing import AnyArray
+
+STATUS_NAME = {
+    PlaneStatus.AVAILABLE: "available",
+    PlaneStatus.AVAILABLE_AFTER_FE: "available-after-fe",
+    PlaneStatus.UNAVAILABLE: "unavailable",
+}
+
+
+def epoch_time(t: GpsTime) -> EpochTime:
+    return EpochTime(week=t.week, tow=t.tow)
+
+
+def gps_time(e: EpochTime) -> GpsTime:
+    return GpsTime(e.week, e.tow)
+
+
+def tuple3(v: AnyArray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def cov9(c: AnyArray) -> list[float] | None:
+    c = np.asarray(c, dtype=float)
+    return [float(x) for x in c.reshape(9)] if np.all(np.isfinite(c)) else None
+
+
+def stable_seed(*parts: int | str) -> list[int]:
+    """A seed sequence that does not depend on Python's per-process hash randomisation."""
+    return [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) & 0xFFFFFFFF for p in parts]
+
+
+def plane_report(p: RoadPlane, offset_sigma: float = 0.0) -> PlaneReport:
+    """The wire form of a plane; the factor's sigma adds the offset uncertainty to the fit residual."""
+    if p.status == PlaneStatus.UNAVAILABLE:
+        return PlaneReport(
+            status="unavailable",
+            reason=p.reason,
+            n_points_initial=p.n_points_initial,
+            n_points_used=p.n_points_used,
+            residual_max_m=p.residual_max_m if math.isfinite(p.residual_max_m) else None,
+        )
+    return PlaneReport(
+        status=STATUS_NAME[p.status],  # type: ignore[arg-type]
+        reason=p.reason,
+        normal=tuple3(p.normal),
+        d_antenna_m=float(p.d_antenna),
+        d_road_m=float(p.d_road),
+        sigma_m=float(math.hypot(p.sigma_m, offset_sigma)),
+        offset_sigma_m=float(offset_sigma),
+        residual_max_m=float(p.residual_max_m),
+        residual_rms_m=float(p.residual_rms_m),
+        n_points_initial=p.n_points_initial,
+        n_points_used=p.n_points_used,
+        centroid_ecef_m=tuple3(p.centroid),
+    )
+
+
+def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
+    if p is None:
+        return None
+    return PlaneSummary(
+        status=p.status,
+        reason=p.reason,
+        residual_max_m=p.residual_max_m,
+        residual_rms_m=p.residual_rms_m,
+        sigma_m=p.sigma_m,
+        offset_sigma_m=p.offset_sigma_m,
+        n_points_initial=p.n_points_initial,
+        n_points_used=p.n_points_used,
+    )
