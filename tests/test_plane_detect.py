@@ -15,12 +15,10 @@ from hypothesis import strategies as st
 from coplane.geo import enu_to_ecef, geodetic_to_ecef, up_vector
 from coplane.messages import PlaneStatusName
 from coplane.plane import (
-    PlaneBuilder,
     PlaneConfig,
     PlaneStatus,
     PositionHistory,
     RoadPlane,
-    build_plane,
     construct_plane,
     ransac_inliers,
 )
@@ -342,6 +340,17 @@ def test_config_validation() -> None:
     assert CFG.fault_exclusion is True
 
 
+def build(
+    hist: PositionHistory,
+    spp: np.ndarray,
+    t: float,
+    rng: np.random.Generator,
+    vehicle_ids: set[str] | None = None,
+) -> RoadPlane:
+    """The vehicle step's plane: history query around the SPP fix (eq. 3), then construction."""
+    return construct_plane(hist.select(spp, t, rng, vehicle_ids=vehicle_ids), H, CFG, rng)
+
+
 def test_builder_fits_the_fleets_road_from_earlier_epochs() -> None:
     """Four vehicles on a two-lane road at 10 m/s: the plane at t=10 uses epochs 0..9 only."""
     hist = PositionHistory(CFG)
@@ -350,14 +359,12 @@ def test_builder_fits_the_fleets_road_from_earlier_epochs() -> None:
             enu = np.array([lane, start + 8.0 * t, 0.02 * (start + 8.0 * t) + H])  # antenna 1.6 m up
             hist.add(f"u{i + 1}", float(t), ecef(enu), H)
     spp = ecef(np.array([0.0, 30.0, 0.02 * 30.0 + H + 3.0]))  # an SPP fix 3 m too high
-    a = PlaneBuilder(hist, CFG).build(spp, H, 10.0, np.random.default_rng(9))
-    b = build_plane(hist, spp, H, 10.0, CFG, np.random.default_rng(9))
-    assert a.to_dict() == b.to_dict()
+    a = build(hist, spp, 10.0, np.random.default_rng(9))
     assert a.status is PlaneStatus.AVAILABLE, a.reason
     assert a.n_points_initial == CFG.n_max
     assert a.tilt_deg == pytest.approx(math.degrees(math.atan(0.02)), abs=0.05)
     truth_antenna = ecef(np.array([0.0, 30.0, 0.02 * 30.0 + H]))
     assert a.constraint_error(truth_antenna) == pytest.approx(0.0, abs=0.01)
     assert a.constraint_error(spp) == pytest.approx(3.0, abs=0.02)  # the factor sees the 3 m
-    only = PlaneBuilder(hist, CFG).build(spp, H, 10.0, np.random.default_rng(9), vehicle_ids={"u1"})
+    only = build(hist, spp, 10.0, np.random.default_rng(9), vehicle_ids={"u1"})
     assert only.status is PlaneStatus.UNAVAILABLE  # one vehicle: a line of too few points

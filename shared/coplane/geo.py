@@ -108,15 +108,3 @@ def enu_to_ecef(enu: ArrayLike, ref_ecef: ArrayLike) -> NDArray[np.float64]:
     ref = np.asarray(ref_ecef, dtype=float)
     lat, lon, _ = ecef_to_geodetic(ref)
     return np.asarray(enu, dtype=float) @ enu_rotation(lat, lon) + ref
-
-
-def azimuth_elevation(rx_ecef: ArrayLike, sat_ecef: ArrayLike) -> tuple[float, float]:
-    """Azimuth and elevation (radians) of a satellite seen from a receiver."""
-    rx = np.asarray(rx_ecef, dtype=float)
-    d = np.asarray(sat_ecef, dtype=float) - rx
-    if float(np.dot(rx, rx)) < 1.0:  # receiver position unknown: RTKLIB convention
-        return 0.0, np.pi / 2
-    lat, lon, _ = ecef_to_geodetic(rx)
-    e, n, u = enu_rotation(lat, lon) @ (d / np.linalg.norm(d))
-    az = float(np.arctan2(e, n)) % (2 * np.pi)
-    return az, float(np.arcsin(np.clip(u, -1.0, 1.0)))

@@ -11,12 +11,10 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 @dataclass(frozen=True)

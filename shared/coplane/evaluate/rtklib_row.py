@@ -209,11 +209,6 @@ def process_recording(
     return res
 
 
-def run_rtklib(recording: Recording, dgnss: bool | None = None) -> MethodRun:
-    """The RTKLIB row as a MethodRun (positions per vehicle per nominal epoch); needs pyrtklib."""
-    return process_recording(recording, dgnss).run
-
-
 def evaluation_row(rec: Recording, dgnss: bool | None = None) -> tuple[MethodRun | None, str]:
     """For `coplane eval`: the RTKLIB run (None when skipped) and the line to print and record."""
     reason = rtklib_unavailable()

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from tqdm import tqdm
 
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
@@ -28,8 +27,7 @@ from coplane.recording.model import NavData, ObsEpoch
 from coplane.recording.reader import Recording
 from coplane.replay import base_by_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
 from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
-
-Vec = NDArray[Any]
+from coplane.typing import AnyArray as Vec
 
 
 @dataclass

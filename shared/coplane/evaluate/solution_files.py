@@ -8,13 +8,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane import __version__
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 # RTKLIB solution quality flags
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6

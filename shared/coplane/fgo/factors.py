@@ -29,8 +29,7 @@ from numpy.typing import NDArray
 
 from coplane.estimation.contract import PlaneObs
 from coplane.gnss.constants import OMEGA_E_GPS, C
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 # ----------------------------------------------------------------------------------------------
 # noise models (immutable in GTSAM, so shared instances are safe and save a pybind call each)

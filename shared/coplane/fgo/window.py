@@ -26,8 +26,7 @@ from numpy.typing import NDArray
 
 from coplane.fgo.config import FgoConfig
 from coplane.gtime import GpsTime
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 @dataclass(frozen=True)

@@ -15,14 +15,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.gnss.constants import C
 from coplane.gnss.geometry import sky_view
 from coplane.gnss.measurements import PreparedEpoch
 from coplane.gtime import GpsTime
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
@@ -22,8 +20,7 @@ from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import doppler_sigma_mps
 from coplane.gtime import GpsTime
-
-Vec = NDArray[Any]  # numpy arithmetic widens dtypes; precise dtype hints only add noise
+from coplane.typing import AnyArray as Vec
 
 
 @dataclass(frozen=True)

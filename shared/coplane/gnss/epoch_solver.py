@@ -8,16 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-from numpy.typing import NDArray
-
 from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
 from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, solve_doppler_velocity
 from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
 from coplane.gnss.spp import SppOptions, SppSolution, solve_spp
 from coplane.recording.model import NavData, ObsEpoch
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 @dataclass(frozen=True)

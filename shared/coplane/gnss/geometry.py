@@ -12,10 +12,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
@@ -23,8 +22,7 @@ from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.ephemeris import rotate_to_receive_frame
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData
-
-Vec = NDArray[Any]
+from coplane.typing import AnyArray as Vec
 
 
 def sagnac_ranges(sat_pos: Vec, p: Vec) -> tuple[Vec, Vec]:

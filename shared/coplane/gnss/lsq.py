@@ -6,10 +6,9 @@ import functools
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.stats import chi2
 
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 @functools.lru_cache(maxsize=1024)

@@ -15,10 +15,9 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
@@ -28,8 +27,8 @@ from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData
+from coplane.typing import AnyArray as Vec
 
-Vec = NDArray[Any]  # numpy arithmetic widens dtypes; precise dtype hints only add noise
 RaimMode = Literal["fde", "detect", "off"]
 
 

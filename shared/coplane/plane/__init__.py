@@ -5,7 +5,7 @@
 - `fit.fit_plane`: total-least-squares plane by SVD (eqs. 6-11), normal oriented upward;
 - `detect.construct_plane`: availability detection (eqs. 14-16) and RANSAC fault exclusion
   (Algorithm 1), translated to antenna height (eqs. 12-13) -> `RoadPlane`;
-- `detect.PlaneBuilder` / `build_plane`: the per-vehicle step (history query + construction).
+- the per-vehicle step (history query + construction) is `coplane.steps.VehicleStep`.
 
 Plane convention: ``n . p + d = 0``, ``n`` unit and upward; the antenna plane is
 ``d_antenna = d_road - h``; the factor error (eq. 24) is ``n . p + d_antenna``. See docs/planes.md.
@@ -13,10 +13,8 @@ Plane convention: ``n . p + d = 0``, ``n`` unit and upward; the antenna plane is
 
 from coplane.plane.config import PlaneConfig
 from coplane.plane.detect import (
-    PlaneBuilder,
     PlaneStatus,
     RoadPlane,
-    build_plane,
     construct_plane,
     detection_failures,
     ransac_inliers,
@@ -27,14 +25,12 @@ from coplane.plane.history import HistorySample, PositionHistory, cell_key, proj
 __all__ = [
     "Degenerate",
     "HistorySample",
-    "PlaneBuilder",
     "PlaneConfig",
     "PlaneFit",
     "PlaneStatus",
     "PositionHistory",
     "RoadPlane",
     "antenna_offset",
-    "build_plane",
     "cell_key",
     "constraint_error",
     "construct_plane",

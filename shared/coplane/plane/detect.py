@@ -41,9 +41,7 @@ from coplane.plane.fit import (
     plane_through_three,
     unit_vector,
 )
-from coplane.plane.history import PositionHistory
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 
 class PlaneStatus(StrEnum):
@@ -319,39 +317,6 @@ def construct_plane(
         return out(PlaneStatus.UNAVAILABLE, f"{'; '.join(failures)} after FE", fit1, used, excl)
     note = f"fault exclusion removed {excl.shape[0]} of {n0} points" if excl.shape[0] else None
     return out(PlaneStatus.AVAILABLE_AFTER_FE, note, fit1, used, excl)
-
-
-@dataclass
-class PlaneBuilder:
-    """The per-vehicle plane step: history query around the SPP fix (eq. 3) + `construct_plane`."""
-
-    history: PositionHistory
-    config: PlaneConfig
-
-    def build(
-        self,
-        spp_ecef: ArrayLike,
-        antenna_height_m: float,
-        time_s: float,
-        rng: np.random.Generator,
-        vehicle_ids: set[str] | frozenset[str] | None = None,
-    ) -> RoadPlane:
-        """The road plane of a vehicle at `time_s` from positions strictly before it (eq. 2)."""
-        pts = self.history.select(spp_ecef, time_s, rng, vehicle_ids=vehicle_ids)
-        return construct_plane(pts, antenna_height_m, self.config, rng)
-
-
-def build_plane(
-    history: PositionHistory,
-    spp_ecef: ArrayLike,
-    antenna_height_m: float,
-    time_s: float,
-    config: PlaneConfig,
-    rng: np.random.Generator,
-    vehicle_ids: set[str] | frozenset[str] | None = None,
-) -> RoadPlane:
-    """Function form of `PlaneBuilder.build`."""
-    return PlaneBuilder(history, config).build(spp_ecef, antenna_height_m, time_s, rng, vehicle_ids)
 
 
 def offset_sigma_m(sigmas_up_m: ArrayLike, vehicle_ids: Sequence[str]) -> float:

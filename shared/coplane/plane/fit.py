@@ -25,11 +25,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from coplane.geo import up_vector
-
-Vec = NDArray[np.float64]
+from coplane.typing import Vec
 
 DEGENERATE_ABS_M = 1e-6
 """Middle singular value (m) at or below which points count as collinear: float64 ECEF coordinates

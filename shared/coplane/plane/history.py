@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from coplane.geo import up_vector
 from coplane.plane.config import PlaneConfig
+from coplane.typing import Vec
 
-Vec = NDArray[np.float64]
 CellKey = tuple[int, int, int]
 
 _R_MIN_M = 6.0e6  # a road vehicle's ECEF radius (Dead Sea shore to Everest with a wide margin)
