@@ -14,7 +14,8 @@ Why not a library:
 This reader parses only the configured signal of each wanted system, never raises on bad
 content (it reports `file:line: reason` to a `Problems` collector and skips what it cannot use)
 and is tested against RTKLIB on every real file in ../shared/data/real (and against georinex on a
-RINEX 3.03 and a 2.10 file).
+RINEX 3.03 and a 2.10 file). It stays one file: it is one format's grammar, and RINEX 2 and 3 share
+the header model, the signal selection, the epoch rules and the problem reporting below.
 
 Rules (see ../shared/spec/fleet-recording.md):
 * Event flags 2-5 announce special records (header lines) whose count is in the epoch line; they
