@@ -1,21 +1,38 @@
-"""The epoch schedule of a replay, shared by the in-process evaluator and the vehicle agents.
+"""A replay's schedule and how its steps are built, shared by the in-process evaluator and the
+vehicle agents / fusion server, so the lockstep bus replay computes on the same inputs.
 
 A vehicle is live from its first to its last observation epoch. Inside that span it reports at
 every nominal epoch (a multiple of the interval), with an empty report where its receiver had no
 epoch (an underpass, a dropped epoch), so that in lockstep the server never waits for a message
 that will not come and the vehicle still gets a plane and a carried-through position.
+
+`ReplaySetup` (from `replay_setup`) builds the `VehicleStep`s and the `FusionStep` and
+`BaseCorrections` gives each epoch's DGNSS corrections. The step classes are imported where they
+are used: the API imports this module for `fleet_id` and should not load the estimators.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from coplane.errors import ConfigError
 from coplane.gtime import GpsTime
-from coplane.recording.model import ObsEpoch, UwbRange
+from coplane.recording.model import NavData, ObsEpoch, UwbRange
+from coplane.typing import AnyArray
 
 if TYPE_CHECKING:
+    from coplane.gnss.dgnss import DgnssCorrections
+    from coplane.methods import MethodSpec
+    from coplane.plane.config import PlaneConfig
+    from coplane.recording.manifest import Manifest
     from coplane.recording.reader import Recording
+    from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig
+
+DEFAULT_UWB_SIGMA_M = 0.3  # without a [uwb] table in the manifest
 
 
 def nominal_grid(first: GpsTime, last: GpsTime, interval_s: float) -> Iterator[GpsTime]:
@@ -89,3 +106,90 @@ def base_by_epoch(recording: Recording) -> dict[GpsTime, ObsEpoch]:
     for e in recording.base_epochs():
         out.setdefault(e.time.round_to(recording.manifest.interval_s), e)
     return out
+
+
+@dataclass(frozen=True)
+class ReplaySetup:
+    """How every step of one replay is built, from the manifest and the run's options."""
+
+    fleet: str
+    method: MethodSpec
+    vehicle_config: VehicleStepConfig
+    fusion_config: FusionStepConfig
+    use_dgnss: bool
+
+    def vehicle_step(self, recording: Recording, vehicle_id: str) -> VehicleStep:
+        from coplane.steps import VehicleStep
+
+        v = recording.manifest.vehicle(vehicle_id)
+        return VehicleStep(
+            self.fleet, v.id, v.antenna_height_m, recording.nav, self.method, self.vehicle_config
+        )
+
+    def fusion_step(self) -> FusionStep:
+        from coplane.steps import FusionStep
+
+        return FusionStep(self.fleet, self.method, self.fusion_config)
+
+
+def replay_setup(
+    manifest: Manifest,
+    method: MethodSpec | str,
+    *,
+    seed: int = 0,
+    interruption: float = 0.0,
+    dgnss: bool | None = None,
+    plane_config: PlaneConfig | None = None,
+    fleet: str | None = None,
+) -> ReplaySetup:
+    """The replay's setup. DGNSS is used when the recording has a base (`dgnss=None`); asking for
+    it without one is a ConfigError. `fleet` overrides the id derived from the recording's name."""
+    from coplane.methods import get_method
+    from coplane.steps import FusionStepConfig, VehicleStepConfig
+
+    spec = get_method(method) if isinstance(method, str) else method
+    use_dgnss = manifest.base is not None if dgnss is None else dgnss
+    if use_dgnss and manifest.base is None:
+        raise ConfigError(f"recording {manifest.name!r} has no [base]: cannot run with DGNSS")
+    uwb_sigma = manifest.uwb.sigma_m if manifest.uwb else DEFAULT_UWB_SIGMA_M
+    vcfg = VehicleStepConfig(uwb_sigma_m=uwb_sigma, seed=seed)
+    if plane_config is not None:
+        vcfg.plane = plane_config
+    return ReplaySetup(
+        fleet=fleet or fleet_id(manifest.name),
+        method=spec,
+        vehicle_config=vcfg,
+        fusion_config=FusionStepConfig(interruption, seed, manifest.interval_s),
+        use_dgnss=use_dgnss,
+    )
+
+
+@dataclass
+class BaseCorrections:
+    """DGNSS corrections of a nominal epoch from the reference station (None without a base epoch)."""
+
+    by_t: Mapping[GpsTime, ObsEpoch]
+    position: AnyArray | None
+    nav: NavData
+    _last: tuple[GpsTime, DgnssCorrections | None] | None = field(default=None, repr=False)
+
+    @classmethod
+    def of(cls, recording: Recording, use_dgnss: bool) -> BaseCorrections:
+        """Reads the base station's file only when `use_dgnss`."""
+        base = recording.manifest.base
+        if not use_dgnss or base is None:
+            return cls({}, None, recording.nav)
+        return cls(base_by_epoch(recording), np.asarray(base.position_ecef_m), recording.nav)
+
+    def at(self, t: GpsTime) -> DgnssCorrections | None:
+        """Computed once per epoch (several vehicles ask for the same one in a row)."""
+        if self._last is not None and self._last[0] == t:
+            return self._last[1]
+        from coplane.gnss.epoch_solver import base_corrections
+
+        b = self.by_t.get(t)
+        corr = None
+        if b is not None and self.position is not None:
+            corr = base_corrections(b, self.position, self.nav)
+        self._last = (t, corr)
+        return corr
