@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rtklib_ref as rr
-import typer
 from typer.testing import CliRunner
 
 from coplane.evaluate.metrics import enu_errors
@@ -162,15 +161,15 @@ def test_underpass_blocks_gnss_for_8_to_15_seconds() -> None:
 
 
 def test_cli_writes_a_recording(tmp_path: Path) -> None:
-    from coplane.cli.simulate import simulate_command
+    from coplane.cli import app
 
-    app = typer.Typer()
-    app.command()(simulate_command)
     out = tmp_path / "cli"
-    r = CliRunner().invoke(app, ["--out", str(out), "--vehicles", "2", "--duration", "5", "--seed", "3"])
+    r = CliRunner().invoke(
+        app, ["simulate", "--out", str(out), "--vehicles", "2", "--duration", "5", "--seed", "3"]
+    )
     assert r.exit_code == 0, r.output
     assert open_recording(out).manifest.vehicles[1].id == "u2"
-    bad = CliRunner().invoke(app, ["--out", str(out), "--scenario", "moon"])
+    bad = CliRunner().invoke(app, ["simulate", "--out", str(out), "--scenario", "moon"])
     assert bad.exit_code == 2 and "unknown scenario" in bad.output
 
 

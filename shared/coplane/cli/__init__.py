@@ -1,22 +1,40 @@
 """The `coplane` command: one module per subcommand, registered here on one typer app.
 
-Each command parses its options, calls a library function and renders what it returns.
+Each command parses its options, calls a library function and renders what it returns. A
+`CoplaneError` from any of them is caught here, once: the user sees its message and the process
+exits with its `exit_code`; any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperGroup
 
 from coplane.cli.compose import compose
 from coplane.cli.eval import eval_
 from coplane.cli.fleet import fleet
+from coplane.cli.render import err_console
 from coplane.cli.simulate import simulate_command
 from coplane.cli.spp import spp
+from coplane.errors import CoplaneError
+
+
+class _CoplaneGroup(TyperGroup):
+    """The command group; its `invoke` runs every subcommand, so one handler covers them all."""
+
+    def invoke(self, ctx: Any) -> Any:  # a click Context: recent typer vendors its own click
+        try:
+            return super().invoke(ctx)
+        except CoplaneError as exc:
+            err_console.print(f"[red]error:[/red] {exc}")
+            raise typer.Exit(exc.exit_code) from exc
+
 
 app = typer.Typer(
+    cls=_CoplaneGroup,
     name="coplane",
     help="Plane-constraint-aided cooperative positioning for vehicle fleets.",
     no_args_is_help=True,
@@ -49,6 +67,3 @@ app.command()(spp)
 app.command("eval")(eval_)
 app.command()(fleet)
 app.command()(compose)
-
-if __name__ == "__main__":
-    app()

@@ -9,6 +9,7 @@ from rich.console import Console
 from rich.table import Table
 
 console = Console()
+err_console = Console(stderr=True)  # errors and notes: stdout stays the report
 
 
 def fmt(x: float) -> str:

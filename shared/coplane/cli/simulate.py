@@ -7,12 +7,11 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
+from coplane.cli.render import console
+from coplane.errors import ConfigError
 from coplane.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
-
-console = Console()
 
 
 def simulate_command(
@@ -29,19 +28,15 @@ def simulate_command(
     ] = DEFAULT_SCENARIO,
 ) -> None:
     """Simulate a fleet drive (GNSS, UWB, truth) and write it as a fleet recording."""
-    from coplane.sim.generate import run_simulation, write_recording
+    from coplane.sim import run_simulation, write_recording
 
     if scenario not in SCENARIOS:
-        console.print(
-            f"[red]error:[/red] unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}"
-        )
-        raise typer.Exit(2)
+        raise ConfigError(f"unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
     t0 = time.perf_counter()
     try:
         result = run_simulation(scenario, vehicles, duration, seed, progress=True)
-    except ValueError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from exc
+    except ValueError as exc:  # sim reports bad arguments (a window past the ephemerides) as ValueError
+        raise ConfigError(str(exc)) from exc
     t1 = time.perf_counter()
     path = write_recording(result, out)
     t2 = time.perf_counter()

@@ -11,6 +11,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from coplane.errors import CoplaneError
+
 log = logging.getLogger("coplane.recording")
 
 
@@ -52,5 +54,5 @@ class Problems:
         return self.total
 
 
-class RecordingError(Exception):
+class RecordingError(CoplaneError):
     """A recording cannot be used at all (missing manifest key, unknown format, bad path, ...)."""
