@@ -23,14 +23,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.sim.road import SECTION_KINDS, Road, Sections
-
-Arr = NDArray[Any]
+from coplane.typing import AnyArray
 
 LOS, NLOS, BLOCKED = 0, 1, 2
 
@@ -72,20 +69,20 @@ class CanyonParams:
 class Visibility:
     """Result of `Canyon.visibility`: state, NLOS extra path (m) and the reflecting facade."""
 
-    state: Arr  # int8: LOS, NLOS or BLOCKED
-    excess_m: Arr  # > 0 exactly where NLOS
-    reflect_setback_m: Arr  # setback of the facade the NLOS signal reflects off
-    sign: Arr  # +1 when the direct ray goes to the left facade (reflection off the right one)
+    state: AnyArray  # int8: LOS, NLOS or BLOCKED
+    excess_m: AnyArray  # > 0 exactly where NLOS
+    reflect_setback_m: AnyArray  # setback of the facade the NLOS signal reflects off
+    sign: AnyArray  # +1 when the direct ray goes to the left facade (reflection off the right one)
 
 
 @dataclass
 class _Row:
-    s0: Arr
-    s1: Arr
-    height: Arr
-    setback: Arr
-    depth: Arr
-    reflective: Arr
+    s0: AnyArray
+    s1: AnyArray
+    height: AnyArray
+    setback: AnyArray
+    depth: AnyArray
+    reflective: AnyArray
 
 
 class Canyon:
@@ -105,7 +102,7 @@ class Canyon:
 
     # --- construction ------------------------------------------------------------------------
 
-    def _cut_depth(self, s: Arr) -> Arr:
+    def _cut_depth(self, s: AnyArray) -> AnyArray:
         """How far the road lies below the surrounding ground near an underpass (0 elsewhere)."""
         prof = self.road.profile
         up = self.params.underpass
@@ -173,7 +170,7 @@ class Canyon:
 
     # --- queries -----------------------------------------------------------------------------
 
-    def facade(self, side: int, s: Arr) -> tuple[Arr, Arr, Arr]:
+    def facade(self, side: int, s: AnyArray) -> tuple[AnyArray, AnyArray, AnyArray]:
         """(height above road, setback, reflective) of the facade at along-road `s` on `side` (+1 left).
 
         Gaps return height 0, the section's default setback and not reflective.
@@ -189,22 +186,22 @@ class Canyon:
         w = np.where(inside, row.setback[ic], self._default_setback[self.sections.index(ss)])
         return h, w, inside & (row.reflective[ic] > 0.5)
 
-    def _facade_lookup(self, left: Arr, s: Arr) -> tuple[Arr, Arr]:
+    def _facade_lookup(self, left: AnyArray, s: AnyArray) -> tuple[AnyArray, AnyArray]:
         hl, wl, _ = self.facade(+1, s)
         hr, wr, _ = self.facade(-1, s)
         return np.where(left, hl, hr), np.where(left, wl, wr)
 
-    def _reflective(self, left: Arr, s: Arr) -> Arr:
+    def _reflective(self, left: AnyArray, s: AnyArray) -> AnyArray:
         return np.where(left, self.facade(+1, s)[2], self.facade(-1, s)[2])
 
     def visibility(
         self,
-        s: Arr,
-        y: Arr,
-        h_ant: Arr,
-        heading: Arr,
-        az: Arr,
-        el: Arr,
+        s: AnyArray,
+        y: AnyArray,
+        h_ant: AnyArray,
+        heading: AnyArray,
+        az: AnyArray,
+        el: AnyArray,
     ) -> Visibility:
         """State (LOS / NLOS / BLOCKED) and NLOS extra path per (receiver, satellite).
 
@@ -276,7 +273,9 @@ class Canyon:
         )
 
     @staticmethod
-    def reflection_extra(setback: Arr, sign: Arr, y: Arr, heading: Arr, az: Arr, el: Arr) -> Arr:
+    def reflection_extra(
+        setback: AnyArray, sign: AnyArray, y: AnyArray, heading: AnyArray, az: AnyArray, el: AnyArray
+    ) -> AnyArray:
         """Extra path 2 d cos(el) |sin a| of a reflection off the facade at `setback` on the side
         opposite to `sign` (+1: ray toward the left, reflection off the right facade).
 
@@ -287,7 +286,7 @@ class Canyon:
         d = np.maximum(setback + sign * y, 0.5)
         return 2.0 * d * np.cos(el) * np.abs(sin_a)
 
-    def _deck_blocks(self, s_b: Arr, h2: Arr, cos_a: Arr, tan_el: Arr) -> Arr:
+    def _deck_blocks(self, s_b: AnyArray, h2: AnyArray, cos_a: AnyArray, tan_el: AnyArray) -> AnyArray:
         up = self.params.underpass
         prof = self.road.profile
         length = self.road.length_m
@@ -318,7 +317,7 @@ class Canyon:
 
     def footprint_grid(self, cell_m: float = 2.0) -> FootprintGrid:
         """Rasterised building footprints (and cut walls) in the local East-North frame."""
-        pts: list[Arr] = []
+        pts: list[AnyArray] = []
         for side, row in self.rows.items():
             for s0, s1, w, dep in zip(row.s0, row.s1, row.setback, row.depth, strict=True):
                 ss = np.arange(s0, s1 + 1e-9, cell_m / 2.0)
@@ -331,12 +330,12 @@ class Canyon:
 
 @dataclass
 class FootprintGrid:
-    origin: Arr
+    origin: AnyArray
     cell_m: float
-    occupied: Arr  # bool (nx, ny)
+    occupied: AnyArray  # bool (nx, ny)
 
     @classmethod
-    def from_points(cls, pts: Arr, cell_m: float) -> FootprintGrid:
+    def from_points(cls, pts: AnyArray, cell_m: float) -> FootprintGrid:
         if len(pts) == 0:
             return cls(np.zeros(2), cell_m, np.zeros((1, 1), dtype=bool))
         lo = pts.min(axis=0) - 2 * cell_m
@@ -347,7 +346,7 @@ class FootprintGrid:
         occ[ij[:, 0], ij[:, 1]] = True
         return cls(lo, cell_m, occ)
 
-    def blocked(self, a: Arr, b: Arr, step_m: float = 3.0) -> Arr:
+    def blocked(self, a: AnyArray, b: AnyArray, step_m: float = 3.0) -> AnyArray:
         """Whether the plan-view segment a -> b ((P, 2) each) crosses a footprint."""
         a = np.asarray(a, dtype=float)
         b = np.asarray(b, dtype=float)

@@ -15,16 +15,13 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.gnss.atmosphere import BDS_IONO_EARTH_RADIUS_M, BDS_IONO_HEIGHT_M
 from coplane.gnss.constants import C, is_bds_geo
 from coplane.recording.model import IonoCoefficients, NavData
-
-Arr = NDArray[Any]
+from coplane.typing import AnyArray
 
 GPS_CHIP_M = C / 1.023e6  # C/A code chip length
 BDS_CHIP_M = C / 2.046e6  # B1I chip length
@@ -53,7 +50,7 @@ class GaussMarkov:
         self.rng = rng
         self.x = rng.standard_normal(shape)
 
-    def step(self) -> Arr:
+    def step(self) -> AnyArray:
         self.x = self.phi * self.x + self.q * self.rng.standard_normal(self.x.shape)
         return self.x
 
@@ -221,7 +218,7 @@ def base_receiver_params() -> ReceiverParams:
 # --- models -----------------------------------------------------------------------------------
 
 
-def code_sigma_m(cn0_dbhz: Arr, system_is_bds: Arr, p: TrackingParams) -> Arr:
+def code_sigma_m(cn0_dbhz: AnyArray, system_is_bds: AnyArray, p: TrackingParams) -> AnyArray:
     """DLL thermal-noise standard deviation (m) from C/N0 (Kaplan & Hegarty eq. 5.75)."""
     cn0 = 10.0 ** (np.asarray(cn0_dbhz, dtype=float) / 10.0)
     d, b, t = p.correlator_spacing_chips, p.dll_bandwidth_hz, p.integration_s
@@ -229,21 +226,21 @@ def code_sigma_m(cn0_dbhz: Arr, system_is_bds: Arr, p: TrackingParams) -> Arr:
     return chips * np.where(system_is_bds, BDS_CHIP_M, GPS_CHIP_M)
 
 
-def doppler_sigma_hz(cn0_dbhz: Arr, p: TrackingParams) -> Arr:
+def doppler_sigma_hz(cn0_dbhz: AnyArray, p: TrackingParams) -> AnyArray:
     return p.doppler_sigma_hz_at_45 * 10.0 ** ((45.0 - np.asarray(cn0_dbhz, dtype=float)) / 20.0)
 
 
-def multipath_sigma_m(el: Arr, section_scale: Arr, p: MultipathParams) -> Arr:
+def multipath_sigma_m(el: AnyArray, section_scale: AnyArray, p: MultipathParams) -> AnyArray:
     el0 = math.radians(p.el_scale_deg)
     base = p.sigma_zenith_m + (p.sigma_horizon_m - p.sigma_zenith_m) * np.exp(-np.maximum(el, 0.0) / el0)
     return p.scale * base * section_scale
 
 
-def cn0_nominal(el: Arr, p: Cn0Params) -> Arr:
+def cn0_nominal(el: AnyArray, p: Cn0Params) -> AnyArray:
     return p.zenith_dbhz - p.horizon_drop_db * (1.0 - np.sin(np.maximum(el, 0.0))) ** 2
 
 
-def klobuchar_obliquity(el: Arr, is_bds: Arr) -> Arr:
+def klobuchar_obliquity(el: AnyArray, is_bds: AnyArray) -> AnyArray:
     """Slant factor of the broadcast models: GPS 1 + 16 (0.53 - E)^3 (E in semicircles); BeiDou
     1 / sqrt(1 - (R cos el / (R + h))^2) (thin shell at 375 km), as in coplane.gnss.atmosphere."""
     e_sc = np.asarray(el, dtype=float) / math.pi
@@ -276,7 +273,7 @@ class CommonMode:
         self.sigma = p.drift_sigma_m
         self.gm = GaussMarkov((len(sats),), p.drift_tau_s, dt_s, rng)
 
-    def step(self) -> Arr:
+    def step(self) -> AnyArray:
         return self.bias + self.sigma * self.gm.step()
 
 

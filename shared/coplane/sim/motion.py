@@ -6,8 +6,8 @@ constant gaps. The Intelligent Driver Model (Treiber, Hennecke, Helbing 2000, Ph
 gives varying, collision-free gaps with a handful of parameters. Each vehicle's desired speed is
 the road's speed limit at that point (section kind; lateral acceleration limit in turns;
 anticipated braking before a lower limit) times a personal factor, and speeds stay inside
-5-15 m/s (the issue's range). Lane changes happen at random (Poisson) when both gaps in the
-target lane are safe, with a smooth 4 s lateral transition.
+5-15 m/s (docs/simulator.md, vehicles). Lane changes happen at random (Poisson) when both gaps
+in the target lane are safe, with a smooth 4 s lateral transition.
 
 Truth is the antenna phase centre: the road surface point under the car plus the antenna
 height (1.4-2.1 m per vehicle, drawn once) along the road-surface normal. Velocities are exact
@@ -18,14 +18,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.sim.road import SECTION_KINDS, Road, Sections, enu_to_ecef_curved
-
-Arr = NDArray[Any]
+from coplane.typing import AnyArray
 
 
 @dataclass(frozen=True)
@@ -64,25 +61,25 @@ class FleetTrack:
     """Per epoch (K) and vehicle (M) truth and road coordinates."""
 
     ids: list[str]
-    times_s: Arr  # (K,) seconds from the first epoch
-    s: Arr  # (K, M) arc length along the loop, in [0, L)
-    y: Arr  # (K, M) lateral offset, + left
-    speed: Arr  # (K, M) m/s along the path
-    s_rate: Arr  # (K, M) ds/dt
-    y_rate: Arr  # (K, M)
-    lane: Arr  # (K, M) lane index (target lane during a change)
-    antenna_height_m: Arr  # (M,)
-    enu: Arr  # (K, M, 3)
-    ecef: Arr  # (K, M, 3)
-    vel_ecef: Arr  # (K, M, 3)
-    heading: Arr  # (K, M, 2) road heading (unit East-North)
-    section: Arr  # (K, M) index into SECTION_KINDS
+    times_s: AnyArray  # (K,) seconds from the first epoch
+    s: AnyArray  # (K, M) arc length along the loop, in [0, L)
+    y: AnyArray  # (K, M) lateral offset, + left
+    speed: AnyArray  # (K, M) m/s along the path
+    s_rate: AnyArray  # (K, M) ds/dt
+    y_rate: AnyArray  # (K, M)
+    lane: AnyArray  # (K, M) lane index (target lane during a change)
+    antenna_height_m: AnyArray  # (M,)
+    enu: AnyArray  # (K, M, 3)
+    ecef: AnyArray  # (K, M, 3)
+    vel_ecef: AnyArray  # (K, M, 3)
+    heading: AnyArray  # (K, M, 2) road heading (unit East-North)
+    section: AnyArray  # (K, M) index into SECTION_KINDS
 
-    def section_names(self) -> Arr:
+    def section_names(self) -> AnyArray:
         return np.asarray(SECTION_KINDS, dtype=object)[self.section]
 
 
-def speed_limit_profile(road: Road, sections: Sections, p: MotionParams, step_m: float = 1.0) -> Arr:
+def speed_limit_profile(road: Road, sections: Sections, p: MotionParams, step_m: float = 1.0) -> AnyArray:
     """Desired speed (m/s) on a grid of `step_m` along the loop, with turn limits and anticipation."""
     n = math.ceil(road.length_m / step_m)
     s = np.arange(n) * step_m

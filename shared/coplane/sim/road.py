@@ -23,13 +23,11 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pymap3d as pm
-from numpy.typing import NDArray
 
-Arr = NDArray[Any]
+from coplane.typing import AnyArray
 
 SECTION_KINDS: tuple[str, ...] = ("open", "medium", "deep", "underpass")
 
@@ -78,11 +76,11 @@ class VerticalProfile:
         """z(L) - z(0): zero for a loop that closes."""
         return float(self._z[-1])
 
-    def grade(self, s: Arr | float) -> Arr:
+    def grade(self, s: AnyArray | float) -> AnyArray:
         ss = np.mod(np.asarray(s, dtype=float), self.length_m)
         return np.interp(ss, self._s, self._g)
 
-    def z(self, s: Arr | float) -> Arr:
+    def z(self, s: AnyArray | float) -> AnyArray:
         ss = np.mod(np.asarray(s, dtype=float), self.length_m)
         i = np.clip(np.searchsorted(self._s, ss, side="right") - 1, 0, len(self._s) - 2)
         s0, g0 = self._s[i], self._g[i]
@@ -91,7 +89,7 @@ class VerticalProfile:
         u = ss - s0
         return self._z[i] + g0 * u + 0.5 * slope * u * u
 
-    def curvature(self, s: Arr | float) -> Arr:
+    def curvature(self, s: AnyArray | float) -> AnyArray:
         """d(grade)/ds (1/m): non-zero only inside vertical curves."""
         ss = np.mod(np.asarray(s, dtype=float), self.length_m)
         i = np.clip(np.searchsorted(self._s, ss, side="right") - 1, 0, len(self._s) - 2)
@@ -217,10 +215,10 @@ class Road:
         """(s_start, s_end, +1 left / -1 right) of each turn."""
         return list(self._turns)
 
-    def lane_offset(self, lane: Arr | int) -> Arr:
+    def lane_offset(self, lane: AnyArray | int) -> AnyArray:
         return (np.asarray(lane, dtype=float) - (self.lanes - 1) / 2.0) * self.lane_width_m
 
-    def frame(self, s: Arr | float) -> tuple[Arr, Arr, Arr]:
+    def frame(self, s: AnyArray | float) -> tuple[AnyArray, AnyArray, AnyArray]:
         """Centreline point (..., 2), unit heading (..., 2) and signed plan curvature (1/m, + left)."""
         ss = np.mod(np.asarray(s, dtype=float), self.length_m)
         idx = np.clip(np.searchsorted(self._s0, ss, side="right") - 1, 0, len(self._prims) - 1)
@@ -245,7 +243,7 @@ class Road:
                 k[m] = pr.turn / pr.radius
         return p, t, k
 
-    def plan_point(self, s: Arr | float, y: Arr | float) -> Arr:
+    def plan_point(self, s: AnyArray | float, y: AnyArray | float) -> AnyArray:
         """East-North point at arc length `s` and lateral offset `y` (left positive)."""
         p, t, _ = self.frame(s)
         yy = np.asarray(y, dtype=float)[..., None]
@@ -254,7 +252,7 @@ class Road:
 
     # --- 3-D ---------------------------------------------------------------------------------
 
-    def antenna_enu(self, s: Arr | float, y: Arr | float, height_m: Arr | float) -> Arr:
+    def antenna_enu(self, s: AnyArray | float, y: AnyArray | float, height_m: AnyArray | float) -> AnyArray:
         """Local (E, N, U) of an antenna `height_m` above the road surface along the surface normal.
 
         U is the height above the origin's ellipsoidal height. The car sits on the road, so its
@@ -273,7 +271,9 @@ class Road:
         return np.stack([e, n, u], axis=-1)
 
 
-def enu_to_ecef_curved(enu: Arr, origin_lat_deg: float, origin_lon_deg: float, origin_h_m: float) -> Arr:
+def enu_to_ecef_curved(
+    enu: AnyArray, origin_lat_deg: float, origin_lon_deg: float, origin_h_m: float
+) -> AnyArray:
     """Local (E, N, U) to ECEF with U measured as ellipsoidal height above the origin's height.
 
     Latitude and longitude come from the tangent-plane point (distortion < 1 mm within 2 km);
@@ -315,7 +315,7 @@ class Sections:
             for i, (s, k) in enumerate(spans)
         )
 
-    def index(self, s: Arr | float) -> Arr:
+    def index(self, s: AnyArray | float) -> AnyArray:
         """Index into SECTION_KINDS of the section at each s."""
         ss = np.mod(np.asarray(s, dtype=float), self.length_m)
         i = np.searchsorted(self._s0, ss, side="right") - 1

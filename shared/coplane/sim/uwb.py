@@ -16,14 +16,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from coplane.sim.canyon import FootprintGrid
-
-Arr = NDArray[Any]
+from coplane.typing import AnyArray
 
 
 @dataclass(frozen=True)
@@ -47,11 +44,11 @@ class UwbParams:
 class UwbEpoch:
     """Ranges of one epoch: index pairs (i < j), measured range and truth/diagnostics."""
 
-    i: Arr
-    j: Arr
-    range_m: Arr
-    true_m: Arr
-    nlos: Arr  # 0 LOS, 1 vehicle body, 2 building
+    i: AnyArray
+    j: AnyArray
+    range_m: AnyArray
+    true_m: AnyArray
+    nlos: AnyArray  # 0 LOS, 1 vehicle body, 2 building
 
 
 class UwbSimulator:
@@ -66,7 +63,7 @@ class UwbSimulator:
         self.rng = rng
         self.bad = np.zeros((n, n), dtype=bool)  # channel state per pair (upper triangle used)
 
-    def _candidate_pairs(self, pos: Arr) -> tuple[Arr, Arr, Arr]:
+    def _candidate_pairs(self, pos: AnyArray) -> tuple[AnyArray, AnyArray, AnyArray]:
         n = self.n
         d = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
         np.fill_diagonal(d, np.inf)
@@ -79,7 +76,7 @@ class UwbSimulator:
         i, j = np.nonzero(np.triu(near, 1))
         return i, j, d[i, j]
 
-    def step(self, pos_ecef: Arr, plan_en: Arr) -> UwbEpoch:
+    def step(self, pos_ecef: AnyArray, plan_en: AnyArray) -> UwbEpoch:
         """One epoch from antenna positions (N, 3) ECEF and their plan-view East-North (N, 2)."""
         p, rng = self.p, self.rng
         n = self.n
