@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from coplane.sim.generate import run_simulation, write_recording
+from coplane.sim import run_simulation, write_recording
 
 CASES = [
     ("urban-loop", 4, 600.0),

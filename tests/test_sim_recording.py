@@ -19,16 +19,16 @@ from coplane.gnss.spp import SppOptions
 from coplane.recording.reader import open_recording
 from coplane.sim import errors as er
 from coplane.sim.canyon import BLOCKED
+from coplane.sim.diagnostics import NOT_VISIBLE
 from coplane.sim.generate import (
     DEFAULT_RECORDING,
-    NOT_VISIBLE,
     bundled_default_path,
     ensure_default_recording,
     run_simulation,
     simulate,
-    write_recording,
 )
 from coplane.sim.scenarios import SCENARIOS, get_scenario
+from coplane.sim.write import write_recording
 
 
 def _digest(root: Path) -> dict[str, str]:

@@ -28,7 +28,7 @@ from coplane.gnss.ephemeris import sat_state, select_ephemeris, ura_variance_m2
 from coplane.gnss.epoch_solver import EpochSolverOptions
 from coplane.gnss.spp import SppOptions
 from coplane.recording.reader import open_recording
-from coplane.sim.generate import SimResult, run_simulation, write_recording
+from coplane.sim import SimResult, run_simulation, write_recording
 
 MASK_DEG = 15.0
 

@@ -11,14 +11,10 @@ See docs/simulator.md for the models and where their numbers come from.
 
 from __future__ import annotations
 
-from coplane.sim.generate import (
-    SimResult,
-    ensure_default_recording,
-    run_simulation,
-    simulate,
-    write_recording,
-)
+from coplane.sim.generate import ensure_default_recording, run_simulation, simulate
+from coplane.sim.result import SimResult
 from coplane.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS, Scenario, get_scenario
+from coplane.sim.write import write_recording
 
 __all__ = [
     "DEFAULT_SCENARIO",
