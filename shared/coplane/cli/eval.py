@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from coplane.cli.options import recording_or_default
+from coplane.cli.options import interruption_rates, method_names, recording_or_default
 from coplane.cli.render import console, print_accuracy
 
 
@@ -40,23 +40,24 @@ def eval_(
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
-    from coplane.recording.problems import RecordingError
     from coplane.recording.reader import open_recording
 
-    try:
-        rates = [float(x) / 100.0 for x in interruption.split(",") if x.strip()]
-        if any(not 0.0 <= r <= 1.0 for r in rates):
-            raise ValueError("interruption rates must be within 0..100 %")
-        rec = open_recording(recording_or_default(recording))
-        names = [m.strip() for m in methods.split(",") if m.strip()]
-        ev = evaluate(
-            rec, names, rates, out, seed=seed, vehicles=vehicle, dgnss=dgnss, progress=True, jobs=jobs
-        )
-    except (RecordingError, KeyError, ValueError) as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from exc
-    shown = list(vehicle or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
-    print_accuracy(rec.manifest.name, ev.stats, shown)
+    rates = interruption_rates(interruption)
+    rec = open_recording(recording_or_default(recording))
+    ev = evaluate(
+        rec,
+        method_names(methods),
+        rates,
+        out,
+        seed=seed,
+        vehicles=vehicle,
+        dgnss=dgnss,
+        progress=True,
+        jobs=jobs,
+    )
+    for note in ev.notes.values():
+        typer.echo(note, err=True)
+    print_accuracy(ev.recording, ev.stats, ev.shown)
     for r in ev.runs:
         console.print(f"{r.label}: {r.n_epochs} epochs in {r.wall_time_s:.1f} s")
     console.print(f"wrote {out}/accuracy.md, {len(ev.figures)} figures and solutions/")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from coplane.errors import ConfigError
+
 
 def recording_or_default(recording: Path | None) -> Path:
     """The given recording, or the bundled default one (generated into the cache if absent)."""
@@ -12,3 +14,19 @@ def recording_or_default(recording: Path | None) -> Path:
     from coplane.sim.generate import ensure_default_recording
 
     return ensure_default_recording()
+
+
+def interruption_rates(text: str) -> list[float]:
+    """'0,20,40' (percent) -> [0.0, 0.2, 0.4]."""
+    try:
+        rates = [float(x) / 100.0 for x in text.split(",") if x.strip()]
+    except ValueError as exc:  # float()'s own message names the bad item
+        raise ConfigError(str(exc)) from exc
+    if any(not 0.0 <= r <= 1.0 for r in rates):
+        raise ConfigError("interruption rates must be within 0..100 %")
+    return rates
+
+
+def method_names(text: str) -> list[str]:
+    """'pc, mci' -> ['pc', 'mci']; the names are checked by the evaluator."""
+    return [m.strip() for m in text.split(",") if m.strip()]

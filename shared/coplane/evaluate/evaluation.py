@@ -1,14 +1,18 @@
-"""Run several methods and interruption rates on one recording and write tables, CSVs and figures."""
+"""Run several methods and interruption rates on one recording and write tables, CSVs and figures.
+
+The result carries everything `coplane eval` shows (stats, notes, timings); nothing here prints.
+"""
 
 from __future__ import annotations
 
-import sys
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.plots import plot_cdfs, plot_error_vs_time, plot_plane_map, plot_rmse_vs_interruption
 from coplane.evaluate.report import run_stats, write_solutions, write_tables
@@ -17,6 +21,8 @@ from coplane.evaluate.runner import MethodRun, run_method
 from coplane.methods import get_method
 from coplane.recording.reader import Recording
 
+log = logging.getLogger(__name__)
+
 
 @dataclass
 class Evaluation:
@@ -24,6 +30,9 @@ class Evaluation:
     stats: dict[str, dict[str, AccuracyStats]] = field(default_factory=dict)  # label -> vehicle -> stats
     figures: list[Path] = field(default_factory=list)
     notes: dict[str, str] = field(default_factory=dict)  # method -> remark (e.g. the rtklib row skipped)
+    recording: str = ""  # the recording's name, for titles
+    # the vehicles to tabulate: those asked for, else all that have truth
+    shown: list[str] = field(default_factory=list)
 
 
 def evaluate(
@@ -39,11 +48,14 @@ def evaluate(
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
     specs = [None if m == RTKLIB_METHOD else get_method(m) for m in methods]  # validate names first
-    ev = Evaluation()
+    if dgnss and rec.manifest.base is None and any(s is not None for s in specs):
+        # the runner would refuse too, but only after the methods before it had run
+        raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")
+    ev = Evaluation(recording=rec.manifest.name)
     for spec in specs:
         if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
             rtk_run, ev.notes[RTKLIB_METHOD] = evaluation_row(rec, dgnss)
-            print(ev.notes[RTKLIB_METHOD], file=sys.stderr)
+            log.info("%s", ev.notes[RTKLIB_METHOD])
             if rtk_run is not None:
                 ev.runs.append(rtk_run)
                 ev.stats[rtk_run.label] = run_stats(rtk_run, rec)
@@ -79,6 +91,7 @@ def evaluate(
             },
         )
         ev.figures = write_figures(ev, rec, shown, out_dir)
+    ev.shown = list(vehicles or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
     return ev
 
 

@@ -1,17 +1,28 @@
-"""SPP over a whole recording (`coplane spp`): per vehicle and epoch, standalone or DGNSS."""
+"""SPP over a whole recording (`coplane spp`): per vehicle and epoch, standalone or DGNSS.
+
+`run_spp` solves in memory; `spp_to_pos` is the command's whole job (solve, write one RTKLIB .pos
+per vehicle, score against truth) and returns an `SppReport` for the caller to render.
+"""
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from coplane.errors import ConfigError
+from coplane.evaluate.metrics import AccuracyStats, accuracy
+from coplane.evaluate.solution_files import Q_DGPS, Q_SINGLE, PosRecord, write_pos
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, base_corrections, solve_epoch
 from coplane.gtime import GpsTime
-from coplane.recording.reader import Recording
+from coplane.recording.reader import Recording, open_recording
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -39,10 +50,13 @@ def run_spp(
     opt = options or EpochSolverOptions()
     ids = list(vehicles) if vehicles is not None else [v.id for v in rec.manifest.vehicles]
     for vid in ids:
-        rec.manifest.vehicle(vid)  # KeyError with a clear message for unknown ids
+        try:
+            rec.manifest.vehicle(vid)
+        except KeyError as exc:  # the user named a vehicle the recording lacks
+            raise ConfigError(str(exc)) from exc
     base = rec.manifest.base
     if dgnss and base is None:
-        raise ValueError(f"recording {rec.manifest.name!r} has no [base] station: DGNSS is not possible")
+        raise ConfigError(f"recording {rec.manifest.name!r} has no [base] station: DGNSS is not possible")
     runs = {vid: VehicleSppRun(vid) for vid in ids}
     last: dict[str, np.ndarray] = {}
     epochs = rec.fleet_epochs()
@@ -67,3 +81,73 @@ def run_spp(
             else:
                 runs[vid].no_solution[(res.spp.reason or "?").split(":")[0]] += 1
     return runs
+
+
+@dataclass(frozen=True)
+class VehicleSppSummary:
+    """One vehicle's row of `coplane spp`: where its .pos went, availability and accuracy."""
+
+    vehicle: str
+    pos_path: Path
+    n_epochs: int
+    n_fixes: int
+    accuracy: AccuracyStats | None  # None when the recording has no truth for the vehicle
+    no_solution: Counter[str]  # epochs without a fix, by reason
+
+    @property
+    def availability_pct(self) -> float:
+        return 100.0 * self.n_fixes / self.n_epochs if self.n_epochs else 0.0
+
+
+@dataclass(frozen=True)
+class SppReport:
+    """What `coplane spp` did, for the caller to render."""
+
+    recording: str  # the recording's name
+    dgnss: bool
+    vehicles: list[VehicleSppSummary]
+    problems: Counter[str]  # input problems found while reading, by kind
+
+    @property
+    def problems_total(self) -> int:
+        return sum(self.problems.values())
+
+
+def spp_to_pos(
+    recording: Path,
+    out: Path,
+    vehicles: Iterable[str] | None = None,
+    dgnss: bool = False,
+    fde: bool = True,
+    progress: bool = False,
+) -> SppReport:
+    """SPP of each vehicle; `out` is the .pos file, or with several vehicles `<stem>_<id>.pos` each.
+
+    `fde` turns RAIM fault detection and exclusion on. Raises a `CoplaneError` for a recording that
+    cannot be used, an unknown vehicle, or DGNSS without a base station.
+    """
+    rec = open_recording(recording)
+    opts = EpochSolverOptions()
+    opts = replace(opts, spp=replace(opts.spp, raim="fde" if fde else "off"))
+    runs = run_spp(rec, vehicles, dgnss=dgnss, options=opts, progress=progress)
+    summaries = []
+    for vid, run in runs.items():
+        fixes = run.fixes()
+        target = out if len(runs) == 1 else out.with_name(f"{out.stem}_{vid}{out.suffix or '.pos'}")
+        write_pos(
+            target,
+            (
+                PosRecord(
+                    r.spp.time, r.spp.position, r.spp.covariance, Q_DGPS if dgnss else Q_SINGLE, r.spp.n_used
+                )
+                for r in run.results.values()
+                if r.spp.ok
+            ),
+            inputs=[str(rec.manifest.vehicle(vid).obs)],
+            mode="dgps" if dgnss else "single",
+        )
+        log.info("wrote %s", target)
+        truth = rec.truth_at(vid)
+        st = accuracy(fixes, {t: np.asarray(p) for t, p in truth.items()}) if truth else None
+        summaries.append(VehicleSppSummary(vid, target, run.n_epochs, len(fixes), st, run.no_solution))
+    return SppReport(rec.manifest.name, dgnss, summaries, Counter(rec.problems.counts))
