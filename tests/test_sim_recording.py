@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import hashlib
+import re
 from pathlib import Path
 
 import numpy as np
@@ -173,12 +174,43 @@ def test_cli_writes_a_recording(tmp_path: Path) -> None:
     assert bad.exit_code == 2 and "unknown scenario" in bad.output
 
 
+_NUMBER = re.compile(r"-?\d+\.\d+|-?\d+")
+
+
+def _same_to_last_digit(a: str, b: str) -> bool:
+    """Two text lines equal except for numbers that differ by at most one unit in their last digit.
+
+    The simulator is deterministic per machine, but libm and numpy builds differ in the last bit of
+    a few transcendental results, which flips the last printed digit of a handful of values.
+    """
+    if _NUMBER.sub("#", a) != _NUMBER.sub("#", b):
+        return False
+    for x, y in zip(_NUMBER.findall(a), _NUMBER.findall(b), strict=True):
+        if x == y:
+            continue
+        decimals = len(x.partition(".")[2])
+        if len(y.partition(".")[2]) != decimals or abs(float(x) - float(y)) > 1.01 * 10.0**-decimals:
+            return False
+    return True
+
+
 def test_bundled_default_recording_is_what_the_simulator_makes(tmp_path: Path) -> None:
+    """The committed recording is the simulator's output, to the last printed digit on any machine."""
     bundled = bundled_default_path()
     assert ensure_default_recording() == bundled
     p = DEFAULT_RECORDING
     fresh = simulate(p.scenario, tmp_path / "fresh", p.vehicles, p.duration_s, p.seed)
-    assert _digest(bundled) == _digest(fresh)
+    assert _digest(bundled).keys() == _digest(fresh).keys()
+    n_last_digit = 0
+    for name in sorted(_digest(bundled)):
+        old = (bundled / name).read_text().splitlines()
+        new = (fresh / name).read_text().splitlines()
+        assert len(old) == len(new), name
+        for i, (a, b) in enumerate(zip(old, new, strict=True)):
+            if a != b:
+                assert _same_to_last_digit(a, b), f"{name}:{i + 1}: {a!r} != {b!r}"
+                n_last_digit += 1
+    assert n_last_digit < 100  # a few last-digit flips, not a different simulation
     rec = open_recording(bundled)
     assert len(rec.manifest.vehicles) == 4 and len(list(rec.fleet_epochs())) == 600
     assert rec.problems.total == 0
