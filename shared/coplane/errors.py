@@ -16,3 +16,10 @@ class CoplaneError(Exception):
 
 class ConfigError(CoplaneError, ValueError):
     """An invalid option or configuration value (unknown method, rate out of range, ...)."""
+
+
+class NotFoundError(CoplaneError, KeyError):
+    """A named thing the input does not have (a vehicle id, ...); a KeyError for mapping callers."""
+
+    def __str__(self) -> str:  # KeyError's own str() quotes the message
+        return str(self.args[0]) if self.args else ""

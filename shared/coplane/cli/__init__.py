@@ -11,6 +11,7 @@ import logging
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from typer.core import TyperGroup
 
 from coplane.cli.compose import compose
@@ -29,7 +30,7 @@ class _CoplaneGroup(TyperGroup):
         try:
             return super().invoke(ctx)
         except CoplaneError as exc:
-            err_console.print(f"[red]error:[/red] {exc}")
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # "[base]" is text, not a style
             raise typer.Exit(exc.exit_code) from exc
 
 

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from coplane.errors import NotFoundError
 from coplane.gtime import GpsTime
 
 SatId = str  # "G05", "C14": system letter + two-digit PRN
@@ -190,4 +191,4 @@ class Manifest:
         for v in self.vehicles:
             if v.id == vid:
                 return v
-        raise KeyError(f"vehicle {vid!r} is not in recording {self.name!r}")
+        raise NotFoundError(f"vehicle {vid!r} is not in recording {self.name!r}")
