@@ -227,3 +227,13 @@ def test_ensure_default_regenerates_into_cache_when_not_bundled(
     assert path == tmp_path / "cache" / "recordings" / "default"
     assert (path / "fleet.toml").is_file()
     assert generate.ensure_default_recording(tmp_path / "cache") == path  # reused, not regenerated
+
+
+def test_a_relative_output_directory_gives_a_readable_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`coplane simulate --out sim` from any directory: the manifest's paths resolve inside `sim`."""
+    monkeypatch.chdir(tmp_path)
+    simulate("open-sky", "sim", vehicles=2, duration_s=3.0, seed=1)
+    rec = open_recording(tmp_path / "sim")
+    assert len(list(rec.fleet_epochs())) == 3 and rec.problems.total == 0

@@ -47,7 +47,9 @@ def write_truth_csv(path: Path, times: list[GpsTime], track: FleetTrack, v: int)
 
 def write_recording(result: SimResult, out_dir: str | Path) -> Path:
     """Write the fleet recording (fleet.toml, nav/, base/, vehicles/, uwb.csv, truth/)."""
-    out = Path(out_dir)
+    # absolute: the manifest's paths are written relative to its root, which a relative `out_dir`
+    # (e.g. `coplane simulate --out sim`) would otherwise count twice ("sim/sim/nav/...")
+    out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     sc = result.scenario
     nav_rel = Path("nav") / "brdc.rnx"
