@@ -1,15 +1,15 @@
 """The Zenoh side of the API: subscriptions to the fleet's solution, diagnostics and liveliness keys.
 
-Zenoh callbacks run on Zenoh's threads and must return at once (a slow subscriber would back up
-the router and, through BLOCK congestion control, the fusion server): they only copy the payload
-and hand it to the event loop with `loop.call_soon_threadsafe`. Decoding and the state update run
-on the loop, where the HTTP handlers read the state, so the state needs no locks. At most
-`max_pending` payloads wait; beyond that new ones are dropped and counted.
+The API's `BusNode` hands every event to the event loop with `loop.call_soon_threadsafe` (Zenoh's
+threads must return at once: a slow subscriber would back up the router and, through BLOCK
+congestion control, the fusion server). Decoding and the state update run on the loop, where the
+HTTP handlers read the state, so the state needs no locks. At most `max_pending` events wait;
+beyond that new ones are dropped and counted.
 
-The session is opened in a background thread because a client configured to wait for its router
-(`connect/timeout_ms = -1`, see `coplane.bus.session_config`) blocks in `zenoh.open` until one is
-up; the HTTP side (healthz, readyz = 503) is served meanwhile. Reconnection after a router restart
-is Zenoh's own; liveliness tokens seen through the router go away with it and come back after.
+The node is opened in a background thread because a client configured to wait for its router
+(`connect/timeout_ms = -1`, see `coplane.bus.session_config`) blocks until one is up; the HTTP
+side (healthz, readyz = 503) is served meanwhile. Reconnection after a router restart is Zenoh's
+own; liveliness tokens seen through the router go away with it and come back after.
 """
 
 from __future__ import annotations
@@ -21,9 +21,17 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-import zenoh
-
-from coplane.bus import BadMessage, KeySpace, decode, payload_bytes, session_config
+from coplane.bus import (
+    BadMessage,
+    BusEvent,
+    BusNode,
+    KeySpace,
+    Payload,
+    Presence,
+    Subscription,
+    decode,
+    session_config,
+)
 from coplane.messages import DiagnosticsMessage, SolutionMessage
 
 from .hub import StreamHub
@@ -142,14 +150,13 @@ class LocalBus:
 
 
 class ZenohBus:
-    """A Zenoh client session with the API's three subscriptions and its own liveliness token."""
+    """A `BusNode` with the API's three subscriptions and its own liveliness token."""
 
     def __init__(self, fleet: str, connect: Sequence[str], lease_ms: int = 2000) -> None:
         self.keys = KeySpace(fleet)
         self.connect = list(connect)
         self.lease_ms = lease_ms
-        self.session: Any = None
-        self.token: Any = None
+        self.node: BusNode | None = None
         self.ingest: Ingest | None = None
         self._closing = threading.Event()
         self._thread: threading.Thread | None = None
@@ -161,12 +168,34 @@ class ZenohBus:
         self._thread = threading.Thread(target=self._open, name="zenoh-open", daemon=True)
         self._thread.start()
 
+    def _new_node(self, ingest: Ingest) -> BusNode:
+        keys = self.keys
+        return BusNode(
+            session_config("client", self.connect, lease_ms=self.lease_ms),
+            # the API may run several times: its token is named by its session id
+            token=lambda zid: keys.alive("api", zid[:32]),
+            subscribe=[
+                Subscription(keys.solution),
+                Subscription(keys.diagnostics),
+                Subscription(keys.all_alive("*"), liveliness=True),
+            ],
+            sink=lambda event: self._route(ingest, event),
+        )
+
+    def _route(self, ingest: Ingest, event: BusEvent) -> None:
+        """One bus event (on a Zenoh thread) to its handler on the loop."""
+        if isinstance(event, Presence):
+            ingest.submit(ingest.alive, event.key, event.alive)
+        elif isinstance(event, Payload) and event.key == self.keys.solution:
+            ingest.submit(ingest.solution, event.data)
+        elif isinstance(event, Payload) and event.key == self.keys.diagnostics:
+            ingest.submit(ingest.diagnostics, event.data)
+
     def _open(self) -> None:
         assert self.ingest is not None
-        ing = self.ingest
         while not self._closing.is_set():
             try:
-                session = zenoh.open(session_config("client", self.connect, lease_ms=self.lease_ms))
+                node = self._new_node(self.ingest).open()
                 break
             except Exception as exc:  # a bad endpoint, say: keep serving HTTP, retry
                 log.error("cannot open the Zenoh session", extra={"error": str(exc)[:300]})
@@ -174,23 +203,9 @@ class ZenohBus:
         else:
             return
         if self._closing.is_set():
-            session.close()
+            node.close()
             return
-
-        def on_solution(sample: Any) -> None:
-            ing.submit(ing.solution, payload_bytes(sample))
-
-        def on_diagnostics(sample: Any) -> None:
-            ing.submit(ing.diagnostics, payload_bytes(sample))
-
-        def on_alive(sample: Any) -> None:
-            ing.submit(ing.alive, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
-
-        session.declare_subscriber(self.keys.solution, on_solution)
-        session.declare_subscriber(self.keys.diagnostics, on_diagnostics)
-        session.liveliness().declare_subscriber(self.keys.all_alive("*"), on_alive, history=True)
-        self.token = session.liveliness().declare_token(self.keys.alive("api", str(session.zid())[:32]))
-        self.session = session
+        self.node = node
         log.info("bus session open", extra={"fleet": self.keys.fleet, "connect": ",".join(self.connect)})
 
     def connected(self) -> bool:
@@ -198,20 +213,15 @@ class ZenohBus:
         now = time.monotonic()
         if now - self._checked > 0.25:
             self._checked = now
-            s = self.session
-            try:
-                self._connected = s is not None and not s.is_closed() and len(list(s.info.routers_zid())) > 0
-            except Exception:
-                self._connected = False
+            node = self.node
+            self._connected = node is not None and node.routers_connected()
         return self._connected
 
     def close(self) -> None:
         self._closing.set()
-        s, self.session = self.session, None
-        if s is not None:
+        node, self.node = self.node, None
+        if node is not None:
             try:
-                if self.token is not None:
-                    self.token.undeclare()
-                s.close()
+                node.close()
             except Exception:
                 log.exception("closing the Zenoh session failed")

@@ -1,1 +1,1 @@
-"""coplane.fusion: thin service process (services/fusion_server), wired to the library in its own issue."""
+"""coplane.fusion_server: the fusion server process (services/fusion_server); see docs/bus.md."""

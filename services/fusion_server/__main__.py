@@ -1,4 +1,4 @@
-"""python -m coplane.fusion --recording DIR [--method pc] [--pace lockstep|realtime]"""
+"""python -m coplane.fusion_server --recording DIR [--method pc] [--pace lockstep|realtime]"""
 
 from __future__ import annotations
 

@@ -8,25 +8,32 @@ reason only (so hostile ids cannot grow memory). Membership follows Zenoh liveli
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from collections import Counter, defaultdict
-from typing import Any
 
-import zenoh
-
-from coplane.bus import BadMessage, KeySpace, decode, encode, payload_bytes, session_config
+from coplane.bus import (
+    BadMessage,
+    BusEvent,
+    BusNode,
+    KeySpace,
+    Payload,
+    Presence,
+    Publication,
+    Subscription,
+    decode,
+    encode,
+    session_config,
+)
 from coplane.gtime import GpsTime
-from coplane.messages import DiagnosticsMessage, NodeMessage, VehicleCounters
-from coplane.methods import get_method
+from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
 from coplane.recording.manifest import load_manifest
-from coplane.replay import fleet_id
-from coplane.steps import FusionStep, FusionStepConfig, epoch_time, gps_time
+from coplane.replay import replay_setup
+from coplane.steps import epoch_time, gps_time
 
 from .settings import FusionSettings
 
-log = logging.getLogger("coplane.fusion")
+log = logging.getLogger("coplane.fusion_server")
 
 
 class FusionServer:
@@ -35,13 +42,18 @@ class FusionServer:
         self.stop = stop or threading.Event()
         man = load_manifest(settings.recording)
         self.known = {v.id for v in man.vehicles}
-        self.fleet = settings.fleet or fleet_id(man.name)
-        self.keys = KeySpace(self.fleet)
-        self.spec = get_method(settings.method)
-        self.step = FusionStep(
-            self.fleet, self.spec, FusionStepConfig(settings.interruption_rate, settings.seed, man.interval_s)
+        setup = replay_setup(
+            man,
+            settings.method,
+            seed=settings.seed,
+            interruption=settings.interruption_rate,
+            dgnss=False,  # corrections are the vehicles' business; the server never reads the base
+            fleet=settings.fleet,
         )
-        self.events: queue.Queue[tuple[str, Any, Any]] = queue.Queue()
+        self.fleet = setup.fleet
+        self.keys = KeySpace(self.fleet)
+        self.spec = setup.method
+        self.step = setup.fusion_step()
         self.pending: dict[GpsTime, dict[str, NodeMessage]] = defaultdict(dict)
         self.first_arrival: dict[GpsTime, float] = {}
         self.latest: dict[str, GpsTime] = {}
@@ -55,14 +67,30 @@ class FusionServer:
         self.started = time.monotonic()
         self.waiting_since: float | None = None
 
-    # -- zenoh callbacks (zenoh threads): hand over to the main loop ---------------------------
-    def _on_node(self, sample: Any) -> None:
-        self.events.put(("node", str(sample.key_expr), payload_bytes(sample)))
-
-    def _on_alive(self, sample: Any) -> None:
-        self.events.put(("alive", sample.kind, str(sample.key_expr)))
+    def node(self) -> BusNode:
+        """The server's place on the bus: every vehicle's node key and the agents' tokens in,
+        solutions and diagnostics out."""
+        return BusNode(
+            session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
+            token=self.keys.alive("fusion", "0"),
+            publish=[Publication(self.keys.solution, must_deliver=True), Publication(self.keys.diagnostics)],
+            subscribe=[
+                Subscription(self.keys.all_nodes),
+                Subscription(self.keys.all_alive("agent"), liveliness=True),
+            ],
+        )
 
     # -- message handling ----------------------------------------------------------------------
+    def handle(self, event: BusEvent) -> None:
+        """The one dispatch of bus events; a bad event is logged and never stops the server."""
+        try:
+            if isinstance(event, Payload):
+                self.handle_node(event.key, event.data)
+            elif isinstance(event, Presence):
+                self.handle_alive(event.key, event.alive)
+        except Exception:
+            log.exception("event handling failed")
+
     def handle_node(self, key: str, payload: bytes) -> None:
         self.node_payloads += 1
         vid = KeySpace.vehicle_of_node_key(key)
@@ -97,12 +125,12 @@ class FusionServer:
         if vid not in self.latest or self.latest[vid] < t:
             self.latest[vid] = t
 
-    def handle_alive(self, kind: Any, key: str) -> None:
+    def handle_alive(self, key: str, alive: bool) -> None:
         ident = KeySpace.id_of_alive_key(key)
         if ident is None or ident[0] != "agent" or ident[1] not in self.known:
             return
         vid = ident[1]
-        if kind == zenoh.SampleKind.PUT:
+        if alive:
             if vid not in self.live:
                 log.info("vehicle online", extra={"vehicle": vid})
             self.live.add(vid)
@@ -134,7 +162,7 @@ class FusionServer:
             return t
         return None
 
-    def solve(self, t: GpsTime) -> Any:
+    def solve(self, t: GpsTime) -> SolutionMessage | None:
         msgs = self.pending.pop(t)
         self.first_arrival.pop(t, None)
         missing = sorted(v for v in self.live if v not in msgs)
@@ -173,60 +201,27 @@ class FusionServer:
             node_payloads=self.node_payloads,
         )
 
-    def drain(self) -> None:
-        """Handle every queued event (used on shutdown so the final diagnostics are complete)."""
-        while True:
-            try:
-                kind, a, b = self.events.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                if kind == "node":
-                    self.handle_node(a, b)
-                else:
-                    self.handle_alive(a, b)
-            except Exception:
-                log.exception("event handling failed")
-
     def run(self) -> None:
         s = self.s
-        session = zenoh.open(session_config("client", s.connect, lease_ms=s.lease_ms))
-        token = session.liveliness().declare_token(self.keys.alive("fusion", "0"))
-        sol_pub = session.declare_publisher(
-            self.keys.solution,
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            reliability=zenoh.Reliability.RELIABLE,
-        )
-        diag_pub = session.declare_publisher(self.keys.diagnostics)
-        session.declare_subscriber(self.keys.all_nodes, self._on_node)
-        session.liveliness().declare_subscriber(self.keys.all_alive("agent"), self._on_alive, history=True)
-        log.info(
-            "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
-        )
-        last_diag = 0.0
-        try:
-            while not self.stop.is_set():
-                try:
-                    kind, a, b = self.events.get(timeout=0.02)
-                    if kind == "node":
-                        self.handle_node(a, b)
-                    else:
-                        self.handle_alive(a, b)
-                except queue.Empty:
-                    pass
-                except Exception:  # a bad event never stops the loop
-                    log.exception("event handling failed")
-                now = time.monotonic()
-                while (t := self.ready_epoch(now)) is not None:
-                    sol = self.solve(t)
-                    if sol is not None:
-                        sol_pub.put(encode(sol))
-                if now - last_diag > s.diagnostics_period_s:
-                    diag_pub.put(encode(self.diagnostics()))
-                    last_diag = now
-        finally:
-            self.drain()  # account for everything that arrived before the stop
-            diag_pub.put(encode(self.diagnostics()))
-            token.undeclare()
-            session.close()
-            log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
+        with self.node() as node:
+            log.info(
+                "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
+            )
+            last_diag = 0.0
+            try:
+                while not self.stop.is_set():
+                    if (event := node.get(timeout=0.02)) is not None:
+                        self.handle(event)
+                    now = time.monotonic()
+                    while (t := self.ready_epoch(now)) is not None:
+                        sol = self.solve(t)
+                        if sol is not None:
+                            node.put(self.keys.solution, encode(sol))
+                    if now - last_diag > s.diagnostics_period_s:
+                        node.put(self.keys.diagnostics, encode(self.diagnostics()))
+                        last_diag = now
+            finally:
+                for event in node.drain():  # account for everything that arrived before the stop
+                    self.handle(event)
+                node.put(self.keys.diagnostics, encode(self.diagnostics()))
+                log.info("fusion server stopped", extra={"epochs": self.epochs_solved})

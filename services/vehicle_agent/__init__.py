@@ -1,1 +1,1 @@
-"""coplane.agent: thin service process (services/vehicle_agent), wired to the library in its own issue."""
+"""coplane.vehicle_agent: the vehicle agent process (services/vehicle_agent); see docs/bus.md."""

@@ -1,4 +1,4 @@
-"""python -m coplane.agent --recording DIR --vehicle_id u1 [--method pc] [--pace lockstep|realtime]"""
+"""python -m coplane.vehicle_agent --recording DIR --vehicle_id u1 [--method pc] [--pace lockstep|realtime]"""
 
 from __future__ import annotations
 

@@ -1,14 +1,23 @@
-"""Process plumbing shared by the services: structured (JSON-lines) logs and clean shutdown."""
+"""Process plumbing shared by the services: JSON-lines logs, clean shutdown and layered settings."""
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
+
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
 
 _STD = set(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {"message", "asctime"}
 
@@ -59,15 +68,6 @@ def stop_event() -> threading.Event:
 
 
 # -- configuration -------------------------------------------------------------------------------
-import os  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from pydantic_settings import (  # noqa: E402
-    BaseSettings,
-    PydanticBaseSettingsSource,
-    SettingsConfigDict,
-    TomlConfigSettingsSource,
-)
 
 
 class ServiceSettings(BaseSettings):

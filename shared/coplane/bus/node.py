@@ -1,0 +1,213 @@
+"""`BusNode`: one process's place on the bus, opened and closed as a context manager.
+
+    with BusNode(session_config("client", connect), token=keys.alive("agent", vid),
+                 publish=[Publication(keys.node(vid), must_deliver=True)],
+                 subscribe=[Subscription(keys.solution)]) as node:
+        node.put(keys.node(vid), payload)
+        event = node.get(timeout=0.05)   # a Payload, a Presence, or None
+
+Every service declares its session, publishers, subscriptions and liveliness token here, so QoS
+and the thread hand-over are written once. Zenoh runs subscriber callbacks on its own threads and
+they must return at once (a slow subscriber backs up the router and, through BLOCK congestion
+control, the publisher): the node's callbacks only copy the payload into a typed event and hand it
+over, in arrival order, to one FIFO queue (read with `get`/`drain`) or to a `sink` the owner gives
+(the API hands events to its event loop). Decoding happens on the owner's side.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import zenoh
+
+from coplane.bus.codec import payload_bytes
+
+log = logging.getLogger("coplane.bus")
+
+
+@dataclass(frozen=True)
+class Publication:
+    """A key this node puts on. `must_deliver`: reliable with congestion BLOCK (node messages,
+    solutions); otherwise Zenoh's defaults, where the latest value wins (diagnostics)."""
+
+    key: str
+    must_deliver: bool = False
+
+
+@dataclass(frozen=True)
+class Subscription:
+    """A key expression this node listens to. `liveliness`: follow the liveliness tokens under it
+    instead of samples, starting with the tokens already alive (history)."""
+
+    key: str
+    liveliness: bool = False
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A sample put on a subscribed key: its concrete key and the raw, not yet validated, bytes."""
+
+    key: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Presence:
+    """A liveliness token appeared (`alive`) or went away (process ended, or its lease expired)."""
+
+    key: str
+    alive: bool
+
+
+BusEvent = Payload | Presence
+Sink = Callable[[BusEvent], None]
+TokenKey = str | Callable[[str], str]
+
+
+class BusNode:
+    """A Zenoh session with its publishers, subscriptions and liveliness token.
+
+    `token`: the liveliness key to declare, or a function of the session id (for a process that
+    may run more than once, such as the API). It is declared after the publishers and
+    subscriptions, so a node that says it is alive can already hear and speak. `sink`: where events
+    go instead of the node's own queue; it runs on a Zenoh thread and must not block.
+    """
+
+    def __init__(
+        self,
+        config: zenoh.Config,
+        *,
+        token: TokenKey | None = None,
+        publish: Iterable[Publication] = (),
+        subscribe: Iterable[Subscription] = (),
+        sink: Sink | None = None,
+    ) -> None:
+        self._config = config
+        self._token_key = token
+        self._publish = list(publish)
+        self._subscribe = list(subscribe)
+        self._sink = sink
+        self._events: queue.Queue[BusEvent] = queue.Queue()
+        self._session: zenoh.Session | None = None
+        self._token: Any = None
+        self._publishers: dict[str, Any] = {}
+        self._subscribers: list[Any] = []
+
+    # -- lifetime ------------------------------------------------------------------------------
+    def open(self) -> BusNode:
+        """Open the session and declare everything (blocks until a router is up if the config
+        says to wait for one)."""
+        session = zenoh.open(self._config)
+        self._session = session
+        try:
+            self._declare(session)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _declare(self, session: zenoh.Session) -> None:
+        for p in self._publish:
+            qos: dict[str, Any] = {}
+            if p.must_deliver:
+                qos = {
+                    "congestion_control": zenoh.CongestionControl.BLOCK,
+                    "reliability": zenoh.Reliability.RELIABLE,
+                }
+            self._publishers[p.key] = session.declare_publisher(p.key, **qos)
+        for s in self._subscribe:
+            if s.liveliness:
+                sub = session.liveliness().declare_subscriber(s.key, self._on_presence, history=True)
+            else:
+                sub = session.declare_subscriber(s.key, self._on_sample)
+            self._subscribers.append(sub)
+        if self._token_key is not None:
+            key = self._token_key if isinstance(self._token_key, str) else self._token_key(self.zid)
+            self._token = session.liveliness().declare_token(key)
+
+    def close(self) -> None:
+        """Withdraw the token (peers see this node go at once, not after the lease) and close."""
+        session, self._session = self._session, None
+        if session is None:
+            return
+        try:
+            if self._token is not None:
+                self._token.undeclare()
+        finally:
+            self._token = None
+            self._publishers.clear()
+            self._subscribers.clear()
+            session.close()
+
+    def __enter__(self) -> BusNode:
+        return self.open()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # -- using it ------------------------------------------------------------------------------
+    @property
+    def session(self) -> zenoh.Session:
+        if self._session is None:
+            raise RuntimeError("the bus node is not open")
+        return self._session
+
+    @property
+    def zid(self) -> str:
+        return str(self.session.zid())
+
+    def put(self, key: str, payload: bytes) -> None:
+        """Put on one of the declared publications."""
+        self._publishers[key].put(payload)
+
+    def get(self, timeout: float | None = None) -> BusEvent | None:
+        """The next event in arrival order, or None if none came within `timeout` seconds."""
+        try:
+            return self._events.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def poll(self) -> BusEvent | None:
+        """The next event if one is waiting, else None (never blocks)."""
+        try:
+            return self._events.get_nowait()
+        except queue.Empty:
+            return None
+
+    def drain(self) -> list[BusEvent]:
+        """Every event waiting now, in arrival order."""
+        out: list[BusEvent] = []
+        while (ev := self.poll()) is not None:
+            out.append(ev)
+        return out
+
+    def routers_connected(self) -> bool:
+        """Whether a router is connected right now."""
+        s = self._session
+        try:
+            return s is not None and not s.is_closed() and len(list(s.info.routers_zid())) > 0
+        except Exception:
+            return False
+
+    # -- Zenoh threads -------------------------------------------------------------------------
+    def _on_sample(self, sample: Any) -> None:
+        self._deliver(Payload(str(sample.key_expr), payload_bytes(sample)))
+
+    def _on_presence(self, sample: Any) -> None:
+        self._deliver(Presence(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+    def _deliver(self, event: BusEvent) -> None:
+        if self._sink is None:
+            self._events.put(event)
+            return
+        try:
+            self._sink(event)
+        except Exception:  # never raise into Zenoh's thread
+            log.exception("bus event sink failed", extra={"key": event.key[:120]})

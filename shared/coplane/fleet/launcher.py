@@ -1,0 +1,182 @@
+"""The fleet's processes: which services a replay starts (`fleet_services`), and starting,
+watching and stopping them on this machine (`FleetProcesses`).
+
+docker-compose.yml is generated from the same service list (coplane.fleet.compose), so
+`coplane fleet` and docker-compose start the same processes.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from coplane.recording.manifest import load_manifest
+from coplane.replay import fleet_id
+
+log = logging.getLogger("coplane.fleet")
+
+ROUTER_MODULE = "coplane.bus.router"
+FUSION_MODULE = "coplane.fusion_server"
+AGENT_MODULE = "coplane.vehicle_agent"
+API_MODULE = "coplane.api"
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now (tests and `--port 0`)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for_port(port: int, timeout: float = 15.0) -> None:
+    """Return once something listens on 127.0.0.1:`port` (the router is up)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {timeout} s")
+
+
+@dataclass
+class ServiceSpec:
+    """One process of the fleet: the same list drives the launcher and is checked against compose."""
+
+    name: str  # compose service name
+    module: str  # python -m <module>
+    args: list[str] = field(default_factory=list)
+
+
+def fleet_of(recording: Path) -> tuple[str, list[str]]:
+    """(bus fleet id, vehicle ids) of a recording, from its manifest alone."""
+    man = load_manifest(recording)
+    return fleet_id(man.name), [v.id for v in man.vehicles]
+
+
+def router_spec(port: int) -> ServiceSpec:
+    return ServiceSpec("zenoh-router", ROUTER_MODULE, ["--listen", f"tcp/127.0.0.1:{port}"])
+
+
+def fleet_services(
+    recording: Path,
+    method: str,
+    pace: str,
+    speed: float,
+    connect: str,
+    vehicles: Sequence[str],
+    api: bool,
+    api_port: int = 8000,
+    seed: int = 0,
+    interruption: float = 0.0,
+    start_unix_s: float | None = None,
+) -> list[ServiceSpec]:
+    """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin."""
+    rec = str(recording)
+    start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
+    out = [
+        ServiceSpec(
+            "fusion-server",
+            FUSION_MODULE,
+            [
+                "--recording",
+                rec,
+                "--method",
+                method,
+                "--pace",
+                pace,
+                "--connect",
+                f'["{connect}"]',
+                "--seed",
+                str(seed),
+                "--interruption_rate",
+                str(interruption),
+                "--deadline_s",
+                str(max(0.05, 0.5 / speed)),
+            ],
+        )
+    ]
+    for vid in vehicles:
+        out.append(
+            ServiceSpec(
+                f"agent-{vid}",
+                AGENT_MODULE,
+                [
+                    "--recording",
+                    rec,
+                    "--vehicle_id",
+                    vid,
+                    "--method",
+                    method,
+                    "--pace",
+                    pace,
+                    "--speed",
+                    str(speed),
+                    "--connect",
+                    f'["{connect}"]',
+                    "--seed",
+                    str(seed),
+                    *start,
+                ],
+            )
+        )
+    if api:
+        out.append(
+            ServiceSpec(
+                "api",
+                API_MODULE,
+                ["--recording", rec, "--connect", f'["{connect}"]', "--port", str(api_port)],
+            )
+        )
+    return out
+
+
+@dataclass
+class FleetProcesses:
+    """The running processes by service name; each one's output goes to `log_dir/<name>.log`."""
+
+    procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
+    log_dir: Path | None = None
+
+    def start(self, spec: ServiceSpec, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+        out: Any = subprocess.DEVNULL
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            out = (self.log_dir / f"{spec.name}.log").open("ab")
+        p = subprocess.Popen(
+            [sys.executable, "-m", spec.module, *spec.args],
+            stdout=out,
+            stderr=out,
+            env={**os.environ, **(env or {})},
+        )
+        self.procs[spec.name] = p
+        log.debug("started", extra={"process": spec.name, "pid": p.pid})
+        return p
+
+    def stop(self, name: str, timeout: float = 10.0) -> None:
+        """SIGTERM (the services then end cleanly: tokens withdrawn, final diagnostics sent),
+        SIGKILL after `timeout` seconds."""
+        p = self.procs.get(name)
+        if p is None or p.poll() is not None:
+            return
+        p.send_signal(signal.SIGTERM)
+        try:
+            p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("did not stop, killing it", extra={"process": name, "pid": p.pid})
+            p.kill()
+            p.wait()
+
+    def stop_all(self) -> None:
+        """Stop in reverse start order (the router last)."""
+        for name in reversed(list(self.procs)):
+            self.stop(name)

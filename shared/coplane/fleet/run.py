@@ -1,0 +1,156 @@
+"""`run_fleet`: replay a recording as a fleet of processes on this machine and collect the result.
+
+Starts a Zenoh router, the fusion server, one vehicle agent per vehicle (and the API when asked),
+listens to the solutions itself (`Collector`) and stops everything cleanly. The caller renders the
+`FleetResult`; progress and "keep serving" are the caller's callbacks, so this module prints nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from coplane.errors import ConfigError
+from coplane.evaluate.metrics import AccuracyStats
+from coplane.evaluate.report import run_stats, write_solutions
+from coplane.evaluate.runner import MethodRun
+from coplane.fleet.collector import Collector
+from coplane.fleet.launcher import (
+    FleetProcesses,
+    fleet_of,
+    fleet_services,
+    free_port,
+    router_spec,
+    wait_for_port,
+)
+from coplane.messages import DiagnosticsMessage
+from coplane.methods import get_method
+from coplane.recording.reader import open_recording
+from coplane.replay import vehicle_schedule
+
+log = logging.getLogger("coplane.fleet")
+
+PACES = ("lockstep", "realtime")
+REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
+POLL_S = 0.2
+
+
+@dataclass(frozen=True)
+class FleetOptions:
+    """What `coplane fleet` takes. `port` 0: any free port; `interruption` is a rate in [0, 1]."""
+
+    recording: Path
+    method: str = "pc"
+    pace: str = "lockstep"
+    speed: float = 1.0
+    api: bool = True
+    api_port: int = 8000
+    port: int = 7447
+    out: Path | None = None
+    logs: Path | None = None
+    seed: int = 0
+    interruption: float = 0.0
+
+
+@dataclass
+class FleetResult:
+    """What a fleet replay produced, as seen on the bus by the launcher."""
+
+    recording_name: str
+    method: str
+    vehicles: list[str]
+    truth_vehicles: list[str]  # the vehicles with truth, in manifest order
+    run: MethodRun
+    stats: dict[str, AccuracyStats]  # per vehicle with truth
+    diagnostics: DiagnosticsMessage | None  # the fusion server's last
+    failed_agents: dict[str, int]  # agent service -> exit code, for those that failed
+    n_epochs: int
+    solutions_dir: Path | None = None  # where --out wrote the solution CSVs
+    api_url: str | None = None
+
+
+Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
+
+
+def run_fleet(
+    options: FleetOptions,
+    progress: Progress | None = None,
+    serve: Callable[[FleetResult], None] | None = None,
+) -> FleetResult:
+    """Run the replay to its end and return what the launcher collected.
+
+    `serve`: called with the result while the fusion server, API and router still run (they are
+    stopped when it returns; `coplane fleet --serve` waits there for Ctrl-C). Without it the
+    fusion server is stopped first, so its final diagnostics are in the result.
+    """
+    o = options
+    if o.pace not in PACES:
+        raise ConfigError(f"--pace must be lockstep or realtime, got {o.pace!r}")
+    get_method(o.method)
+    path = o.recording.resolve()
+    rec = open_recording(path)
+    fleet_name, vehicles = fleet_of(path)
+    interval = rec.manifest.interval_s
+    n_epochs = len({t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), interval)})
+    port = o.port or free_port()
+    connect = f"tcp/127.0.0.1:{port}"
+    procs = FleetProcesses(log_dir=o.logs)
+    log.info("fleet starting", extra={"fleet": fleet_name, "vehicles": len(vehicles), "router": connect})
+    try:
+        procs.start(router_spec(port))
+        wait_for_port(port)
+        with Collector(fleet_name, o.method, connect) as collector:
+            start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
+            for spec in fleet_services(
+                path,
+                o.method,
+                o.pace,
+                o.speed,
+                connect,
+                vehicles,
+                o.api,
+                o.api_port,
+                o.seed,
+                o.interruption,
+                start,
+            ):
+                procs.start(spec)
+            agents = [n for n in procs.procs if n.startswith("agent-")]
+            while any(procs.procs[a].poll() is None for a in agents):
+                time.sleep(POLL_S)
+                if progress is not None:
+                    progress(collector.epochs, n_epochs)
+            time.sleep(0.5)  # the last solution is on its way
+            if progress is not None:
+                progress(collector.epochs, n_epochs)
+            if serve is None:
+                procs.stop("fusion-server")  # it publishes its final diagnostics on the way out
+                time.sleep(0.3)
+            failed = {a: rc for a in agents if (rc := procs.procs[a].returncode)}
+            if failed:
+                log.error(
+                    "agents failed", extra={"agents": ",".join(f"{a}={rc}" for a, rc in failed.items())}
+                )
+            result = FleetResult(
+                recording_name=rec.manifest.name,
+                method=o.method,
+                vehicles=vehicles,
+                truth_vehicles=[v for v in vehicles if rec.truth_at(v)],
+                run=collector.run,
+                stats=run_stats(collector.run, rec),
+                diagnostics=collector.diag,
+                failed_agents=failed,
+                n_epochs=n_epochs,
+                api_url=f"http://127.0.0.1:{o.api_port}" if o.api else None,
+            )
+            if o.out is not None:
+                write_solutions(collector.run, o.out)
+                result.solutions_dir = o.out / "solutions" / collector.run.label
+            if serve is not None:
+                serve(result)
+            return result
+    finally:
+        procs.stop_all()
