@@ -16,17 +16,17 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from coplane.errors import ConfigError
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.epoch_solver import EpochResult, base_corrections
+from coplane.gnss.epoch_solver import EpochResult
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
-from coplane.methods import MethodSpec, get_method
+from coplane.methods import MethodSpec
 from coplane.plane.config import PlaneConfig
-from coplane.recording.model import NavData, ObsEpoch
 from coplane.recording.reader import Recording
-from coplane.replay import base_by_epoch, fleet_id, uwb_for_vehicle, vehicle_schedule
-from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig, gps_time
+from coplane.replay import BaseCorrections, replay_setup, uwb_for_vehicle, vehicle_schedule
+from coplane.steps import VehicleStep, gps_time
 from coplane.typing import AnyArray as Vec
 
 
@@ -79,23 +79,13 @@ def run_method(
     (evaluate.vehicle_workers).
     """
     if jobs is not None and jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs}")
-    spec = get_method(method) if isinstance(method, str) else method
-    fleet = fleet_id(rec.manifest.name)
+        raise ConfigError(f"jobs must be >= 1, got {jobs}")
+    setup = replay_setup(
+        rec.manifest, method, seed=seed, interruption=interruption, dgnss=dgnss, plane_config=plane_config
+    )
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
-    use_dgnss = rec.manifest.base is not None if dgnss is None else dgnss
-    if use_dgnss and rec.manifest.base is None:
-        raise ValueError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")
-    uwb_sigma = rec.manifest.uwb.sigma_m if rec.manifest.uwb else 0.3
-    vcfg = VehicleStepConfig(uwb_sigma_m=uwb_sigma, seed=seed)
-    if plane_config is not None:
-        vcfg.plane = plane_config
-    steps = {
-        vid: VehicleStep(fleet, vid, rec.manifest.vehicle(vid).antenna_height_m, rec.nav, spec, vcfg)
-        for vid in ids
-    }
-    fusion = FusionStep(fleet, spec, FusionStepConfig(interruption, seed, rec.manifest.interval_s))
-    base_by_t = base_by_epoch(rec) if use_dgnss else {}
+    steps = {vid: setup.vehicle_step(rec, vid) for vid in ids}
+    fusion = setup.fusion_step()
     schedule = lockstep_schedule(rec, ids)
     uwb_rows = rec.uwb()
     uwb = {
@@ -104,9 +94,8 @@ def run_method(
         )
         for vid in ids
     }
-    run = MethodRun(spec.name, interruption)
-    base_position = np.asarray(rec.manifest.base.position_ecef_m) if rec.manifest.base is not None else None
-    replay = _Replay(schedule, uwb, base_by_t, base_position, rec.nav)
+    run = MethodRun(setup.method.name, interruption)
+    replay = _Replay(schedule, uwb, BaseCorrections.of(rec, setup.use_dgnss))
     n_jobs = default_jobs(len(ids)) if jobs is None else jobs
     workers_on = n_jobs > 1 and VehicleWorkers.available()
     # With workers this process runs the fusion step (as the server does on the bus) and a smaller
@@ -143,21 +132,12 @@ class _Replay:
 
     schedule: list[tuple[GpsTime, dict[str, Any]]]
     uwb: Mapping[str, Mapping[GpsTime, Any]]
-    base_by_t: Mapping[GpsTime, ObsEpoch]
-    base_position: Vec | None
-    nav: NavData
-    _corrections: dict[int, DgnssCorrections | None] = field(default_factory=dict)
+    base: BaseCorrections
     _fronts: dict[tuple[int, str], EpochResult] = field(default_factory=dict)
 
     def corrections(self, k: int) -> DgnssCorrections | None:
         """DGNSS corrections of epoch k (each process computes them itself: same bits)."""
-        if k not in self._corrections:
-            b = self.base_by_t.get(self.schedule[k][0])
-            corr = None
-            if b is not None and self.base_position is not None:
-                corr = base_corrections(b, self.base_position, self.nav)
-            self._corrections = {k: corr}  # only the current epoch is ever asked for again
-        return self._corrections[k]
+        return self.base.at(self.schedule[k][0])
 
     def ahead(self, steps: Mapping[str, VehicleStep], k: int) -> None:
         t, live = self.schedule[k]
