@@ -1,6 +1,6 @@
 """`coplane eval` cost on the bundled recording: wall time per method and per-epoch solve time.
 
-Issue 4's target: the bundled 4-vehicle, 600-epoch recording evaluates in under 10 s per method
+The target: the bundled 4-vehicle, 600-epoch recording evaluates in under 10 s per method
 on this 2-core machine. Median of `--repeats` runs (recording already loaded, as in `coplane eval`
 after the first method), with the default jobs (one process per core: vehicle workers + the
 fusion step, evaluate.vehicle_workers) and with everything in one process (`--jobs 1`), printed

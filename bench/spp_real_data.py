@@ -35,7 +35,7 @@ def main() -> None:
         f"Output of `bench/spp_real_data.py` ({dt.date.today()}). GPS L1 C/A + BeiDou B1I, 10 deg mask, "
         "broadcast Klobuchar (BDS coefficients for BeiDou) and Saastamoinen, C/N0-elevation weights, "
         "RAIM FDE (chi-square at 1e-3, w-test exclusion). Truth: the surveyed antenna positions. "
-        "Agreement with RTKLIB pntpos under RTKLIB-equivalent options is tested in tests/test_spp_real.py.\n"
+        "Agreement with RTKLIB pntpos under RTKLIB-equivalent options is tested in tests/gnss/test_spp_real.py.\n"
     )
     print(
         "| set | mode | epochs | availability | H RMSE m | V RMSE m | CEP95 m | max H m | max V m | most common no-fix reason |"

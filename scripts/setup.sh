@@ -8,7 +8,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # System tools the tests use, from Debian (CI runs as root on a fresh machine): docker-compose
 # validates docker-compose.yml (`config` needs no Docker engine); chromium renders the dashboard
-# headless (tests/test_api_dashboard.py). The tests fail with a clear message if they are missing.
+# headless (tests/api/test_api_dashboard.py). The tests fail with a clear message if they are missing.
 missing=()
 command -v docker-compose >/dev/null 2>&1 || missing+=(docker-compose)
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)

@@ -12,8 +12,8 @@ Native classes wherever GTSAM has one (C++ evaluation, no Python callback per li
 Sagnac: the PseudorangeFactor of the GTSAM 4.3.0 wheel adds the Earth-rotation (Sagnac) term
 omega_e / c * (x_s * y_r - y_s * x_r) itself, i.e. it expects the satellite position in the ECEF
 frame at *transmission*. Our PseudorangeObs carries the satellite already rotated into the ECEF
-frame at *reception* (inputs.py), so `gtsam_satellite_position` rotates it back by omega_e * tau;
-the factor then reproduces |p - sat_pos_m| to well under a millimetre (tests/test_fgo_factors.py).
+frame at *reception* (`coplane.estimation.contract`), so `gtsam_satellite_position` rotates it back by omega_e * tau;
+the factor then reproduces |p - sat_pos_m| to well under a millimetre (tests/fgo/test_fgo_factors.py).
 The correction is detected once at run time, so a GTSAM build without the internal term also works.
 """
 

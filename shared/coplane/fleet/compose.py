@@ -1,5 +1,5 @@
 """The docker-compose document, generated from the launcher's service list (`fleet_services`), so
-the compose file and `coplane fleet` start the same processes (tests/test_compose.py checks the
+the compose file and `coplane fleet` start the same processes (tests/fleet/test_compose.py checks the
 committed docker-compose.yml)."""
 
 from __future__ import annotations

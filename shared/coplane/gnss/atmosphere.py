@@ -1,7 +1,7 @@
 """Broadcast ionosphere (GPS and BeiDou Klobuchar) and Saastamoinen troposphere delays.
 
 All angles are radians; delays are metres of code delay on the named frequency. The GPS model
-and the troposphere reproduce RTKLIB 2.4.3 `ionmodel`/`tropmodel` (tests/test_atmosphere.py:
+and the troposphere reproduce RTKLIB 2.4.3 `ionmodel`/`tropmodel` (tests/gnss/test_atmosphere.py:
 < 1 um). BeiDou's Klobuchar variant differs from GPS's in geometry (a proper ionospheric pierce
 point at 375 km on a 6378 km sphere), uses geographic (not geomagnetic) latitude, BDT, and a
 clamp on the period, so it is implemented separately from the BDS-SIS-ICD.

@@ -2,7 +2,7 @@
 
 The maths follows IS-GPS-200 Table 20-IV and the BDS-SIS-ICD (B1I) section 5.2.4.12, and the
 conventions follow RTKLIB 2.4.3 b34 (`satposs`/`eph2pos`/`geodist`) so our SPP can be checked
-against RTKLIB number for number (tests/test_ephemeris.py: < 1 mm, < 1 ps; docs/gnss-models.md).
+against RTKLIB number for number (tests/gnss/test_ephemeris.py: < 1 mm, < 1 ps; docs/gnss-models.md).
 
 Differences from RTKLIB, all deliberate:
 * velocity and clock drift are the analytic time derivatives of the position/clock model, where

@@ -1,4 +1,4 @@
-"""Counting and reporting bad input without crashing (design principle 4).
+"""Counting and reporting bad input without crashing (docs/recording-format.md, input problems).
 
 Every reader takes a `Problems` collector. A problem names the file, the line (1-based, when one
 applies) and a short reason; `kind` is a stable slug for metrics (e.g. "malformed-line").

@@ -1,0 +1,100 @@
+"""The paper's orderings measured on the bundled urban recording.
+
+Margins, not exact numbers. The bundled recording (4 vehicles, 600 s, 1.5 laps of the urban loop)
+is used rather than a shorter one because planes need the fleet's history: in the first lap the
+leading vehicles have few solved positions within 50 m and planes are mostly unavailable.
+Measured values are printed (-s) and tabulated in docs/results.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coplane.evaluate.report import run_stats
+from coplane.evaluate.runner import run_method
+from coplane.recording.reader import open_recording
+from coplane.sim.generate import bundled_default_path
+
+pytestmark = pytest.mark.slow
+
+RUNS = [
+    ("non-cp", 0.0),
+    ("mci", 0.0),
+    ("pc", 0.0),
+    ("pc-no-ir", 0.0),
+    ("pc-no-ir-no-fe", 0.0),
+    ("mci", 1.0),
+    ("pc", 1.0),
+]
+
+
+@pytest.fixture(scope="module")
+def stats() -> dict[tuple[str, float], dict]:
+    rec = open_recording(bundled_default_path())
+    out = {}
+    for method, rate in RUNS:
+        out[(method, rate)] = run_stats(run_method(rec, method, interruption=rate), rec)
+    for (m, r), st in out.items():
+        row = "  ".join(f"{v}: H {s.h_rmse_m:.2f} V {s.v_rmse_m:.2f}" for v, s in st.items())
+        print(f"{m}@{int(r * 100)}%: {row}")
+    return out
+
+
+def _h(st: dict, key: tuple[str, float]) -> dict[str, float]:
+    return {v: s.h_rmse_m for v, s in st[key].items()}
+
+
+def _v(st: dict, key: tuple[str, float]) -> dict[str, float]:
+    return {v: s.v_rmse_m for v, s in st[key].items()}
+
+
+def test_every_epoch_has_a_solution(stats: dict) -> None:
+    for key, per in stats.items():
+        for vid, s in per.items():
+            assert s.availability > 0.99, (key, vid, s.availability)
+
+
+def test_ranging_beats_standalone(stats: dict) -> None:
+    h_non, h_mci = _h(stats, ("non-cp", 0.0)), _h(stats, ("mci", 0.0))
+    v_non, v_mci = _v(stats, ("non-cp", 0.0)), _v(stats, ("mci", 0.0))
+    for vid in h_non:
+        assert h_mci[vid] < 0.9 * h_non[vid], vid  # clearly, for every vehicle
+    # vertical: better for the fleet; not for every vehicle on this recording (u2 is worse with
+    # UWB: docs/results.md discusses it), so the fleet mean is asserted
+    assert np.mean(list(v_mci.values())) < np.mean(list(v_non.values()))
+
+
+def test_planes_beat_ranging_most_in_the_vertical(stats: dict) -> None:
+    h_mci, h_pc = _h(stats, ("mci", 0.0)), _h(stats, ("pc", 0.0))
+    v_mci, v_pc = _v(stats, ("mci", 0.0)), _v(stats, ("pc", 0.0))
+    for vid in h_mci:
+        assert h_pc[vid] <= h_mci[vid] + 0.02, vid  # never worse horizontally
+        assert v_pc[vid] < v_mci[vid], vid  # better vertically for every vehicle
+    gain_h = 1 - np.mean(list(h_pc.values())) / np.mean(list(h_mci.values()))
+    gain_v = 1 - np.mean(list(v_pc.values())) / np.mean(list(v_mci.values()))
+    assert gain_v > 0.04 and gain_v > gain_h
+
+
+def test_planes_alone_beat_standalone_and_fault_exclusion_matters(stats: dict) -> None:
+    v_non, v_pcnoir, v_nofe = (
+        _v(stats, ("non-cp", 0.0)),
+        _v(stats, ("pc-no-ir", 0.0)),
+        _v(stats, ("pc-no-ir-no-fe", 0.0)),
+    )
+    h_non, h_pcnoir = _h(stats, ("non-cp", 0.0)), _h(stats, ("pc-no-ir", 0.0))
+    for vid in v_non:
+        assert v_pcnoir[vid] < 0.95 * v_non[vid], vid
+        assert h_pcnoir[vid] <= h_non[vid] + 0.02, vid
+        # without detection / FE the planes lose all of that gain (and more)
+        assert v_nofe[vid] > v_non[vid], vid
+
+
+def test_planes_keep_their_gain_without_any_ranging(stats: dict) -> None:
+    v_mci, v_pc = _v(stats, ("mci", 1.0)), _v(stats, ("pc", 1.0))
+    h_mci, h_pc = _h(stats, ("mci", 1.0)), _h(stats, ("pc", 1.0))
+    for vid in v_mci:
+        assert v_pc[vid] < 0.95 * v_mci[vid], vid
+        assert h_pc[vid] <= h_mci[vid] + 0.02, vid
+    # with no ranging at all, mci is exactly the standalone estimator
+    assert _h(stats, ("mci", 1.0)) == pytest.approx(_h(stats, ("non-cp", 0.0)), abs=1e-9)

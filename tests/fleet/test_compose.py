@@ -1,0 +1,71 @@
+"""docker-compose.yml is generated from the launcher's service list and must stay in sync with it.
+
+No Docker engine runs here, so the compose file is validated by docker-compose's own `config`
+(Debian package, installed by scripts/setup.sh) and the router config by Zenoh's own parser.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+import zenoh
+
+from coplane.fleet import COMPOSE_RECORDING, COMPOSE_ROUTER, compose_document, fleet_of, fleet_services
+from coplane.sim.generate import bundled_default_path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _committed() -> dict:
+    return yaml.safe_load((REPO / "docker-compose.yml").read_text())
+
+
+def test_committed_compose_is_the_generated_one() -> None:
+    _, vehicles = fleet_of(bundled_default_path())
+    assert _committed() == compose_document(vehicles), "run `coplane compose` and commit docker-compose.yml"
+
+
+def test_compose_starts_what_the_launcher_starts() -> None:
+    """Same services, same modules, same arguments up to the recording path and router address."""
+    _, vehicles = fleet_of(bundled_default_path())
+    launcher = fleet_services(
+        bundled_default_path(), "pc", "realtime", 1.0, "tcp/127.0.0.1:7447", vehicles, api=True
+    )
+    compose = _committed()["services"]
+    assert set(compose) == {"zenoh-router"} | {s.name for s in launcher}
+    assert {f"agent-{v}" for v in vehicles} <= set(compose)
+
+    def norm(args: list[str]) -> list[str]:
+        out = [a.replace(str(bundled_default_path()), "REC").replace(COMPOSE_RECORDING, "REC") for a in args]
+        return [a.replace("tcp/127.0.0.1:7447", "ROUTER").replace(COMPOSE_ROUTER, "ROUTER") for a in out]
+
+    for spec in launcher:
+        cmd = compose[spec.name]["command"]
+        assert cmd[:3] == ["python", "-m", spec.module]
+        extra = cmd[3 + len(spec.args) :]
+        assert norm(cmd[3 : 3 + len(spec.args)]) == norm(spec.args)
+        assert extra in ([], ["--host", "0.0.0.0"])
+    assert compose["api"]["ports"] == ["8000:8000"]
+    assert all("healthcheck" in compose[s.name] for s in launcher)
+
+
+def test_compose_file_validates_with_docker_compose() -> None:
+    exe = shutil.which("docker-compose")
+    if exe is None:
+        pytest.fail("docker-compose not installed (scripts/setup.sh installs Debian's docker-compose)")
+    r = subprocess.run(
+        [exe, "-f", str(REPO / "docker-compose.yml"), "config", "-q"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    assert r.returncode == 0, r.stderr
+
+
+def test_router_config_parses_with_zenoh() -> None:
+    cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "router.json5"))
+    assert '"router"' in cfg.get_json("mode")

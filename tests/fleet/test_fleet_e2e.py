@@ -1,0 +1,207 @@
+"""The fleet as real processes over a real Zenoh router.
+
+Every test starts a router (Python process), the fusion server and one agent per vehicle, on a
+free port, replaying a short simulated recording.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from support.e2e_fleet import agents_done, running_fleet, wait_until
+
+from coplane.bus import KeySpace, session_config
+from coplane.evaluate.runner import run_method
+from coplane.fleet import fleet_of
+from coplane.recording.reader import open_recording
+from coplane.sim.generate import simulate
+
+pytestmark = pytest.mark.slow
+DURATION_S = 40
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return simulate(
+        "urban-loop", tmp_path_factory.mktemp("rec") / "r", vehicles=4, duration_s=DURATION_S, seed=3
+    )
+
+
+def _max_diff(a: dict, b: dict) -> tuple[float, int]:
+    worst, n = 0.0, 0
+    for vid, pos in a.items():
+        assert set(pos) == set(b.get(vid, {})), f"{vid}: epochs differ"
+        for t, p in pos.items():
+            worst = max(worst, float(np.linalg.norm(p - b[vid][t])))
+            n += 1
+    return worst, n
+
+
+@pytest.mark.parametrize("method", ["pc", "mci"])
+def test_lockstep_over_bus_equals_in_process(recording: Path, method: str, tmp_path: Path) -> None:
+    ref = run_method(open_recording(recording), method)
+    with running_fleet(recording, method, log_dir=tmp_path / "logs") as (procs, col, _, _):
+        wait_until(lambda: agents_done(procs), 240, "agents to finish")
+        time.sleep(0.5)
+        bus = col.run.positions
+    worst, n = _max_diff(ref.positions, bus)
+    print(f"{method}: {n} positions, max |bus - in-process| = {worst:.2e} m")
+    assert n >= 4 * DURATION_S * 0.9
+    assert worst < 1e-3
+
+
+def test_realtime_accounts_every_message(recording: Path, tmp_path: Path) -> None:
+    n_epochs = DURATION_S
+    with running_fleet(recording, "pc", pace="realtime", speed=10.0, log_dir=tmp_path / "logs") as (
+        procs,
+        col,
+        _,
+        _,
+    ):
+        wait_until(lambda: agents_done(procs), 120, "agents to finish")
+        procs.stop("fusion-server")  # publishes its final diagnostics
+        wait_until(
+            lambda: col.diag is not None and col.diag.epochs_solved >= n_epochs - 1, 10, "final diagnostics"
+        )
+        d = col.diag
+    assert d is not None
+    for vid, c in d.vehicles.items():
+        assert c.received == c.used + c.rejected + c.late + c.duplicate, (vid, c)
+        assert c.received >= n_epochs - 1
+    assert col.epochs >= n_epochs - 1, "an epoch was skipped while all agents were up"
+    print({v: (c.received, c.used, c.late) for v, c in d.vehicles.items()})
+
+
+def test_kill_agent_then_rejoin_and_restart_server_and_router(recording: Path, tmp_path: Path) -> None:
+    """Realtime at 1.5x: agent leaves and rejoins; fusion server restarts; router restarts."""
+    _, vehicles = fleet_of(recording)
+    with running_fleet(recording, "pc", pace="realtime", speed=1.5, log_dir=tmp_path / "logs") as (
+        procs,
+        col,
+        connect,
+        specs,
+    ):
+        wait_until(lambda: col.epochs >= 4, 30, "first solutions")
+        victim = f"agent-{vehicles[-1]}"
+        procs.procs[victim].kill()
+        t_kill = time.monotonic()
+        wait_until(
+            lambda: col.diag is not None and not col.diag.vehicles[vehicles[-1]].online,
+            5,
+            "the killed agent to be offline",
+        )
+        assert time.monotonic() - t_kill < 2.5
+        n = col.epochs
+        wait_until(lambda: col.epochs >= n + 2, 10, "solutions to continue without it")
+        last = col.run.positions[vehicles[0]]
+        assert max(last) > min(last)
+        # rejoin: the restarted agent starts at the current epoch (shared start time)
+        procs.start(next(s for s in specs if s.name == victim))
+        wait_until(lambda: col.diag is not None and col.diag.vehicles[vehicles[-1]].online, 10, "rejoin")
+        k = len(col.run.positions[vehicles[-1]])
+        wait_until(
+            lambda: len(col.run.positions[vehicles[-1]]) > k + 1, 10, "the rejoined vehicle in solutions"
+        )
+        # fusion server restart: solutions resume within 2 epochs of the new server being up
+        # (its liveliness token), counted on the fleet's shared realtime clock
+        fleet_name, _ = fleet_of(recording)
+        up: list[float] = []
+        watcher = zenoh.open(session_config("client", [connect]))
+        watcher.liveliness().declare_subscriber(
+            KeySpace(fleet_name).alive("fusion", "0"),
+            lambda s: up.append(time.time()) if s.kind == zenoh.SampleKind.PUT else None,
+        )
+        procs.stop("fusion-server")
+        n = col.epochs
+        up.clear()
+        procs.start(specs[0])
+        wait_until(lambda: bool(up), 20, "the restarted fusion server's liveliness token")
+        wait_until(lambda: col.epochs > n, 15, "solutions after the server restart")
+        watcher.close()
+        agent_args = specs[1].args
+        start_unix = float(agent_args[agent_args.index("--start_unix_s") + 1])
+        t_first = min(t for pos in col.run.positions.values() for t in pos)
+        epoch_at_up = (up[0] - start_unix) * 1.5  # seconds of data since the first epoch
+        with col.lock:
+            newest = max(t for pos in col.run.positions.values() for t in pos)
+        first_after = newest - t_first
+        print(
+            f"server up at data second {epoch_at_up:.1f}; solutions resumed by data second {first_after:.0f}"
+        )
+        assert first_after <= epoch_at_up + 2.0 + 1.0  # within 2 epochs (+1 for the epoch in flight)
+        # router restart: everyone reconnects
+        router = procs.procs["zenoh-router"]
+        router.terminate()
+        router.wait(5)
+        port = int(connect.rsplit(":", 1)[1])
+        from coplane.fleet import router_spec, wait_for_port
+
+        procs.start(router_spec(port))
+        wait_for_port(port)
+        n = col.epochs
+        wait_until(lambda: col.epochs > n + 1, 20, "solutions after the router restart")
+        assert all(procs.procs[f"agent-{v}"].poll() in (None, 0) for v in vehicles), "an agent crashed"
+        assert procs.procs["fusion-server"].poll() is None
+
+
+_hostile = st.one_of(
+    st.binary(max_size=300),
+    st.text(max_size=200).map(str.encode),
+    st.dictionaries(
+        st.text(max_size=10),
+        st.one_of(st.integers(), st.floats(allow_nan=True), st.text(max_size=20)),
+        max_size=6,
+    ).map(lambda d: json.dumps(d).encode()),
+    st.sampled_from([b"", b"null", b"[]", b"{}", b'{"schema":"coplane.node/1"}', b"\xff" * 1000, b"{" * 500]),
+)
+
+
+def test_fuzzed_node_keys_do_not_change_valid_results(recording: Path, tmp_path: Path) -> None:
+    ref = run_method(open_recording(recording), "pc")
+    fleet, vehicles = fleet_of(recording)
+    keys = KeySpace(fleet)
+    sent = {"n": 0}
+    with running_fleet(recording, "pc", log_dir=tmp_path / "logs") as (procs, col, connect, _):
+        attacker = zenoh.open(session_config("client", [connect]))
+        qos = {"congestion_control": zenoh.CongestionControl.BLOCK, "reliability": zenoh.Reliability.RELIABLE}
+        targets = [*vehicles, "intruder"]
+        pubs = [attacker.declare_publisher(keys.node(v), **qos) for v in targets]
+
+        @settings(max_examples=1500, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+        @given(payload=_hostile, which=st.integers(0, len(pubs) - 1))
+        def attack(payload: bytes, which: int) -> None:
+            pubs[which].put(payload)
+            sent["n"] += 1
+
+        wait_until(lambda: col.epochs >= 1, 60, "the fusion server to be up (its subscriber declared)")
+        attack()
+        wait_until(lambda: agents_done(procs), 240, "agents to finish")
+        attacker.close()
+        procs.stop("fusion-server")
+        wait_until(
+            lambda: col.diag is not None and col.diag.epochs_solved >= DURATION_S - 1, 10, "final diagnostics"
+        )
+        d = col.diag
+        bus = col.run.positions
+    assert d is not None
+    worst, _ = _max_diff(ref.positions, bus)
+    rejected = sum(d.rejected_by_reason.values())
+    valid = sum(c.received for c in d.vehicles.values()) - sum(c.rejected for c in d.vehicles.values())
+    print(
+        f"sent {sent['n']} hostile payloads; server saw {d.node_payloads} node payloads ({valid} valid);"
+        f" rejected by reason {d.rejected_by_reason}; max diff {worst:.1e} m"
+    )
+    assert worst < 1e-3
+    # every hostile payload is accounted for (BLOCK QoS: none is dropped in transit)
+    assert rejected == sent["n"], (rejected, sent["n"])
+    assert sum(c.rejected for c in d.vehicles.values()) == rejected - d.rejected_by_reason.get(
+        "unknown-vehicle", 0
+    )
+    assert d.rejected_by_reason.get("unknown-vehicle", 0) > 0

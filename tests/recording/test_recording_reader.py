@@ -1,0 +1,89 @@
+"""open_recording on the hand-made fleet in tests/data/broken/fleet.
+
+Receiver tags (s after 2320:116400): u1 0.005 1.004 1.300(dup) 2.005 3.005; u2 -0.002 1.999 3.001;
+base 0 1 2 3 4. uwb.csv and truth/u1.csv rows are listed in test_recording_csv.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from coplane.gtime import GpsTime
+from coplane.recording.reader import FleetEpoch, open_recording
+
+FLEET = Path(__file__).resolve().parents[1] / "data" / "broken" / "fleet"
+T0 = GpsTime(2320, 116400.0)
+
+
+def t(s: float) -> GpsTime:
+    return GpsTime(2320, 116400.0 + s)
+
+
+def test_fleet_epochs_group_by_nominal_time_and_keep_exact_tags() -> None:
+    rec = open_recording(FLEET)
+    fes = list(rec.fleet_epochs())
+    assert [fe.time for fe in fes] == [t(0), t(1), t(2), t(3), t(4)]
+    assert [fe.index for fe in fes] == [0, 1, 2, 3, 4]
+    assert {k: v.time for k, v in fes[0].vehicles.items()} == {
+        "u1": GpsTime(2320, 116400.005),
+        "u2": t(-0.002),
+    }
+    assert set(fes[1].vehicles) == {"u1"}  # u2 has no epoch there: simply absent
+    assert fes[1].vehicles["u1"].time == GpsTime(2320, 116401.004)  # the first of the two rounding to 1 s
+    assert fes[2].vehicles["u2"].time == GpsTime(2320, 116401.999)
+    assert fes[4].vehicles == {} and fes[4].base is not None  # only the base observed at 4 s
+    assert all(fe.base is not None and fe.base.time == fe.time for fe in fes)
+
+
+def test_uwb_rows_matched_within_a_tenth_of_the_interval() -> None:
+    rec = open_recording(FLEET)
+    by_t = {fe.time: [(u.time, u.pair, u.range_m) for u in fe.uwb] for fe in rec.fleet_epochs()}
+    assert by_t == {
+        t(0): [(t(0), ("u1", "u2"), 14.732)],  # the 0.02 s later reversed duplicate is dropped
+        t(1): [],
+        t(2): [(t(2), ("u1", "u2"), 14.9)],
+        t(3): [(GpsTime(2320, 116403.04), ("u1", "u2"), 15.2)],
+        t(4): [],
+    }
+    kinds = rec.problems.counts
+    assert kinds["unmatched-row"] == 2  # 116401.5 (0.5 s off) and 116405 (no epoch there)
+    assert kinds["duplicate-row"] == 2  # one exact-tag duplicate (reader) + one within an epoch
+    assert kinds["duplicate-epoch"] == 1  # u1 at 1.300 s
+
+
+def test_truth_at_nominal_times() -> None:
+    rec = open_recording(FLEET)
+    truth = rec.truth_at("u1")
+    assert truth == {
+        t(0): (-3817681.3807, 3562839.9785, 3650158.3760),
+        t(1): (-3817681.3817, 3562839.9795, 3650158.3770),
+        t(3): (-3817681.3847, 3562839.9835, 3650158.3810),
+    }
+    assert rec.truth_at("u2") == {} and rec.truth("u2") == []
+    assert rec.problems.counts["unmatched-row"] == 1  # 116402.5, reported once for the file
+
+
+def test_everything_read_once_and_problems_counted_once() -> None:
+    rec = open_recording(FLEET)
+    assert rec.nav is rec.nav
+    assert rec.nav.satellites == ["C01", "C14", "C59", "G05", "G06", "G13"]
+    assert rec.vehicle_epochs("u1") is rec.vehicle_epochs("u1")
+    list(rec.fleet_epochs())
+    rec.truth_at("u1")
+    first = dict(rec.problems.counts)
+    list(rec.fleet_epochs())
+    rec.truth_at("u1")
+    assert dict(rec.problems.counts) == first
+    assert len(rec.vehicle_epochs("u1")) == 4  # the duplicate-epoch is not returned
+    assert [e.time for e in rec.base_epochs()] == [t(s) for s in range(5)]
+    with pytest.raises(KeyError):
+        rec.vehicle_epochs("nobody")
+
+
+def test_fleet_epoch_is_frozen() -> None:
+    fe = next(open_recording(FLEET).fleet_epochs())
+    assert isinstance(fe, FleetEpoch)
+    with pytest.raises(AttributeError):
+        fe.index = 3  # type: ignore[misc]

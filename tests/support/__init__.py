@@ -1,0 +1,1 @@
+"""Fixtures, synthetic fleets and RTKLIB references shared by the tests (not tests themselves)."""
