@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coplane.estimation.limits import VEHICLE_ID
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
+from coplane.ids import is_vehicle_id
 from coplane.messages import DiagnosticsMessage, SolutionMessage, VehicleCounters, VehicleState
 from coplane.typing import Mat
 
@@ -150,7 +150,7 @@ class FleetState:
         v = self.vehicles.get(vid)
         if v is not None:
             return v
-        if not VEHICLE_ID.match(vid):
+        if not is_vehicle_id(vid):
             self.rejected["vehicle", "bad-vehicle-id"] += 1
             return None
         if len(self.vehicles) >= self.max_vehicles:
@@ -270,7 +270,7 @@ class FleetState:
     def on_alive(self, role: str, ident: str, present: bool) -> None:
         """A liveliness token appeared (present) or went away (role: agent | fusion | api)."""
         if role == "fusion":
-            if not VEHICLE_ID.match(ident):
+            if not is_vehicle_id(ident):
                 self.reject("liveliness", "bad-id")
             elif present:
                 if len(self.fusion_alive) < 64:

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from coplane.estimation.limits import (
     MAX_DRIFT_MPS,
+    MAX_NORMAL_ERROR,
     MAX_PLANE_SIGMA_M,
     MAX_RANGE_M,
     MAX_RANGE_SIGMA_M,
@@ -145,7 +146,7 @@ class PlaneReport(_Model):
             if self.normal is None or self.d_antenna_m is None or self.sigma_m is None:
                 raise ValueError("an available plane needs normal, d_antenna_m and sigma_m")
             n = sum(c * c for c in self.normal) ** 0.5
-            if abs(n - 1.0) > 1e-6:
+            if abs(n - 1.0) > MAX_NORMAL_ERROR:
                 raise ValueError(f"plane normal is not unit length ({n:.6f})")
         return self
 

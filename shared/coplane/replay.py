@@ -54,7 +54,7 @@ def vehicle_schedule(epochs: Sequence[ObsEpoch], interval_s: float) -> list[tupl
 
 def fleet_id(name: str) -> str:
     """A bus-safe fleet id ([A-Za-z0-9_-], at most 32 chars) from a recording's free-text name."""
-    slug = "".join(c if c.isalnum() or c in "-_" else "-" for c in name.strip())
+    slug = "".join(c if (c.isascii() and c.isalnum()) or c in "-_" else "-" for c in name.strip())
     slug = "-".join(p for p in slug.split("-") if p)[:32].strip("-")
     return slug or "fleet"
 

@@ -369,7 +369,7 @@ def test_same_inputs_give_bitwise_identical_outputs(solver: Solver) -> None:
 
 _DETERMINISM_SCRIPT = """
 import hashlib, json, sys
-sys.path.insert(0, {tests!r})
+sys.path[:0] = [{tests!r}, {here!r}]
 from support.fgo_synthetic import make_fleet
 from test_fgo_engine import _fingerprint, run
 from coplane.methods import get_method

@@ -165,10 +165,6 @@ def test_fleet_id_of_ascii_is_a_vehicle_id(name: str) -> None:
     assert "--" not in fid and not fid.startswith("-") and not fid.endswith("-")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="fleet_id keeps non-ASCII letters and digits (str.isalnum), which VEHICLE_ID_PATTERN rejects",
-)
 @pytest.mark.parametrize("name", ["Zürich loop", "run ²", "東京"])
 def test_fleet_id_of_non_ascii_is_a_vehicle_id(name: str) -> None:
     """A name with non-ASCII letters or digits also gives a bus-safe fleet id."""

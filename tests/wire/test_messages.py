@@ -616,11 +616,6 @@ def test_interior_values_pass_validate_epoch() -> None:
     assert len(v.vehicles["u1"].pseudoranges) == 1 and len(v.ranges) == 1
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="wire bounds are inclusive (ge/le), validate_epoch's are exclusive (>/<): a value exactly at "
-    "a limit passes the wire and is dropped by the estimator",
-)
 @pytest.mark.parametrize(
     ("sat_kw", "spp_kw", "range_m"),
     [

@@ -23,6 +23,8 @@ from coplane.estimation.contract import EpochInput, FleetSolution, PlaneObs, Pse
 from coplane.estimation.limits import (
     KNOWN_SYSTEMS,
     MAX_DRIFT_MPS,
+    MAX_NORMAL_ERROR,
+    MAX_PLANE_SIGMA_M,
     MAX_RANGE_M,
     MAX_RANGE_SIGMA_M,
     MAX_SAT_CLOCK_S,
@@ -194,7 +196,7 @@ def validate_vehicle(
     spp = None
     if vin.spp_position is not None:
         spp = finite_vec3(vin.spp_position)
-        if spp is None or not RECEIVER_RADIUS_M[0] < float(np.linalg.norm(spp)) < RECEIVER_RADIUS_M[1]:
+        if spp is None or not RECEIVER_RADIUS_M[0] <= float(np.linalg.norm(spp)) <= RECEIVER_RADIUS_M[1]:
             rejected["spp"] += 1
             spp = None
     plane = _valid_plane(vin.plane, rejected) if planes else None
@@ -220,14 +222,14 @@ def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -
             ]
     with np.errstate(invalid="ignore", over="ignore"):
         radius = np.sqrt(np.einsum("ij,ij->i", sats, sats))
-        ok = (
-            (radius > SAT_RADIUS_M[0])
-            & (radius < SAT_RADIUS_M[1])
-            & (num[:, 0] > PSEUDORANGE_M[0])
-            & (num[:, 0] < PSEUDORANGE_M[1])
-            & (np.abs(num[:, 1]) < MAX_SAT_CLOCK_S)
+        ok = (  # the wire models' bounds (inclusive), so what passes the wire passes here
+            (radius >= SAT_RADIUS_M[0])
+            & (radius <= SAT_RADIUS_M[1])
+            & (num[:, 0] >= PSEUDORANGE_M[0])
+            & (num[:, 0] <= PSEUDORANGE_M[1])
+            & (np.abs(num[:, 1]) <= MAX_SAT_CLOCK_S)
             & (num[:, 2] > 0.0)
-            & (num[:, 2] < MAX_SIGMA_M)
+            & (num[:, 2] <= MAX_SIGMA_M)
         )
     keep: list[int] = []
     seen: set[str] = set()
@@ -257,8 +259,8 @@ def _valid_plane(plane: PlaneObs | None, rejected: Counter[str]) -> PlaneObs | N
         n is None
         or d is None
         or sg is None
-        or not (0.0 < sg < MAX_SIGMA_M)
-        or abs(np.linalg.norm(n) - 1.0) > 1e-3
+        or not (0.0 < sg <= MAX_PLANE_SIGMA_M)
+        or abs(np.linalg.norm(n) - 1.0) > MAX_NORMAL_ERROR
     ):
         rejected["plane"] += 1
         return None
@@ -277,7 +279,7 @@ def _valid_ranges(epoch: EpochInput, rejected: Counter[str]) -> list[ValidRange]
             or not isinstance(b, str)
             or a == b
             or rng is None
-            or not 0 < rng < MAX_RANGE_M
+            or not 0 < rng <= MAX_RANGE_M
         ):
             rejected["range"] += 1
             continue
@@ -287,7 +289,7 @@ def _valid_ranges(epoch: EpochInput, rejected: Counter[str]) -> list[ValidRange]
             continue
         seen.add(pair)
         sg = finite(getattr(r, "sigma_m", None))
-        usable = sg is not None and 0.0 < sg < MAX_RANGE_SIGMA_M
+        usable = sg is not None and 0.0 < sg <= MAX_RANGE_SIGMA_M
         out[pair] = ValidRange(pair[0], pair[1], rng, sg if usable and sg is not None else math.nan)
     return [out[p] for p in sorted(out)]
 

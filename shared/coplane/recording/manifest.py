@@ -15,7 +15,7 @@ from typing import Any
 
 import tomli_w
 
-from coplane.ids import VEHICLE_ID
+from coplane.ids import is_vehicle_id
 from coplane.recording.model import BaseSpec, Manifest, UwbSpec, VehicleSpec
 from coplane.recording.problems import RecordingError
 
@@ -142,7 +142,7 @@ def _vehicles(c: _Ctx, value: Any) -> tuple[VehicleSpec, ...]:
         where = f"vehicles[{i}]"
         v = c.table(v, where)
         vid = c.string(c.require(v, "id", f"{where}.id"), f"{where}.id")
-        if not VEHICLE_ID.match(vid):
+        if not is_vehicle_id(vid):
             raise c.error(f"{where}.id", f"invalid vehicle id {vid!r} (allowed: [A-Za-z0-9_-]{{1,32}})")
         if vid in seen:
             raise c.error(f"{where}.id", f"duplicate vehicle id {vid!r}")
@@ -197,7 +197,7 @@ def write_manifest(manifest: Manifest) -> Path:
     """Write `<manifest.root>/fleet.toml` (deterministic; files it names need not exist yet)."""
     path = Path(manifest.root) / MANIFEST_NAME
     for v in manifest.vehicles:
-        if not VEHICLE_ID.match(v.id):
+        if not is_vehicle_id(v.id):
             raise RecordingError(f"vehicle id {v.id!r} is invalid (allowed: [A-Za-z0-9_-]{{1,32}})")
     ids = [v.id for v in manifest.vehicles]
     if len(set(ids)) != len(ids):
