@@ -99,9 +99,8 @@ def test_pseudorange_factor_reproduces_the_inputs_model(az: float, el: float) ->
 
 
 def test_pseudorange_factor_jacobian_matches_finite_differences() -> None:
-    sat = F.gtsam_satellite_positions(_sat(120, 35)[None, :], RX)[0]
     sigma = 2.5
-    f = F.pseudorange_factor(1, 2, 2.3e7, sat, 1e-5, F.isotropic(1, sigma))
+    (f,) = F.pseudorange_factors(1, [2], [2.3e7], _sat(120, 35)[None, :], [1e-5], [sigma], RX)
     entries: dict[int, np.ndarray | float] = {1: RX + np.array([3.0, -2.0, 1.0]), 2: 1e-4}
     num = _numeric_jacobian(f, entries, {1: 1.0, 2: 1e-8})
     ana = _analytic_jacobian(f, entries, sigma)

@@ -114,18 +114,6 @@ def gtsam_satellite_positions(sat_pos_rx: Vec, receiver: Vec) -> Vec:
     return np.einsum("nji,nj->ni", r, sats)
 
 
-def pseudorange_factor(
-    pos_key: int,
-    clock_key: int,
-    rho_m: float,
-    sat_pos_gtsam: Vec,
-    sat_clock_s: float,
-    noise: gtsam.noiseModel.Base,
-) -> gtsam.PseudorangeFactor:
-    """Eq. 21: error = |p - s| (+ GTSAM's Sagnac) + c (dt_rx - dt_sat) - rho, clock in seconds."""
-    return gtsam.PseudorangeFactor(pos_key, clock_key, rho_m, sat_pos_gtsam, sat_clock_s, noise)
-
-
 def pseudorange_factors(
     pos_key: int,
     clock_keys: Sequence[int],

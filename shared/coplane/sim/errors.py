@@ -236,10 +236,6 @@ def multipath_sigma_m(el: AnyArray, section_scale: AnyArray, p: MultipathParams)
     return p.scale * base * section_scale
 
 
-def cn0_nominal(el: AnyArray, p: Cn0Params) -> AnyArray:
-    return p.zenith_dbhz - p.horizon_drop_db * (1.0 - np.sin(np.maximum(el, 0.0))) ** 2
-
-
 def klobuchar_obliquity(el: AnyArray, is_bds: AnyArray) -> AnyArray:
     """Slant factor of the broadcast models: GPS 1 + 16 (0.53 - E)^3 (E in semicircles); BeiDou
     1 / sqrt(1 - (R cos el / (R + h))^2) (thin shell at 375 km), as in coplane.gnss.atmosphere."""
