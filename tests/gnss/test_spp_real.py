@@ -57,13 +57,15 @@ def _ours(obs_path: Path, nav_paths: list[Path], options: SppOptions) -> tuple[d
 
 
 @pytest.mark.parametrize(
-    ("folder", "obs", "navs"),
-    [
-        ("matrtklib_nagoya_static_20240624", "rover.obs", ["base.nav"]),
-        ("hk_klt_20210610_f9p_rover_hksc_base", "hksc1610.obs", ["hksc1610.nav"]),
+    ("folder", "obs", "navs", "tolerance_m"),
+    [  # the README's claims: within 1 cm (Nagoya, measured 0.9 cm) and about 10 cm (HKSC, 8.3 cm)
+        ("matrtklib_nagoya_static_20240624", "rover.obs", ["base.nav"], 0.015),
+        ("hk_klt_20210610_f9p_rover_hksc_base", "hksc1610.obs", ["hksc1610.nav"], 0.12),
     ],
 )
-def test_spp_matches_rtklib_pntpos(real_data: Path, folder: str, obs: str, navs: list[str]) -> None:
+def test_spp_matches_rtklib_pntpos(
+    real_data: Path, folder: str, obs: str, navs: list[str], tolerance_m: float
+) -> None:
     d = real_data / folder
     ref = _rtklib_pntpos(d / obs, [d / n for n in navs])
     ours, _ = _ours(d / obs, [d / n for n in navs], RTKLIB_LIKE)
@@ -73,7 +75,7 @@ def test_spp_matches_rtklib_pntpos(real_data: Path, folder: str, obs: str, navs:
     print(
         f"{folder}: {len(common)} epochs, |ours - pntpos| median {np.median(diffs):.3f} m, max {diffs.max():.3f} m"
     )
-    assert diffs.max() < 0.3
+    assert diffs.max() < tolerance_m
 
 
 def test_hksc_base_within_rtklib_error_of_published_coordinate(real_data: Path) -> None:
