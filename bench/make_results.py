@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 
 from coplane.evaluate.evaluation import evaluate
-from coplane.evaluate.report import markdown_table
+from coplane.evaluate.report import environment_table, markdown_table
 from coplane.methods import METHODS
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import bundled_default_path, simulate
@@ -38,6 +38,10 @@ def _run(name: str, rec_path: Path, methods: list[str], rates: list[float], vehi
             f.unlink()
     ev.figures = [f for f in ev.figures if f.exists()]
     parts = [markdown_table(ev.stats, v) for v in vehicles]
+    parts.append(
+        "Pooled over the vehicles, per environment of the truth (the simulator's road sections), with the"
+        " tail of the horizontal error:\n\n" + environment_table(ev.by_environment)
+    )
     parts += [f"Note ({k}): {v}" for k, v in ev.notes.items()]
     figs = "\n".join(f"![{f.stem}](results/{name}/{f.name})" for f in ev.figures)
     timing = ", ".join(f"{r.label} {r.wall_time_s:.1f} s" for r in ev.runs)

@@ -64,6 +64,8 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
     )
     assert r.exit_code == 0, r.output
     assert (out / "accuracy.md").read_text().count("| pc") >= 3
+    by_env = (out / "accuracy_by_environment.md").read_text()  # pooled, per simulated road section
+    assert "| pc@r50 |" in by_env and "open (" in by_env and "H p50 / p99 / max" in by_env
     for label in ("non-cp", "pc", "pc@r50"):
         csvs = sorted((out / "solutions" / label).glob("*.csv"))
         assert [c.stem for c in csvs] == ["u1", "u2", "u3"]

@@ -60,4 +60,7 @@ def eval_(
     print_accuracy(ev.recording, ev.stats, ev.shown)
     for r in ev.runs:
         console.print(f"{r.label}: {r.n_epochs} epochs in {r.wall_time_s:.1f} s")
-    console.print(f"wrote {out}/accuracy.md, {len(ev.figures)} figures and solutions/")
+    console.print(
+        f"wrote {out}/accuracy.md, accuracy_by_environment.md (pooled, with p99 and max),"
+        f" {len(ev.figures)} figures and solutions/"
+    )

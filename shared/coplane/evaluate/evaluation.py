@@ -13,9 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from coplane.errors import ConfigError
-from coplane.evaluate.metrics import AccuracyStats
+from coplane.evaluate.metrics import AccuracyStats, PooledStats
 from coplane.evaluate.plots import plot_cdfs, plot_error_vs_time, plot_plane_map, plot_rmse_vs_interruption
-from coplane.evaluate.report import run_stats, write_solutions, write_tables
+from coplane.evaluate.report import (
+    environment_stats,
+    run_stats,
+    write_environment_tables,
+    write_solutions,
+    write_tables,
+)
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.methods import get_method
@@ -28,6 +34,8 @@ log = logging.getLogger(__name__)
 class Evaluation:
     runs: list[MethodRun] = field(default_factory=list)
     stats: dict[str, dict[str, AccuracyStats]] = field(default_factory=dict)  # label -> vehicle -> stats
+    # label -> "all" / environment -> errors pooled over vehicles (p99 and max included)
+    by_environment: dict[str, dict[str, PooledStats]] = field(default_factory=dict)
     figures: list[Path] = field(default_factory=list)
     notes: dict[str, str] = field(default_factory=dict)  # method -> remark (e.g. the rtklib row skipped)
     recording: str = ""  # the recording's name, for titles
@@ -59,6 +67,7 @@ def evaluate(
             if rtk_run is not None:
                 ev.runs.append(rtk_run)
                 ev.stats[rtk_run.label] = run_stats(rtk_run, rec)
+                ev.by_environment[rtk_run.label] = environment_stats(rtk_run, rec)
                 if out_dir is not None:
                     write_solutions(rtk_run, out_dir)
             continue
@@ -70,6 +79,7 @@ def evaluate(
             )
             ev.runs.append(run)
             ev.stats[run.label] = run_stats(run, rec)
+            ev.by_environment[run.label] = environment_stats(run, rec)
             if out_dir is not None:
                 write_solutions(run, out_dir)
     if out_dir is not None:
@@ -90,6 +100,7 @@ def evaluate(
                 },
             },
         )
+        write_environment_tables(ev.by_environment, out_dir)
         ev.figures = write_figures(ev, rec, shown, out_dir)
     ev.shown = list(vehicles or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
     return ev

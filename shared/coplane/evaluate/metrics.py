@@ -65,3 +65,66 @@ def accuracy(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -> 
         h_mean_m=float(h.mean()),
         v_bias_m=float(v.mean()),
     )
+
+
+@dataclass(frozen=True)
+class PooledStats:
+    """Errors pooled over vehicles (and epochs) of one group, e.g. one environment: the tail too."""
+
+    n: int
+    h_rmse_m: float
+    v_rmse_m: float
+    h_p50_m: float
+    h_p99_m: float
+    h_max_m: float
+    v_max_m: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+ENVIRONMENT_ORDER = ("open", "medium", "deep", "underpass")  # the simulator's sections, open first
+
+
+def pooled_stats(errors: Vec) -> PooledStats:
+    """Statistics of N x 3 ENU errors (NaN when N is 0)."""
+    if len(errors) == 0:
+        nan = math.nan
+        return PooledStats(0, nan, nan, nan, nan, nan, nan)
+    h = np.hypot(errors[:, 0], errors[:, 1])
+    v = errors[:, 2]
+    return PooledStats(
+        n=len(errors),
+        h_rmse_m=float(np.sqrt(np.mean(h**2))),
+        v_rmse_m=float(np.sqrt(np.mean(v**2))),
+        h_p50_m=float(np.median(h)),
+        h_p99_m=float(np.percentile(h, 99)),
+        h_max_m=float(h.max()),
+        v_max_m=float(np.abs(v).max()),
+    )
+
+
+def accuracy_by_environment(
+    solutions: Mapping[str, Mapping[GpsTime, Vec]],
+    truth: Mapping[str, Mapping[GpsTime, Vec]],
+    environment: Mapping[str, Mapping[GpsTime, str]],
+) -> dict[str, PooledStats]:
+    """Pooled over vehicles: "all", then each environment label of the truth (open first).
+
+    Where the deep canyons and the underpass are is where methods differ; a fleet RMSE alone hides
+    whether it comes from there or from everywhere.
+    """
+    errs: list[Vec] = []
+    labels: list[str] = []
+    for vid in sorted(truth):
+        times, e = enu_errors(solutions.get(vid, {}), truth[vid])
+        env = environment.get(vid, {})
+        errs.append(e)
+        labels += [env.get(t, "") for t in times]
+    allerr = np.concatenate(errs) if errs else np.zeros((0, 3))
+    lab = np.array(labels, dtype=object)
+    out = {"all": pooled_stats(allerr)}
+    present = {x for x in labels if x}
+    for name in [*[k for k in ENVIRONMENT_ORDER if k in present], *sorted(present - set(ENVIRONMENT_ORDER))]:
+        out[name] = pooled_stats(allerr[lab == name])
+    return out

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from coplane.evaluate.metrics import AccuracyStats, accuracy
+from coplane.evaluate.metrics import AccuracyStats, PooledStats, accuracy, accuracy_by_environment
 from coplane.evaluate.runner import MethodRun
 from coplane.recording.reader import Recording
 
@@ -109,4 +109,49 @@ def write_tables(
     md = "\n\n".join(markdown_table(stats, v) for v in vehicles)
     path = out_dir / "accuracy.md"
     path.write_text(md + "\n")
+    return path
+
+
+def environment_stats(run: MethodRun, rec: Recording) -> dict[str, PooledStats]:
+    """The run's errors pooled over vehicles, overall and per environment of the truth."""
+    ids = [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)]
+    truth = {vid: {t: np.asarray(p) for t, p in rec.truth_at(vid).items()} for vid in ids}
+    return accuracy_by_environment(run.positions, truth, {vid: rec.environment_at(vid) for vid in ids})
+
+
+def environment_table(by_env: dict[str, dict[str, PooledStats]]) -> str:
+    """Pooled H / V RMSE per environment, then the tail (p50, p99, max) over all epochs."""
+    envs: list[str] = []
+    for per in by_env.values():
+        envs += [e for e in per if e not in envs]
+    first = next(iter(by_env.values()), {})
+    head = [f"{e} ({first[e].n} ep.)" if e in first else e for e in envs]
+    lines = [
+        "| Method | " + " | ".join(f"{h} H / V RMSE (m)" for h in head) + " | H p50 / p99 / max (m) |",
+        "|---" * (len(envs) + 2) + "|",
+    ]
+
+    def f(x: float) -> str:
+        return "-" if not math.isfinite(x) else f"{x:.2f}"
+
+    for label, per in by_env.items():
+        cells = [f"{f(per[e].h_rmse_m)} / {f(per[e].v_rmse_m)}" if e in per else "-" for e in envs]
+        a = per.get("all")
+        tail = f"{f(a.h_p50_m)} / {f(a.h_p99_m)} / {f(a.h_max_m)}" if a is not None else "-"
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {tail} |")
+    return "\n".join(lines)
+
+
+def write_environment_tables(by_env: dict[str, dict[str, PooledStats]], out_dir: Path) -> Path:
+    """accuracy_by_environment.json and .md beside accuracy.json."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "accuracy_by_environment.json").write_text(
+        json.dumps(
+            {lab: {e: s.as_dict() for e, s in per.items()} for lab, per in by_env.items()},
+            indent=2,
+            default=lambda x: None if isinstance(x, float) and not math.isfinite(x) else x,
+        )
+    )
+    path = out_dir / "accuracy_by_environment.md"
+    path.write_text(environment_table(by_env) + "\n")
     return path

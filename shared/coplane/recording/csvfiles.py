@@ -141,7 +141,8 @@ def read_truth(path: str | Path, problems: Problems) -> list[TruthPoint]:
             problems.add(path, lineno, exc.kind, f"{exc}: row skipped")
             continue
         last = t
-        out.append(TruthPoint(t, xyz))
+        env = (row.get("environment") or row.get("section") or "").strip()
+        out.append(TruthPoint(t, xyz, env if env.isidentifier() and len(env) <= 32 else ""))
     return out
 
 

@@ -152,6 +152,8 @@ class UwbRange:
 class TruthPoint:
     time: GpsTime
     ecef_m: tuple[float, float, float]
+    # the optional `environment` (or the simulator's `section`) column: open, medium, deep, underpass
+    environment: str = ""
 
 
 @dataclass(frozen=True, slots=True)

@@ -155,6 +155,20 @@ class Recording:
             self._truth_at[vid] = out
         return self._truth_at[vid]
 
+    def environment_at(self, vid: str) -> dict[GpsTime, str]:
+        """The truth's environment label at each matched nominal epoch ("" when the truth has none).
+
+        Simulated recordings label every truth row with its road section (open, medium, deep,
+        underpass); real recordings may add an `environment` column. Used for per-environment
+        accuracy, never by an estimator.
+        """
+        matched = self.truth_at(vid)
+        return {
+            t: p.environment
+            for p in self.truth(vid)
+            if (t := self.nominal(p.time)) in matched and matched[t] == p.ecef_m
+        }
+
     # ---- grouping
     def fleet_epochs(self) -> Iterator[FleetEpoch]:
         """Nominal epochs in time order with every receiver's epoch and the uwb rows matched there."""
