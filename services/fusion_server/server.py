@@ -73,7 +73,12 @@ class FusionServer:
         return BusNode(
             session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
             token=self.keys.alive("fusion", "0"),
-            publish=[Publication(self.keys.solution, must_deliver=True), Publication(self.keys.diagnostics)],
+            publish=[
+                Publication(self.keys.solution, must_deliver=True),
+                # reliable too: the final diagnostics are put just before the session closes, and a
+                # dropped one leaves consumers with stale counters (it is one message a second)
+                Publication(self.keys.diagnostics, must_deliver=True),
+            ],
             subscribe=[
                 Subscription(self.keys.all_nodes),
                 Subscription(self.keys.all_alive("agent"), liveliness=True),

@@ -58,17 +58,20 @@ def test_lockstep_over_bus_equals_in_process(recording: Path, method: str, tmp_p
 
 
 def test_realtime_accounts_every_message(recording: Path, tmp_path: Path) -> None:
+    """Every epoch is solved and every message accounted for at 10x realtime.
+
+    The fleet's shared wall-clock origin is 15 s after launch: a loaded 2-core machine needs up to
+    about 8 s to start the processes, and epochs already past when an agent comes up are skipped by
+    design (a restarted agent joins at the current epoch), which is not what this test is about.
+    """
     n_epochs = DURATION_S
-    with running_fleet(recording, "pc", pace="realtime", speed=10.0, log_dir=tmp_path / "logs") as (
-        procs,
-        col,
-        _,
-        _,
-    ):
+    with running_fleet(
+        recording, "pc", pace="realtime", speed=10.0, log_dir=tmp_path / "logs", start_delay_s=15.0
+    ) as (procs, col, _, _):
         wait_until(lambda: agents_done(procs), 120, "agents to finish")
         procs.stop("fusion-server")  # publishes its final diagnostics
         wait_until(
-            lambda: col.diag is not None and col.diag.epochs_solved >= n_epochs - 1, 10, "final diagnostics"
+            lambda: col.diag is not None and col.diag.epochs_solved >= n_epochs - 1, 30, "final diagnostics"
         )
         d = col.diag
     assert d is not None
