@@ -11,7 +11,7 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
 
-from coplane.estimation.limits import VEHICLE_ID_PATTERN
+from coplane.ids import VEHICLE_ID_PATTERN
 from coplane.runtime import ServiceSettings
 
 

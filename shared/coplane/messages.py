@@ -27,8 +27,8 @@ from coplane.estimation.limits import (
     RECEIVER_RADIUS_M,
     SAT_ID_PATTERN,
     SAT_RADIUS_M,
-    VEHICLE_ID_PATTERN,
 )
+from coplane.ids import VEHICLE_ID_PATTERN
 
 NODE_SCHEMA = "coplane.node/1"
 SOLUTION_SCHEMA = "coplane.solution/1"

@@ -17,9 +17,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from coplane.errors import ConfigError, NotFoundError
-from coplane.estimation.limits import VEHICLE_ID
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime
+from coplane.ids import VEHICLE_ID
 from coplane.methods import get_method
 from coplane.plane.config import PlaneConfig
 from coplane.recording.model import Manifest, ObsEpoch, SatObservation, UwbRange, UwbSpec, VehicleSpec

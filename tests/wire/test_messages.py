@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
+from coplane import ids
 from coplane.estimation import limits
 from coplane.messages import (
     MAX_RANGES,
@@ -174,7 +175,7 @@ def test_sat_id_systems_are_the_known_systems() -> None:
 @pytest.mark.parametrize("vid", ["u1", "a", "A-b_9", "x" * 32, "0", "-", "_"])
 def test_vehicle_id_accepted(vid: str) -> None:
     """Vehicle and fleet ids matching VEHICLE_ID_PATTERN (1..32 of [A-Za-z0-9_-]) are accepted."""
-    assert limits.VEHICLE_ID.fullmatch(vid)
+    assert ids.VEHICLE_ID.fullmatch(vid)
     NodeMessage.model_validate(node(vehicle_id=vid, fleet=vid, ranges=[]))
     RangeReport.model_validate({"to": vid, "range_m": 1.0, "sigma_m": 1.0})
 
@@ -182,7 +183,7 @@ def test_vehicle_id_accepted(vid: str) -> None:
 @pytest.mark.parametrize("vid", ["", "x" * 33, "u 1", "u.1", "u/1", "u*", "ü1", "u1\n", " u1"])
 def test_vehicle_id_rejected(vid: str) -> None:
     """Ids outside VEHICLE_ID_PATTERN (empty, too long, spaces, dots, slashes, wildcards, non-ASCII, newline) are rejected."""
-    assert not limits.VEHICLE_ID.fullmatch(vid)
+    assert not ids.VEHICLE_ID.fullmatch(vid)
     rejects(NodeMessage, node(vehicle_id=vid), "vehicle_id")
     rejects(NodeMessage, node(fleet=vid), "fleet")
     rejects(RangeReport, {"to": vid, "range_m": 1.0, "sigma_m": 1.0}, "to")
@@ -192,7 +193,7 @@ def test_vehicle_id_rejected(vid: str) -> None:
 
 def test_vehicle_id_pattern_is_the_limits_one() -> None:
     """The pattern pydantic reports for a bad id is VEHICLE_ID_PATTERN itself."""
-    rejects(RangeReport, {"to": "u 1", "range_m": 1.0, "sigma_m": 1.0}, re.escape(limits.VEHICLE_ID_PATTERN))
+    rejects(RangeReport, {"to": "u 1", "range_m": 1.0, "sigma_m": 1.0}, re.escape(ids.VEHICLE_ID_PATTERN))
 
 
 @pytest.mark.parametrize("sid", ["G01", "C63", "E36", "R24", "J07", "I14", "S20"])

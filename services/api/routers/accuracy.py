@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from coplane.estimation.limits import VEHICLE_ID_PATTERN
+from coplane.ids import VEHICLE_ID_PATTERN
 
 from .. import views
 from ..deps import StateDep

@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, HTTPException, Path, Query
 from fastapi.responses import JSONResponse, Response
 
-from coplane.estimation.limits import VEHICLE_ID_PATTERN
+from coplane.ids import VEHICLE_ID_PATTERN
 
 from .. import views
 from ..deps import NowDep, StateDep

@@ -7,11 +7,7 @@ boundary is never rejected at the next for a different limit.
 
 from __future__ import annotations
 
-from coplane.ids import VEHICLE_ID, VEHICLE_ID_PATTERN
-
-__all__ = ["VEHICLE_ID", "VEHICLE_ID_PATTERN"]  # re-exported: every limit importable from here
-
-# Identifiers -------------------------------------------------------------------------------
+# Identifiers (vehicle and fleet ids: coplane.ids) ------------------------------------------
 # GNSS systems an estimator keeps a receiver clock for (RINEX system letters)
 KNOWN_SYSTEMS = frozenset("GCERJIS")
 SAT_ID_PATTERN = r"^[CEGIJRS][0-9]{2}$"  # a satellite of a known system, RINEX 3 style ("G05")
