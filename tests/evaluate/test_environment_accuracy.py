@@ -34,6 +34,18 @@ def test_truth_reader_keeps_the_section_or_environment_column(tmp_path: Path) ->
         assert pt.environment == expected
 
 
+def test_a_malformed_environment_label_is_reported_and_the_row_kept(tmp_path: Path) -> None:
+    """A label that is not a short word is dropped with a file:line problem; the position stays."""
+    x, y, z = REF
+    p = tmp_path / "t.csv"
+    p.write_text(f"gps_week,tow_s,x_m,y_m,z_m,environment\n2300,10.0,{x},{y},{z},deep canyon!\n")
+    problems = Problems()
+    (pt,) = read_truth(p, problems)
+    assert pt.environment == "" and pt.ecef_m == (x, y, z)
+    assert problems.counts["malformed-value"] == 1
+    assert "t.csv:2" in str(problems.items[0]) and "deep canyon!" in str(problems.items[0])
+
+
 def test_pooled_by_environment_with_tail() -> None:
     """Errors are pooled over vehicles per label, "all" first then open..underpass, p99 and max kept."""
     times = [GpsTime(2300, 100.0 + k) for k in range(4)]

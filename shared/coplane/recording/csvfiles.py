@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from coplane.recording.problems import Problems, RecordingError
 
 UWB_COLUMNS = ("gps_week", "tow_s", "from_id", "to_id", "range_m")
 TRUTH_COLUMNS = ("gps_week", "tow_s", "x_m", "y_m", "z_m")
+ENVIRONMENT_LABEL = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,31}")  # optional truth column, e.g. "deep"
 DEFAULT_MAX_UWB_RANGE_M = 10_000.0  # when the manifest gives no max_range_m
 EARTH_RADIUS_BOUNDS_M = (6.0e6, 7.0e6)  # |ECEF| of a point near the surface (incl. aircraft)
 
@@ -141,8 +143,16 @@ def read_truth(path: str | Path, problems: Problems) -> list[TruthPoint]:
             problems.add(path, lineno, exc.kind, f"{exc}: row skipped")
             continue
         last = t
-        env = (row.get("environment") or row.get("section") or "").strip()
-        out.append(TruthPoint(t, xyz, env if env.isidentifier() and len(env) <= 32 else ""))
+        env = row.get("environment") or row.get("section") or ""
+        if env and not ENVIRONMENT_LABEL.fullmatch(env):
+            problems.add(
+                path,
+                lineno,
+                "malformed-value",
+                f"environment {env[:40]!r} is not a label: row kept without it",
+            )
+            env = ""
+        out.append(TruthPoint(t, xyz, env))
     return out
 
 

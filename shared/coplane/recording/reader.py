@@ -48,6 +48,7 @@ class Recording:
         self._uwb: list[UwbRange] | None = None
         self._truth: dict[str, list[TruthPoint]] = {}
         self._truth_at: dict[str, dict[GpsTime, tuple[float, float, float]]] = {}
+        self._env_at: dict[str, dict[GpsTime, str]] = {}
         self._fleet: list[FleetEpoch] | None = None
 
     @property
@@ -129,6 +130,7 @@ class Recording:
         """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
         if vid not in self._truth_at:
             out: dict[GpsTime, tuple[float, float, float]] = {}
+            env: dict[GpsTime, str] = {}
             tol = MATCH_FRACTION * self.manifest.interval_s
             unmatched: list[GpsTime] = []
             for p in self.truth(vid):
@@ -144,6 +146,7 @@ class Recording:
                     )
                 else:
                     out[t] = p.ecef_m
+                    env[t] = p.environment
             if unmatched:
                 self.problems.add(
                     self.manifest.vehicle(vid).truth or "",
@@ -153,6 +156,7 @@ class Recording:
                     f"(first at {unmatched[0]}): not used",
                 )
             self._truth_at[vid] = out
+            self._env_at[vid] = env
         return self._truth_at[vid]
 
     def environment_at(self, vid: str) -> dict[GpsTime, str]:
@@ -162,12 +166,8 @@ class Recording:
         underpass); real recordings may add an `environment` column. Used for per-environment
         accuracy, never by an estimator.
         """
-        matched = self.truth_at(vid)
-        return {
-            t: p.environment
-            for p in self.truth(vid)
-            if (t := self.nominal(p.time)) in matched and matched[t] == p.ecef_m
-        }
+        self.truth_at(vid)  # matches the rows once, for both
+        return self._env_at[vid]
 
     # ---- grouping
     def fleet_epochs(self) -> Iterator[FleetEpoch]:
