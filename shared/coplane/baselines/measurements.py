@@ -20,7 +20,8 @@ from coplane.gnss.constants import C
 from coplane.gnss.weighting import pseudorange_sigma_m
 from coplane.typing import Mat, Vec
 
-DEFAULT_VELOCITY_SIGMA_MPS = 0.6  # only read when a velocity is present, which brings its own
+# the Doppler drift row uses the velocity sigma too: without a velocity this is its sigma
+DEFAULT_VELOCITY_SIGMA_MPS = 0.6
 
 
 @dataclass

@@ -51,17 +51,17 @@ def accuracy(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -> 
     if len(e) == 0:
         nan = math.nan
         return AccuracyStats(n_truth, 0, 0.0, nan, nan, nan, nan, nan, nan, nan)
-    h = np.hypot(e[:, 0], e[:, 1])
-    v = e[:, 2]
+    p = pooled_stats(e)
+    h, v = _horizontal_vertical(e)
     return AccuracyStats(
         n_truth=n_truth,
-        n_solved=len(e),
-        availability=len(e) / n_truth if n_truth else 0.0,
-        h_rmse_m=float(np.sqrt(np.mean(h**2))),
-        v_rmse_m=float(np.sqrt(np.mean(v**2))),
+        n_solved=p.n,
+        availability=p.n / n_truth if n_truth else 0.0,
+        h_rmse_m=p.h_rmse_m,
+        v_rmse_m=p.v_rmse_m,
         cep95_m=float(np.percentile(h, 95)),
-        h_max_m=float(h.max()),
-        v_max_m=float(np.abs(v).max()),
+        h_max_m=p.h_max_m,
+        v_max_m=p.v_max_m,
         h_mean_m=float(h.mean()),
         v_bias_m=float(v.mean()),
     )
@@ -83,6 +83,11 @@ class PooledStats:
         return asdict(self)
 
 
+def _horizontal_vertical(errors: Vec) -> tuple[Vec, Vec]:
+    """Horizontal error sqrt(E^2 + N^2) and signed vertical error of N x 3 ENU errors."""
+    return np.hypot(errors[:, 0], errors[:, 1]), errors[:, 2]
+
+
 ENVIRONMENT_ORDER = ("open", "medium", "deep", "underpass")  # the simulator's sections, open first
 
 
@@ -91,8 +96,7 @@ def pooled_stats(errors: Vec) -> PooledStats:
     if len(errors) == 0:
         nan = math.nan
         return PooledStats(0, nan, nan, nan, nan, nan, nan)
-    h = np.hypot(errors[:, 0], errors[:, 1])
-    v = errors[:, 2]
+    h, v = _horizontal_vertical(errors)
     return PooledStats(
         n=len(errors),
         h_rmse_m=float(np.sqrt(np.mean(h**2))),
