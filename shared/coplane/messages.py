@@ -134,6 +134,7 @@ class PlaneReport(_Model):
     d_road_m: float | None = None
     sigma_m: float | None = Field(default=None, gt=0.0, le=MAX_PLANE_SIGMA_M)  # what the factor uses
     offset_sigma_m: float | None = Field(default=None, ge=0.0, le=100.0)  # from the points' own sigma
+    tilt_sigma_rad: float | None = Field(default=None, ge=0.0, le=3.15)  # normal, least-determined axis
     residual_max_m: float | None = Field(default=None, ge=0.0)
     residual_rms_m: float | None = Field(default=None, ge=0.0)
     n_points_initial: int = Field(default=0, ge=0, le=100000)

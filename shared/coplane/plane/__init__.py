@@ -5,6 +5,8 @@
 - `fit.fit_plane`: total-least-squares plane by SVD (eqs. 6-11), normal oriented upward;
 - `detect.construct_plane`: availability detection (eqs. 14-16) and RANSAC fault exclusion
   (Algorithm 1), translated to antenna height (eqs. 12-13) -> `RoadPlane`;
+- `uncertainty.plane_uncertainty`: the fitted plane's first-order covariance (offset and tilt) and
+  the factor sigma it implies at the vehicle's position;
 - the per-vehicle step (history query + construction) is `coplane.steps.VehicleStep`.
 
 Plane convention: ``n . p + d = 0``, ``n`` unit and upward; the antenna plane is
@@ -21,6 +23,7 @@ from coplane.plane.detect import (
 )
 from coplane.plane.fit import Degenerate, PlaneFit, antenna_offset, constraint_error, fit_plane
 from coplane.plane.history import HistorySample, PositionHistory, cell_key, project_to_road
+from coplane.plane.uncertainty import PlaneUncertainty, plane_uncertainty
 
 __all__ = [
     "Degenerate",
@@ -28,6 +31,7 @@ __all__ = [
     "PlaneConfig",
     "PlaneFit",
     "PlaneStatus",
+    "PlaneUncertainty",
     "PositionHistory",
     "RoadPlane",
     "antenna_offset",
@@ -36,6 +40,7 @@ __all__ = [
     "construct_plane",
     "detection_failures",
     "fit_plane",
+    "plane_uncertainty",
     "project_to_road",
     "ransac_inliers",
 ]

@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
+
+SigmaModel = Literal["offset", "covariance"]
+SIGMA_MODELS: tuple[SigmaModel, ...] = ("offset", "covariance")
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,20 @@ class PlaneConfig:
     """Floor of the factor's sigma. The paper takes Sigma_PC from the fitting residual (Sec. 4.5);
     an exact fit (e.g. 3 points) would otherwise give a near-zero sigma and an infinitely stiff
     factor."""
+
+    sigma_model: SigmaModel = "offset"
+    """How the per-vehicle step sets the plane factor's sigma (docs/planes.md):
+    "offset": hypot(fit residual floored at min_sigma_m, the offset's sigma at the centroid from the
+    points' vertical sigmas averaged over distinct vehicles), the same wherever the vehicle is;
+    "covariance": the fitted plane's first-order covariance (offset and the normal's two tilts,
+    from the fit scatter and the points' own sigmas, correlated per vehicle) propagated to the
+    vehicle's position, plus the floored residual (`coplane.plane.uncertainty`)."""
+
+    point_error_correlation_s: float = math.inf
+    """"covariance" model: correlation time of one vehicle's position errors, exp(-|dt| / this)
+    between two of its points. Infinite (the default) treats all of a vehicle's points near the
+    query as one error, as "offset" does; a finite value lets a vehicle's pass minutes earlier
+    count as independent."""
 
     max_history_s: float = 600.0
     """Positions older than this (relative to the fitting epoch) are ignored and pruned: eq. (2)
@@ -87,6 +105,14 @@ class PlaneConfig:
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"PlaneConfig.{name} must be a positive finite number, got {value!r}")
+        if self.sigma_model not in SIGMA_MODELS:
+            raise ValueError(
+                f"PlaneConfig.sigma_model must be one of {SIGMA_MODELS}, got {self.sigma_model!r}"
+            )
+        if not (self.point_error_correlation_s > 0.0):  # inf allowed, NaN rejected
+            raise ValueError(
+                f"PlaneConfig.point_error_correlation_s must be > 0, got {self.point_error_correlation_s!r}"
+            )
         if self.n_min < 3:
             raise ValueError(f"PlaneConfig.n_min must be >= 3 (a plane needs 3 points), got {self.n_min}")
         if self.n_max < self.n_min:

@@ -15,15 +15,17 @@ paper does not have (both configurable, see PlaneConfig and docs/planes.md):
 With `fault_exclusion=False` (the paper's 'no FE' ablation) none of these run: the plane of all
 points is AVAILABLE whenever it is geometrically defined (>= 3 points, not collinear).
 
-The factor's sigma is the RMS of the used points' distances to their plane, floored at
-min_sigma_m: the paper sets Sigma_PC "by the size of residual in plane fitting" (Sec. 4.5).
+`RoadPlane.sigma_m` is the RMS of the used points' distances to their plane, floored at
+min_sigma_m: the paper sets Sigma_PC "by the size of residual in plane fitting" (Sec. 4.5). The
+factor's sigma adds the plane's own uncertainty: `offset_sigma_m` below, or the full covariance
+at the vehicle (`plane.uncertainty`, chosen by `PlaneConfig.sigma_model`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -92,6 +94,8 @@ class RoadPlane:
     points_excluded: Vec  # (excluded, 3)
     tilt_deg: float  # normal vs local up
     conditioning: float  # s2 / s3 of the final fit (inf on an exact plane)
+    used_index: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, dtype=np.intp))
+    """Rows of the input points that are `points_used` (to match per-point records after FE)."""
 
     @property
     def available(self) -> bool:
@@ -218,7 +222,10 @@ def _plane(
     n_initial: int,
     antenna_height_m: float,
     config: PlaneConfig,
+    used_index: NDArray[np.intp],
 ) -> RoadPlane:
+    used_index = np.array(used_index, dtype=np.intp, copy=True)
+    used_index.flags.writeable = False
     if isinstance(fit, PlaneFit):
         res = fit.distances(used)
         rms = float(np.sqrt(np.mean(res**2)))
@@ -240,6 +247,7 @@ def _plane(
             points_excluded=_frozen(excluded, excluded.shape),
             tilt_deg=fit.tilt_deg,
             conditioning=fit.conditioning,
+            used_index=used_index,
         )
     return RoadPlane(
         status=PlaneStatus.UNAVAILABLE,
@@ -259,6 +267,7 @@ def _plane(
         points_excluded=_frozen(excluded, excluded.shape),
         tilt_deg=math.nan,
         conditioning=math.nan,
+        used_index=used_index,
     )
 
 
@@ -281,11 +290,17 @@ def construct_plane(
         raise ValueError(f"antenna height must be finite and >= 0, got {antenna_height_m!r}")
     n0 = pts.shape[0]
     none = _NO_POINTS
+    every = np.arange(n0, dtype=np.intp)
 
     def out(
-        status: PlaneStatus, reason: str | None, fit: PlaneFit | Degenerate | None, used: Vec, excl: Vec
+        status: PlaneStatus,
+        reason: str | None,
+        fit: PlaneFit | Degenerate | None,
+        used: Vec,
+        excl: Vec,
+        used_index: NDArray[np.intp] = every,
     ) -> RoadPlane:
-        return _plane(status, reason, fit, used, excl, n0, antenna_height_m, config)
+        return _plane(status, reason, fit, used, excl, n0, antenna_height_m, config, used_index)
 
     if n0 == 0:
         return out(PlaneStatus.UNAVAILABLE, "no fitting points", None, none, none)
@@ -309,14 +324,15 @@ def construct_plane(
     if used.shape[0] < config.n_min:
         reason = f"too-few-points: {used.shape[0]} < {config.n_min} after FE ({'; '.join(failures)} before)"
         return out(PlaneStatus.UNAVAILABLE, reason, fit0, pts, none)
+    kept = np.flatnonzero(inliers)
     fit1 = fit_plane(used, up_vec)
     if isinstance(fit1, Degenerate):
-        return out(PlaneStatus.UNAVAILABLE, f"{fit1.reason} after FE", fit1, used, excl)
+        return out(PlaneStatus.UNAVAILABLE, f"{fit1.reason} after FE", fit1, used, excl, kept)
     failures = detection_failures(fit1, used, config)
     if failures:
-        return out(PlaneStatus.UNAVAILABLE, f"{'; '.join(failures)} after FE", fit1, used, excl)
+        return out(PlaneStatus.UNAVAILABLE, f"{'; '.join(failures)} after FE", fit1, used, excl, kept)
     note = f"fault exclusion removed {excl.shape[0]} of {n0} points" if excl.shape[0] else None
-    return out(PlaneStatus.AVAILABLE_AFTER_FE, note, fit1, used, excl)
+    return out(PlaneStatus.AVAILABLE_AFTER_FE, note, fit1, used, excl, kept)
 
 
 def offset_sigma_m(sigmas_up_m: ArrayLike, vehicle_ids: Sequence[str]) -> float:

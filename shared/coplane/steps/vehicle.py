@@ -36,6 +36,7 @@ from coplane.methods import MethodSpec
 from coplane.plane.config import PlaneConfig
 from coplane.plane.detect import construct_plane, offset_sigma_m
 from coplane.plane.history import PositionHistory
+from coplane.plane.uncertainty import plane_uncertainty
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
 from coplane.steps.wire import cov9, epoch_time, gps_time, plane_report, stable_seed, tuple3
 from coplane.typing import AnyArray as Vec
@@ -261,7 +262,12 @@ class VehicleStep:
         rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
         only = {self.vehicle_id} if self.method.planes == "self" else None
         sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only)
-        plane = construct_plane(sample.points, self.antenna_height_m, self.plane_config, rng)
+        cfg = self.plane_config
+        plane = construct_plane(sample.points, self.antenna_height_m, cfg, rng)
+        if cfg.sigma_model == "covariance" and plane.available:
+            # the plane's covariance propagated to where this vehicle is (the fitting centre)
+            u = plane_uncertainty(plane, sample.sigmas_up_m, sample.vehicle_ids, sample.times_s, cfg)
+            return plane_report(plane, u.offset_sigma_m, u.sigma_at(centre), u.tilt_sigma_rad)
         return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids))
 
 

@@ -11,10 +11,13 @@ import zlib
 
 import numpy as np
 
+from coplane.estimation.limits import MAX_PLANE_SIGMA_M
 from coplane.gtime import GpsTime
 from coplane.messages import EpochTime, PlaneReport, PlaneSummary
 from coplane.plane.detect import PlaneStatus, RoadPlane
 from coplane.typing import AnyArray
+
+MAX_OFFSET_SIGMA_M = 100.0  # PlaneReport.offset_sigma_m's bound
 
 STATUS_NAME = {
     PlaneStatus.AVAILABLE: "available",
@@ -45,8 +48,18 @@ def stable_seed(*parts: int | str) -> list[int]:
     return [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) & 0xFFFFFFFF for p in parts]
 
 
-def plane_report(p: RoadPlane, offset_sigma: float = 0.0) -> PlaneReport:
-    """The wire form of a plane; the factor's sigma adds the offset uncertainty to the fit residual."""
+def plane_report(
+    p: RoadPlane,
+    offset_sigma: float = 0.0,
+    sigma_m: float | None = None,
+    tilt_sigma_rad: float | None = None,
+) -> PlaneReport:
+    """The wire form of a plane.
+
+    The factor's sigma is `sigma_m` when given (the propagated covariance at the vehicle,
+    `plane.uncertainty`), else the fit residual and `offset_sigma` in quadrature. Sigmas are
+    capped at the wire's bound: a plane that uncertain constrains nothing anyway.
+    """
     if p.status == PlaneStatus.UNAVAILABLE:
         return PlaneReport(
             status="unavailable",
@@ -61,8 +74,11 @@ def plane_report(p: RoadPlane, offset_sigma: float = 0.0) -> PlaneReport:
         normal=tuple3(p.normal),
         d_antenna_m=float(p.d_antenna),
         d_road_m=float(p.d_road),
-        sigma_m=float(math.hypot(p.sigma_m, offset_sigma)),
-        offset_sigma_m=float(offset_sigma),
+        sigma_m=min(
+            float(math.hypot(p.sigma_m, offset_sigma) if sigma_m is None else sigma_m), MAX_PLANE_SIGMA_M
+        ),
+        offset_sigma_m=min(float(offset_sigma), MAX_OFFSET_SIGMA_M),
+        tilt_sigma_rad=None if tilt_sigma_rad is None else min(float(tilt_sigma_rad), math.pi),
         residual_max_m=float(p.residual_max_m),
         residual_rms_m=float(p.residual_rms_m),
         n_points_initial=p.n_points_initial,
