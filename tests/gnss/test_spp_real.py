@@ -194,3 +194,30 @@ def test_spp_reports_no_solution_with_reason(real_data: Path) -> None:
     assert fresh.ok and not fresh.excluded and fresh.used == faulty.used
     assert np.linalg.norm(fresh.position - faulty.position) < 1e-3
     assert fresh.sigmas_m == pytest.approx(faulty.sigmas_m, rel=1e-6)
+
+
+def test_doppler_velocity_survives_a_failed_spp(real_data: Path) -> None:
+    """Canyon-like epoch: five pseudoranges carry NLOS-size biases so SPP's RAIM gives up, while
+    their Doppler is clean. The velocity is still solved, at the previous fix, and agrees with the
+    one from the clean epoch (the antenna is static: both are near zero)."""
+    d = real_data / "matrtklib_nagoya_static_20240624"
+    problems = Problems()
+    nav = read_nav_files([d / "base.nav"], problems)
+    _, rover = read_obs(d / "rover.obs", problems)
+    ep = rover[10]
+    clean = solve_epoch(ep, nav)
+    assert clean.spp.ok and clean.velocity is not None and clean.velocity.ok
+    bad = replace(
+        ep,
+        sats=tuple(
+            replace(s, pseudorange_m=s.pseudorange_m + 40.0 * (i + 1)) if i < 5 else s
+            for i, s in enumerate(ep.sats)
+        ),
+    )
+    strict = EpochSolverOptions(spp=SppOptions(max_exclusions=1))
+    res = solve_epoch(bad, nav, options=strict, initial_position=clean.spp.position)
+    assert not res.spp.ok
+    assert res.velocity is not None and res.velocity.ok
+    assert np.linalg.norm(res.velocity.velocity_mps - clean.velocity.velocity_mps) < 0.05
+    # without a previous fix there is nothing to take the line-of-sight from
+    assert solve_epoch(bad, nav, options=strict).velocity is None

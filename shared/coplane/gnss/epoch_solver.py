@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
 from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, solve_doppler_velocity
 from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
@@ -56,5 +58,14 @@ def solve_epoch(
         corrections_m=corrections.corrections_m if corrections is not None else None,
         initial_position=initial_position,
     )
-    vel = solve_doppler_velocity(prepared, spp.position, opt.doppler) if spp.ok else None
+    # Doppler needs the position only for the line-of-sight vectors: 100 m of error changes them
+    # by 5e-6 rad, about 0.02 m/s of velocity. So when SPP fails (RAIM in a canyon, where several
+    # NLOS pseudoranges are present but their Doppler is often clean or excludable) the velocity
+    # is still solved at the receiver's previous fix instead of being dropped with the position.
+    at = spp.position if spp.ok else initial_position
+    vel = (
+        solve_doppler_velocity(prepared, at, opt.doppler)
+        if at is not None and np.all(np.isfinite(at))
+        else None
+    )
     return EpochResult(prepared, spp, vel, corrections)

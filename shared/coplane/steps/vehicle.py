@@ -227,11 +227,17 @@ class VehicleStep:
             else:
                 dg = None
                 rho = m.pseudorange_m - m.tgd_m - float(iono[i]) - float(tropo[i])
+            iono_i, tropo_i = float(iono[i]), float(tropo[i])
             reason = None
             if m.sat in excluded:
                 reason = "excluded by RAIM"
             elif el < mask:
+                # never used: near the horizon the mapping functions blow up (Saastamoinen gives
+                # ~100 m at 1 deg, ~1 km at 0.1 deg), so no atmospheric model is applied or reported
                 reason = "below elevation mask"
+                iono_i = tropo_i = 0.0
+                if corrections is None:
+                    rho = m.pseudorange_m - m.tgd_m
             elif used is not None and m.sat not in used:
                 reason = "not used by SPP"
             out.append(
@@ -245,8 +251,8 @@ class VehicleStep:
                     sat_pos_ecef_m=tuple3(sat_rx[i]),
                     sat_clock_s=m.state.clock_s,
                     tgd_m=m.tgd_m,
-                    iono_m=float(iono[i]),
-                    tropo_m=float(tropo[i]),
+                    iono_m=iono_i,
+                    tropo_m=tropo_i,
                     dgnss_m=dg,
                     rho_m=rho,
                     sigma_m=float(sigma[i]),
