@@ -98,7 +98,8 @@ def test_non_cp_error_is_consistent_with_the_pseudorange_noise() -> None:
     agree with the reported covariance (NEES ~ 3 for 3-D; measured h 1.24 m, v 1.63 m, NEES 2.3,
     single-epoch SPP h 2.66 m)."""
     fleet = make_fleet(4, 40, seed=1)
-    sols = run(fleet, get_method("non-cp").fgo)
+    # the graph's own marginal: white noise here, so no reporting scale (docs/fgo.md)
+    sols = run(fleet, dataclasses.replace(get_method("non-cp").fgo, covariance_scale=1.0))
     st = error_stats(fleet, sols, skip=5)
     spp_h = []
     nees = []
@@ -117,7 +118,10 @@ def test_non_cp_error_is_consistent_with_the_pseudorange_noise() -> None:
     assert 0.3 < st.v_rmse < 3.0
     assert st.h_rmse < spp_h_rmse
     assert 1.0 < float(np.mean(nees)) < 6.0
-    assert all(est.has_gnss_fix and est.n_pseudoranges == 14 for s in sols for est in s.estimates.values())
+    # the FDE's w-test (1e-3 per test, iterated) may drop a clean satellite now and then
+    n_pr = [est.n_pseudoranges for s in sols for est in s.estimates.values()]
+    assert all(est.has_gnss_fix for s in sols for est in s.estimates.values())
+    assert min(n_pr) >= 12 and sum(14 - n for n in n_pr) <= 0.02 * 14 * len(n_pr)
 
 
 def test_mci_beats_non_cp_horizontally() -> None:
@@ -127,16 +131,19 @@ def test_mci_beats_non_cp_horizontally() -> None:
     assert h_mci < 0.8 * h_non
 
 
-def test_pc_beats_mci_most_in_the_vertical() -> None:
-    """Planes pin the vertical (measured: mci v 5.09 m -> pc v 0.07 m) while the horizontal moves
-    less (mci 4.18 m -> pc 3.65 m; on single seeds it can be slightly worse: the NLOS bias the
-    vertical no longer absorbs goes partly into the horizontal): the gain is mostly vertical."""
-    h_mci, v_mci = pooled(SEEDS, "mci")
-    h_pc, v_pc = pooled(SEEDS, "pc")
+def test_pc_beats_mci_in_the_vertical() -> None:
+    """Exact planes pin the vertical (measured with the methods' defaults: mci v 1.31 m -> pc v 0.02 m)."""
+    _, v_mci = pooled(SEEDS, "mci")
+    _, v_pc = pooled(SEEDS, "pc")
     assert v_pc < 0.1 * v_mci
-    assert math.hypot(h_pc, v_pc) < 0.8 * math.hypot(h_mci, v_mci)
+
+
+def test_pc_does_not_lose_horizontally_to_mci() -> None:
+    """Measured pc h 0.61 m, mci 0.73 m. Without the range warm-up pc was 1.86 m: two vehicles
+    4 m apart started from swapped SPP fixes and the range held them there (docs/fgo.md)."""
+    h_mci, _ = pooled(SEEDS, "mci")
+    h_pc, _ = pooled(SEEDS, "pc")
     assert h_pc < 1.15 * h_mci
-    assert (v_mci - v_pc) > 3 * abs(h_mci - h_pc)
 
 
 def test_pc_without_ranging_still_gains_from_the_fleet_planes() -> None:
@@ -153,16 +160,16 @@ def test_pc_without_ranging_still_gains_from_the_fleet_planes() -> None:
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-@pytest.mark.parametrize(("method", "bound", "growth"), [("non-cp", 40.0, 2.0), ("pc", 12.0, 1.15)])
+@pytest.mark.parametrize(("method", "bound", "growth"), [("non-cp", 40.0, 1.3), ("pc", 12.0, 1.15)])
 def test_full_gnss_outage_longer_than_the_window_stays_bounded(
     solver: Solver, method: str, bound: float, growth: float
 ) -> None:
     """v02 loses all GNSS (pseudoranges, Doppler, SPP) for 10 epochs, twice the window: it is
     carried by the motion fallback (+ planes and ranges for pc). Bound for non-cp: the last
     Doppler velocity held for 10 s while the synthetic speed changes by up to 0.63 m/s^2 gives
-    <= 31 m plus the error before the outage. Measured max 3-D error: non-cp 24.3-24.8 m, pc 6.1 m;
-    reported 3-D sigma before -> at the end of the outage: non-cp 2.3 -> 11.2 m (smoothers),
-    3.0 -> 19.9 m (lm-window: the anchor floor), pc 0.8-0.9 -> 1.1 m (ranges + plane)."""
+    <= 31 m plus the error before the outage. The reported 3-D sigma grows by the motion fallback
+    (0.5 m/s per second horizontally, 0.2 vertically) and shrinks when GNSS returns; measured with
+    the methods' defaults: non-cp 2.2-2.3 -> 3.2-3.3 m (smoothers), pc grows by > 15 %."""
     outage = range(15, 25)
     fleet = make_fleet(4, 32, seed=3, outages={"v02": outage}, **NLOS)
     sols = run(fleet, get_method(method, solver=solver).fgo)
@@ -172,7 +179,8 @@ def test_full_gnss_outage_longer_than_the_window_stays_bounded(
         errs[k] = float(np.linalg.norm(est.position_m - fleet.truth[k]["v02"]))
         sig[k] = math.sqrt(float(np.trace(est.covariance_m2)))
         assert est.has_gnss_fix == (k not in outage)
-        assert est.n_pseudoranges == (0 if k in outage else 14)
+        # outside the outage: 14 minus what the FDE excluded (the vehicle's NLOS satellite)
+        assert est.n_pseudoranges == 0 if k in outage else 12 <= est.n_pseudoranges <= 14
     assert max(errs[k] for k in outage) < bound
     assert max(errs.values()) < bound
     assert sig[outage[-1]] > growth * sig[outage[0] - 1]
@@ -247,8 +255,14 @@ def test_all_solvers_agree_on_a_clean_case() -> None:
     assert rms_diff("isam2-fixed-lag", "batch-fixed-lag") < 0.02
     assert rms_diff("lm-window", "isam2-fixed-lag") < 0.5
     assert rms_diff("lm-window", "batch-fixed-lag") < 0.5
-    hs = [st.h_rmse for st in stats.values()]
-    assert max(hs) < 1.25 * min(hs)
+    hs = {s: st.h_rmse for s, st in stats.items()}
+    # with the methods' tight Doppler links the marginalising smoothers keep more history than the
+    # 5-epoch window (measured h RMSE: lm 0.62 m, iSAM2 0.43 m, batch 0.43 m)
+    assert (
+        hs["isam2-fixed-lag"] < 1.1 * hs["batch-fixed-lag"]
+        and hs["batch-fixed-lag"] < 1.1 * hs["isam2-fixed-lag"]
+    )
+    assert hs["lm-window"] < 1.6 * min(hs.values())
     assert all(st.v_rmse < 0.1 for st in stats.values())
 
 
@@ -266,7 +280,11 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
     slightly different points: measured 2.4e-3 m, covariances 0.13 %."""
     fleet = make_fleet(4, 16, seed=5, group_size=2, group_spacing=3000.0, **NLOS)
     cfg = dataclasses.replace(
-        get_method("pc", solver=solver).fgo, lm_relative_error_tol=1e-12, lm_absolute_error_tol=1e-12
+        get_method("pc", solver=solver).fgo,
+        lm_relative_error_tol=1e-12,
+        lm_absolute_error_tol=1e-12,
+        range_warmup_epochs=0,  # cluster mechanics from the first epoch
+        covariance_scale=1.0,  # tolerances below are for the graph's own marginals
     )
     if solver == "batch-fixed-lag":
         # its marginal priors are relinearised at the slightly different LM points; a Huber kernel
@@ -280,7 +298,9 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
     atol, cov_rtol = {
         "isam2-fixed-lag": (1e-9, 1e-9),
         "lm-window": (1e-3, 1e-3),
-        "batch-fixed-lag": (5e-3, 5e-3),
+        # LM to convergence inside each smoother: the split and joint problems stop at slightly
+        # different points (measured up to 11 mm and 1e-3 m^2)
+        "batch-fixed-lag": (2e-2, 1e-2),
     }[solver]
     for a, b in zip(split, joint, strict=True):
         assert sorted(a.estimates) == sorted(b.estimates)
@@ -312,7 +332,7 @@ def test_clusters_merge_and_split_when_ranges_come_and_go(solver: Solver) -> Non
             d = float(np.linalg.norm(fleet.truth[k]["v01"] - fleet.truth[k]["v03"]))
             extra = (RangeObs("v01", "v03", d + rng.normal(0.0, 0.3), 0.3),)
         epochs.append(dataclasses.replace(e, ranges=e.ranges + extra))
-    cfg = get_method("pc", solver=solver).fgo
+    cfg = dataclasses.replace(get_method("pc", solver=solver).fgo, range_warmup_epochs=0)
     sols = run(fleet, cfg, epochs)
     joint = run(fleet, dataclasses.replace(cfg, split_clusters=False), epochs)  # never rebuilt
     w = cfg.window_epochs
@@ -437,7 +457,10 @@ def test_new_vehicle_determined_through_ranges_and_plane(solver: Solver) -> None
     e0 = fleet.epochs[0]
     gps = tuple(p for p in e0.vehicles["v01"].pseudoranges if p.system == "G")[:2]
     epoch = _first_epoch(fleet, {"v01": {"pseudoranges": gps}})
-    sol = FusionEstimator(get_method("pc", solver=solver).fgo).step(epoch)
+    # ranges from the first epoch (the default warm-up holds short ranges back for 5 epochs)
+    sol = FusionEstimator(
+        dataclasses.replace(get_method("pc", solver=solver).fgo, range_warmup_epochs=0)
+    ).step(epoch)
     assert "v01" in sol.estimates
     assert not sol.estimates["v01"].has_gnss_fix
     assert sol.estimates["v01"].n_ranges == 3
@@ -474,7 +497,7 @@ def test_receiver_clock_jump_restarts_the_clock(solver: Solver) -> None:
     fleet = make_fleet(3, 16, seed=14, clock_jumps={"v01": 8})
     sols = run(fleet, get_method("pc", solver=solver).fgo)
     assert sols[8].rejected == {"clock_link": 2}  # GPS and BeiDou clocks of v01
-    assert all(not s.rejected for k, s in enumerate(sols) if k != 8)
+    assert all(not (s.rejected.keys() - {"range_warmup"}) for k, s in enumerate(sols) if k != 8)
     for k, sol in enumerate(sols):
         assert np.linalg.norm(sol.estimates["v01"].position_m - fleet.truth[k]["v01"]) < 10.0
     jump = sols[8].estimates["v01"].clocks_s["G"] - sols[7].estimates["v01"].clocks_s["G"]
@@ -567,10 +590,10 @@ def test_methods_registry() -> None:
     assert get_method("mci").fgo.use_ranging and not get_method("mci").fgo.use_planes
     assert not get_method("pc-no-ir-no-fe").plane_fault_exclusion
     assert get_method("pc-self").planes == "self" and not get_method("pc-self").fgo.use_ranging
-    spec = get_method("pc", solver="isam2-fixed-lag", window_epochs=8)
+    spec = get_method("pc", solver="batch-fixed-lag", window_epochs=8)
     assert isinstance(spec, MethodSpec)
-    assert spec.fgo.solver == "isam2-fixed-lag" and spec.fgo.window_epochs == 8
-    assert METHODS["pc"].fgo.solver == "lm-window"  # the registry is not mutated
+    assert spec.fgo.solver == "batch-fixed-lag" and spec.fgo.window_epochs == 8
+    assert METHODS["pc"].fgo.solver == "isam2-fixed-lag"  # the registry is not mutated
     with pytest.raises(ValueError, match="valid methods: non-cp, mci, pc"):
         get_method("PC-aided")
     with pytest.raises(ValueError, match="unknown solver"):
@@ -664,7 +687,7 @@ def test_innovation_gate_removes_nlos_pseudoranges_before_the_graph() -> None:
     """gate_k: pseudoranges far from the predicted position are dropped (counted), which the Huber
     kernel alone cannot fully do; the clean satellites are kept. Off by default (docs/fgo.md)."""
     fleet = make_fleet(4, 40, seed=11, nlos_per_vehicle=2, nlos_bias=(20.0, 40.0))
-    base = get_method("non-cp").fgo
+    base = dataclasses.replace(get_method("non-cp").fgo, fde_k=None)  # the gate alone
     plain = run(fleet, base)
     gated = run(fleet, dataclasses.replace(base, gate_k=3.5))
     e_plain = error_stats(fleet, plain, skip=5)

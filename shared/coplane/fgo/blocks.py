@@ -46,7 +46,9 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         counts["plane"] = 1
     links: list[Link] = []
     if p.link is not None:
-        disp = F.displacement_factor(p.link.prev_key, pk, p.link.displacement, p.link.sigma)
+        disp = F.displacement_factor(
+            p.link.prev_key, pk, p.link.displacement, p.link.sigma, p.init_pos, p.link.sigma_up
+        )
         links.append(Link(p.link.prev_step, p.link.kind, disp))
     for s, cl in sorted(p.clock_links.items()):
         links.append(Link(cl.prev_step, "clock", F.clock_factor(cl.prev_key, cks[s], cl.step_m, cl.sigma_m)))

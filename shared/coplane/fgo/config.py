@@ -43,15 +43,37 @@ class FgoConfig:
     sigma_v: float = 0.6
     # UWB ranging sigma (m) when a RangeObs carries no positive sigma (paper: 0.3 m, UWB datasheet).
     range_sigma: float = 0.3
+    # A vehicle's ranges enter the graph only once it has been tracked for this many epochs since it
+    # started (from its SPP): a range fixes a distance, not a side, so two vehicles a few metres
+    # apart whose SPP fixes are swapped stay swapped (with planes pinning the height they cannot
+    # pass each other without crossing the range's barrier). 0: from the first epoch (the paper).
+    range_warmup_epochs: int = 0
+    # ... only ranges shorter than this (m): a distance well above the SPP error cannot be on the
+    # wrong side, and those ranges help most right at the start.
+    range_warmup_max_m: float = 15.0
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # Every pseudorange sigma (the node's C/N0-elevation model) is multiplied by this: the model
+    # describes white noise, while urban multipath and NLOS are correlated over seconds, which a
+    # window or a marginal prior otherwise counts as independent information (over-confident
+    # covariances, too little weight on the velocity links).
+    pseudorange_sigma_scale: float = 1.0
     # Innovation gate on pseudoranges against the predicted position (previous estimate + Doppler
     # displacement), per constellation after removing the median clock residual: what an EKF's
     # chi-square gate does, here before the graph. None turns it off. Only vehicles with a state in
     # the window are gated, only systems with >= 3 satellites, and never below 4 pseudoranges.
     gate_k: float | None = None
     gate_prediction_sigma_m: float = 3.0
+    # Fault detection and exclusion before the graph (`screen.py`): iterated w-test of the epoch's
+    # pseudoranges against the predicted position with its covariance (the last reported
+    # covariance + the displacement noise, eigenvalues floored at fde_prior_floor_m^2). None: off.
+    fde_k: float | None = None
+    fde_prior_floor_m: float = 2.0
+    # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
+    # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
+    # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).
+    fde_max_sigma_scale: float | None = None
     # Receiver clock: random walk around the Doppler clock drift (m/sqrt(s)); converted to seconds
     # for GTSAM, whose PseudorangeFactor keys the clock in seconds.
     clock_rw_sigma: float = 1.0
@@ -71,7 +93,17 @@ class FgoConfig:
     motion_sigma: float = 2.0
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
+    # The vertical part of those fallbacks (m/s): a road vehicle's vertical speed is grade x speed
+    # and changes slowly, so without Doppler the height must not get the horizontal freedom (a
+    # 2 m/s vertical sigma let the height run away under a deck; 3 m/s is a 15 % grade at 72 km/h).
+    motion_sigma_up: float = 0.5
+    max_vertical_speed: float = 3.0
     min_fix_pseudoranges: int = 4  # has_gnss_fix threshold
+    # The reported 3x3 covariance is the marginal x this factor^2 (the estimator's own use of it,
+    # anchors and the FDE prior, is not scaled). The graph treats urban multipath as white noise
+    # while it is correlated over tens of seconds, so the marginal is over-confident; 1.0 reports
+    # it as it is.
+    covariance_scale: float = 1.0
     compute_covariance: bool = True
     # Solve each connected cluster (vehicles linked by ranges in the window) on its own.
     split_clusters: bool = True
@@ -100,12 +132,16 @@ class FgoConfig:
         positive = {
             "sigma_v": self.sigma_v,
             "range_sigma": self.range_sigma,
+            "range_warmup_max_m": self.range_warmup_max_m,
+            "covariance_scale": self.covariance_scale,
             "clock_rw_sigma": self.clock_rw_sigma,
             "clock_drift_sigma": self.clock_drift_sigma,
             "clock_jump_m": self.clock_jump_m,
             "anchor_sigma": self.anchor_sigma,
             "motion_sigma": self.motion_sigma,
             "max_speed": self.max_speed,
+            "motion_sigma_up": self.motion_sigma_up,
+            "max_vertical_speed": self.max_vertical_speed,
             "lm_relative_error_tol": self.lm_relative_error_tol,
             "lm_absolute_error_tol": self.lm_absolute_error_tol,
             "isam2_relinearize_threshold": self.isam2_relinearize_threshold,
@@ -113,9 +149,17 @@ class FgoConfig:
         }
         if self.robust_k is not None:
             positive["robust_k"] = self.robust_k
+        if self.fde_k is not None:
+            positive["fde_k"] = self.fde_k
+        positive["fde_prior_floor_m"] = self.fde_prior_floor_m
+        positive["pseudorange_sigma_scale"] = self.pseudorange_sigma_scale
+        if self.fde_max_sigma_scale is not None:
+            positive["fde_max_sigma_scale"] = self.fde_max_sigma_scale
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if self.range_warmup_epochs < 0:
+            raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
         if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:
             raise ValueError(
                 "lm_max_iterations and min_fix_pseudoranges must be >= 1, isam2_extra_iterations >= 0"

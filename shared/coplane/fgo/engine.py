@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
-from coplane.estimation.validate import out_of_order_reason, skipped_epoch, validate_epoch
+from coplane.estimation.validate import ValidRange, out_of_order_reason, skipped_epoch, validate_epoch
 from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
 from coplane.fgo.config import FgoConfig
@@ -76,11 +76,14 @@ class FusionEstimator:
                 stats.skipped[vid] = got
             else:
                 preps[vid] = got
-        ranges = valid.ranges_between(preps)
+        for vid in preps:
+            if not st.window.by_vehicle.get(vid):
+                st.track_start[vid] = k  # a new track, from the SPP
+        ranges = self._warm(valid.ranges_between(preps), k, stats)
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
             del preps[vid]
-        ranges = valid.ranges_between(preps)
+        ranges = self._warm(valid.ranges_between(preps), k, stats)
 
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):
@@ -123,6 +126,17 @@ class FusionEstimator:
             n_clusters=n_clusters,
         )
 
+    def _warm(self, ranges: list[ValidRange], k: int, stats: StepStats) -> list[ValidRange]:
+        """Ranges, without the short ones of vehicles tracked for less than `range_warmup_epochs`."""
+        w, short = self.config.range_warmup_epochs, self.config.range_warmup_max_m
+        if w == 0:
+            return ranges
+        start = self._state.track_start
+        keep = [r for r in ranges if r.range_m >= short or (k - start[r.a] >= w and k - start[r.b] >= w)]
+        if len(keep) < len(ranges):
+            stats.reject("range_warmup", len(ranges) - len(keep))
+        return keep
+
     def _estimates(self, rec: StepRecord, t: GpsTime) -> dict[str, VehicleEstimate]:
         """The newest state of every vehicle solved this epoch."""
         st = self._state
@@ -138,7 +152,7 @@ class FusionEstimator:
                 vehicle_id=vid,
                 time=t,
                 position_m=st.position(blk.pos_key),
-                covariance_m2=st.cov.get(blk.pos_key, nan_cov).copy(),
+                covariance_m2=st.cov.get(blk.pos_key, nan_cov) * self.config.covariance_scale**2,
                 clocks_s={s: st.clock(ck) for s, ck in blk.clock_keys.items()},
                 n_pseudoranges=blk.n_pseudoranges,
                 n_ranges=n_ranges.get(vid, 0),

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coplane.estimation.contract import PlaneObs
+from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.typing import Vec
 
@@ -192,12 +193,25 @@ def range_factor(
 
 
 def displacement_factor(
-    prev_key: int, key: int, displacement_m: Vec, sigma_m: float
+    prev_key: int,
+    key: int,
+    displacement_m: Vec,
+    sigma_m: float,
+    at: Vec | None = None,
+    sigma_up_m: float | None = None,
 ) -> gtsam.BetweenFactorPoint3:
-    """Eq. 36 multiplied by dt: (p_t - p_{t-1}) - v dt with sigma_V dt per axis."""
-    return gtsam.BetweenFactorPoint3(
-        prev_key, key, np.asarray(displacement_m, dtype=float), isotropic(3, float(sigma_m))
-    )
+    """Eq. 36 multiplied by dt: (p_t - p_{t-1}) - v dt with sigma_V dt per axis.
+
+    With `sigma_up_m` (the motion fallback) the component along local up at `at` gets that sigma
+    instead: covariance sigma^2 (I - u u^T) + sigma_up^2 u u^T.
+    """
+    d = np.asarray(displacement_m, dtype=float)
+    if sigma_up_m is None or at is None or sigma_up_m == sigma_m:
+        return gtsam.BetweenFactorPoint3(prev_key, key, d, isotropic(3, float(sigma_m)))
+    u = up_vector(np.asarray(at, dtype=float))
+    uu = np.outer(u, u)
+    cov = sigma_m * sigma_m * (np.eye(3) - uu) + sigma_up_m * sigma_up_m * uu
+    return gtsam.BetweenFactorPoint3(prev_key, key, d, gtsam.noiseModel.Gaussian.Covariance(cov))
 
 
 def clock_step_sigma_m(dt_s: float, drift_known: bool, rw_sigma: float, drift_sigma: float) -> float:

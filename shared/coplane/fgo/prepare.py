@@ -10,6 +10,7 @@ left out instead of making the whole cluster singular.
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 from collections import deque
 from dataclasses import dataclass
@@ -20,11 +21,12 @@ from coplane.estimation.contract import PlaneObs
 from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.screen import screen_pseudoranges
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
-from coplane.typing import Vec
+from coplane.typing import Mat, Vec
 
 
 @dataclass
@@ -36,6 +38,7 @@ class MotionLink:
     displacement: Vec
     sigma: float
     kind: str  # "velocity" | "motion"
+    sigma_up: float | None = None  # a tighter vertical sigma (m) for the motion fallback
 
 
 @dataclass
@@ -70,6 +73,8 @@ def prepare_vehicle(
 ) -> Prepared | str:
     """Initial values and links of one vehicle's new state, or why it cannot get one."""
     prs = v.pseudoranges
+    if cfg.pseudorange_sigma_scale != 1.0:
+        prs = dataclasses.replace(prs, sigma=prs.sigma * cfg.pseudorange_sigma_scale)
     plane = v.plane if cfg.use_planes else None
     velocity, spp = v.velocity, v.spp
     hist = state.window.by_vehicle.get(v.vehicle_id)
@@ -92,6 +97,8 @@ def prepare_vehicle(
 
     if hist and cfg.gate_k is not None and len(prs):
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
+    if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
+        prs = screen(prs, init, state.cov.get(hist[-1].pos_key), link.sigma, cfg, stats)
     systems = sorted(set(prs.systems))
     # initial clock per system: median residual at the initial position (robust to NLOS)
     clock_init: dict[str, float] = {}
@@ -145,6 +152,32 @@ def gate(
     return prs.subset(keep)
 
 
+def screen(
+    prs: ValidPseudoranges,
+    predicted: Vec,
+    last_cov: Mat | None,
+    link_sigma: float,
+    cfg: FgoConfig,
+    stats: StepStats,
+) -> ValidPseudoranges:
+    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position."""
+    assert cfg.fde_k is not None
+    p_pred = F.floored_covariance(
+        None if last_cov is None else last_cov + np.eye(3) * link_sigma**2, cfg.fde_prior_floor_m
+    )
+    res = screen_pseudoranges(prs, predicted, p_pred, cfg.fde_k)
+    if res.prediction_rejected:
+        stats.reject("fde_prediction_rejected")
+    n_out = len(prs) - int(res.keep.sum())
+    if n_out:
+        stats.reject("fde_pseudorange", n_out)
+        prs = prs.subset(res.keep)
+    if cfg.fde_max_sigma_scale is not None and res.variance_factor > 1.0:
+        scale = min(float(np.sqrt(res.variance_factor)), cfg.fde_max_sigma_scale)
+        prs = dataclasses.replace(prs, sigma=prs.sigma * scale)
+    return prs
+
+
 def displacement(
     hist: deque[StateBlock], velocity: Vec | None, dt: float, state: GraphState, cfg: FgoConfig
 ) -> MotionLink:
@@ -153,7 +186,8 @@ def displacement(
     Both Doppler velocities known: their mean (exact for constant acceleration); only the new
     one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
     state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
-    zero with sigma max_speed * dt.
+    zero with sigma max_speed * dt; the fallbacks' vertical sigma is bounded by what a road allows
+    (`motion_sigma_up`, `max_vertical_speed`).
     """
     last = hist[-1]
     if velocity is not None:
@@ -164,8 +198,10 @@ def displacement(
         prev = hist[-2]
         v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / (last.time - prev.time)
     if v_last is not None:
-        return MotionLink(last.pos_key, last.step, v_last * dt, cfg.motion_sigma * dt, "motion")
-    return MotionLink(last.pos_key, last.step, np.zeros(3), cfg.max_speed * dt, "motion")
+        sigma, sigma_up = cfg.motion_sigma * dt, cfg.motion_sigma_up * dt
+        return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
+    sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
+    return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))
 
 
 def undetermined(preps: dict[str, Prepared], ranges: list[ValidRange]) -> list[str]:

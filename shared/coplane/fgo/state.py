@@ -31,6 +31,8 @@ class GraphState:
     # Covariance of each state as reported when it was the newest: the source of the anchor.
     cov: dict[int, Mat] = field(default_factory=dict)
     step: int = 0  # index of the epoch being solved
+    # step at which each vehicle's current track started (its state came from its SPP)
+    track_start: dict[str, int] = field(default_factory=dict)
 
     def position(self, key: int) -> Vec:
         return np.array(self.values.atPoint3(key), dtype=float)

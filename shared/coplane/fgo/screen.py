@@ -1,0 +1,110 @@
+"""Fault detection and exclusion of a vehicle epoch's pseudoranges before they enter the graph.
+
+The paper removes NLOS / multipath faults before its factor graph by cooperative integrity
+monitoring (its ref. [28]); a robust kernel alone does not (docs/fgo.md, "Fault detection and
+exclusion"). This is the estimator's own FDE: a prior-aided RAIM on the linearised single-epoch
+problem around the predicted position (last estimate + Doppler / motion displacement):
+
+    unknowns  x = (dp, one clock per system);   prior  dp ~ N(0, P_pred)
+    residual  r_i = rho_i + c dt_s,i - |s_i - p_pred|  ~  -u_i . dp + b_sys(i) + e_i,  e_i ~ N(0, s_i^2)
+
+Weighted least squares gives the post-fit residuals v and their covariance Q_v = R - H Q_x H^T;
+the satellite with the largest standardised residual |w_i| = |v_i| / sqrt(Q_v,ii) above `k` is
+excluded and the test repeated (Baarda's w-test, iterated), while at least `min_keep`
+pseudoranges remain. The prior makes faults detectable even with 4-5 satellites, where
+snapshot RAIM has no redundancy: that is what the EKF baselines' innovation gate does, done here
+jointly over the epoch instead of one satellite at a time. If most of a well-observed epoch
+fails, the prediction is what is wrong (a long outage, a diverged state): nothing is excluded.
+
+Written with numpy because GTSAM has no snapshot RAIM: the graph's own robust machinery
+(M-estimators, GNC) works on the whole window and was measured weaker for this (docs/fgo.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from coplane.estimation.validate import ValidPseudoranges
+from coplane.gnss.constants import C
+from coplane.typing import Mat, Vec
+
+
+@dataclass(frozen=True)
+class ScreenResult:
+    """Which rows survive, and the standardised residuals of the excluded ones (for diagnostics)."""
+
+    keep: np.ndarray  # boolean mask over the input rows
+    excluded_w: tuple[float, ...]
+    prediction_rejected: bool  # most of the epoch failed: the prediction, not the data, is wrong
+    # a-posteriori variance factor of the kept pseudoranges (sum of squared standardised post-fit
+    # residuals over the redundancy), 1.0 when it cannot be estimated
+    variance_factor: float = 1.0
+
+
+def screen_pseudoranges(
+    prs: ValidPseudoranges,
+    predicted: Vec,
+    p_pred: Mat,
+    k: float,
+    *,
+    min_keep: int = 4,
+    divergence_fraction: float = 0.5,
+    divergence_min: int = 6,
+) -> ScreenResult:
+    """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance."""
+    n = len(prs)
+    keep = np.ones(n, dtype=bool)
+    if n == 0:
+        return ScreenResult(keep, (), False)
+    los = prs.sat_pos - predicted
+    dist = np.linalg.norm(los, axis=1)
+    u = los / dist[:, None]
+    resid = prs.rho + C * prs.sat_clock - dist
+    systems = sorted(set(prs.systems))
+    sys_idx = np.array([systems.index(s) for s in prs.systems])
+    n_sys = len(systems)
+    h_full = np.zeros((n, 3 + n_sys))
+    h_full[:, :3] = -u
+    h_full[np.arange(n), 3 + sys_idx] = 1.0
+    var = prs.sigma**2
+    # clocks start from the per-system median residual so that the linear model is centred
+    for j in range(n_sys):
+        resid[sys_idx == j] -= float(np.median(resid[sys_idx == j]))
+    prior_info = np.zeros((3 + n_sys, 3 + n_sys))
+    prior_info[:3, :3] = np.linalg.inv(p_pred)
+    excluded: list[float] = []
+    n_fail_first: int | None = None
+    while int(keep.sum()) > min_keep:
+        idx = np.flatnonzero(keep)
+        h = h_full[idx]
+        w_inv = 1.0 / var[idx]
+        info = prior_info + (h.T * w_inv) @ h
+        # a system whose satellites were all excluded has an unobservable clock: regularise it
+        free = np.flatnonzero(np.diag(info)[3:] == 0.0) + 3
+        info[free, free] = 1.0
+        try:
+            q_x = np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            break
+        x = q_x @ (h.T @ (w_inv * resid[idx]))
+        v = resid[idx] - h @ x
+        q_v = var[idx] - np.einsum("ij,jk,ik->i", h, q_x, h)
+        ok = q_v > 1e-6 * var[idx]  # a system's only satellite has no redundancy: not testable
+        w = np.zeros_like(v)
+        w[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
+        if n_fail_first is None:
+            n_fail_first = int((w > k).sum())
+            if n >= divergence_min and n_fail_first > divergence_fraction * n:
+                return ScreenResult(np.ones(n, dtype=bool), (), True)
+        worst = int(np.argmax(w))
+        if w[worst] <= k:
+            redundancy = float(np.sum(q_v[ok] / var[idx][ok]))
+            if redundancy >= 1.0:
+                factor = float(np.sum(v[ok] ** 2 / var[idx][ok])) / redundancy
+                return ScreenResult(keep, tuple(excluded), False, factor)
+            break
+        keep[idx[worst]] = False
+        excluded.append(float(w[worst]))
+    return ScreenResult(keep, tuple(excluded), False)

@@ -1,0 +1,80 @@
+"""The pieces of the methods' robust defaults (docs/fgo.md, "Robust defaults"), one at a time."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from support.fgo_synthetic import SyntheticFleet, error_stats, make_fleet
+
+from coplane.estimation.contract import FleetSolution
+from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.engine import FusionEstimator
+from coplane.geo import up_vector
+from coplane.methods import get_method
+
+NLOS = {"nlos_per_vehicle": 1, "nlos_bias": (10.0, 30.0)}
+
+
+def run(fleet: SyntheticFleet, cfg: FgoConfig) -> list[FleetSolution]:
+    est = FusionEstimator(cfg)
+    return [est.step(e) for e in fleet.epochs]
+
+
+def test_motion_fallback_bounds_the_vertical_separately() -> None:
+    """Covariance sigma^2 (I - u u^T) + sigma_up^2 u u^T: the vertical gets its own sigma."""
+    at = np.array([-2.17e6, 4.38e6, 4.08e6])
+    f = F.displacement_factor(1, 2, np.zeros(3), 2.0, at, 0.2)
+    cov = np.linalg.inv(f.noiseModel().information())
+    u = up_vector(at)
+    assert math.isclose(float(u @ cov @ u), 0.04, rel_tol=1e-9)
+    e = np.cross(u, [0.0, 0.0, 1.0])
+    e /= np.linalg.norm(e)
+    assert math.isclose(float(e @ cov @ e), 4.0, rel_tol=1e-9)
+
+
+def test_height_does_not_run_away_in_an_outage() -> None:
+    """v02 loses all GNSS for 10 epochs: its height is carried by the 0.2 m/s vertical fallback."""
+    outage = range(15, 25)
+    fleet = make_fleet(4, 32, seed=3, outages={"v02": outage}, **NLOS)
+    for name, bound in (("non-cp", 3.0), ("mci", 3.0)):
+        sols = run(fleet, get_method(name).fgo)
+        up = [
+            abs(float((fleet.enu @ (s.estimates["v02"].position_m - fleet.truth[k]["v02"]))[2]))
+            for k, s in enumerate(sols)
+            if k in outage
+        ]
+        assert max(up) < bound, (name, max(up))
+
+
+def test_short_ranges_wait_for_both_tracks_to_settle() -> None:
+    """Two vehicles a few metres apart whose SPP fixes are swapped stay swapped once a range holds
+    them (planes pin the height, so they cannot pass each other). Measured on 4 NLOS seeds with the
+    defaults: pc h 1.86 m without the warm-up, 0.61 m with it (mci 0.72 m)."""
+    hs: dict[int, list[float]] = {0: [], 5: []}
+    for seed in (0, 1, 2, 3):
+        fleet = make_fleet(4, 40, seed=seed, **NLOS)
+        for w in hs:
+            cfg = dataclasses.replace(get_method("pc").fgo, range_warmup_epochs=w)
+            sols = run(fleet, cfg)
+            st = error_stats(fleet, sols, skip=5)
+            hs[w].append(st.h_rmse)
+            if w:
+                assert sum(s.rejected.get("range_warmup", 0) for s in sols[:5]) > 0
+                assert sum(s.rejected.get("range_warmup", 0) for s in sols[5:]) == 0
+    assert max(hs[5]) < 1.0
+    assert float(np.mean(hs[5])) < 0.6 * float(np.mean(hs[0]))
+
+
+def test_reported_covariance_is_scaled_but_the_estimate_is_not() -> None:
+    fleet = make_fleet(3, 12, seed=7)
+    base = dataclasses.replace(get_method("mci").fgo, covariance_scale=1.0)
+    a = run(fleet, base)
+    b = run(fleet, dataclasses.replace(base, covariance_scale=3.5))
+    for sa, sb in zip(a, b, strict=True):
+        for vid, ea in sa.estimates.items():
+            eb = sb.estimates[vid]
+            assert np.array_equal(ea.position_m, eb.position_m)
+            np.testing.assert_allclose(eb.covariance_m2, 3.5**2 * ea.covariance_m2, rtol=1e-12)

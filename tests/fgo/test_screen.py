@@ -1,0 +1,109 @@
+"""The estimator's fault detection and exclusion before the graph (`coplane.fgo.screen`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coplane.estimation.validate import ValidPseudoranges
+from coplane.fgo.screen import screen_pseudoranges
+from coplane.geo import enu_rotation, geodetic_to_ecef
+from coplane.gnss.constants import C
+
+LAT, LON = np.radians(39.98), np.radians(116.31)
+RX = geodetic_to_ecef(LAT, LON, 50.0)
+CLOCK_M = 1234.5
+
+
+def _epoch(
+    n: int, sigma: float, rng: np.random.Generator, bias: dict[int, float] | None = None
+) -> ValidPseudoranges:
+    """n GPS satellites spread over the sky, pseudoranges with N(0, sigma) noise (+ biases)."""
+    r = enu_rotation(LAT, LON)  # rows: E, N, U in ECEF
+    az = np.linspace(0.0, 2 * np.pi, n, endpoint=False) + 0.3
+    el = np.radians(np.linspace(20.0, 80.0, n))
+    los_enu = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], axis=1)
+    sats = RX + 2.2e7 * (los_enu @ r)
+    rho = np.linalg.norm(sats - RX, axis=1) + CLOCK_M + rng.normal(0.0, sigma, n)
+    for i, b in (bias or {}).items():
+        rho[i] += b
+    return ValidPseudoranges(
+        [f"G{i + 1:02d}" for i in range(n)],
+        ["G"] * n,
+        sats,
+        rho,
+        np.zeros(n),
+        np.full(n, sigma),
+        el,
+        np.full(n, 45.0),
+    )
+
+
+def test_clean_epochs_keep_every_satellite_almost_always() -> None:
+    """The w-test at 3.29 sigma: about 1e-3 false alarms per satellite."""
+    rng = np.random.default_rng(1)
+    n_out = 0
+    for _ in range(200):
+        prs = _epoch(10, 3.0, rng)
+        res = screen_pseudoranges(prs, RX + rng.normal(0, 1.0, 3), np.eye(3) * 4.0, 3.29)
+        n_out += int((~res.keep).sum())
+        assert not res.prediction_rejected
+    assert n_out <= 6  # of 2000 satellite tests
+
+
+def test_one_nlos_bias_is_excluded_and_the_rest_kept() -> None:
+    rng = np.random.default_rng(2)
+    for trial in range(20):
+        prs = _epoch(8, 3.0, rng, {trial % 8: 35.0})
+        res = screen_pseudoranges(prs, RX, np.eye(3) * 4.0, 3.29)
+        assert not res.keep[trial % 8]
+        assert int(res.keep.sum()) >= 6
+
+
+def test_the_prior_makes_a_fault_visible_with_five_satellites() -> None:
+    """Five satellites, four unknowns: snapshot RAIM could detect but not identify; the predicted
+    position with its covariance adds the redundancy."""
+    rng = np.random.default_rng(3)
+    hits = 0
+    for trial in range(20):
+        prs = _epoch(5, 2.0, rng, {trial % 5: 40.0})
+        res = screen_pseudoranges(prs, RX, np.eye(3) * 1.0, 3.29)
+        hits += int(not res.keep[trial % 5])
+        assert int(res.keep.sum()) >= 4
+    assert hits >= 18
+
+
+def test_a_wrong_prediction_excludes_nothing() -> None:
+    """Most satellites fail against a prediction 80 m off with a tight prior: the prediction is
+    what is wrong (a diverged state), so the epoch is kept whole and flagged."""
+    rng = np.random.default_rng(4)
+    prs = _epoch(10, 3.0, rng)
+    res = screen_pseudoranges(prs, RX + np.array([80.0, -40.0, 30.0]), np.eye(3) * 1.0, 3.29)
+    assert res.prediction_rejected and bool(res.keep.all())
+
+
+@pytest.mark.parametrize("n", [4, 5, 6])
+def test_never_below_four(n: int) -> None:
+    rng = np.random.default_rng(5)
+    prs = _epoch(n, 3.0, rng, {i: 50.0 * (i + 1) for i in range(n - 2)})
+    res = screen_pseudoranges(prs, RX, np.eye(3) * 4.0, 3.29)
+    assert int(res.keep.sum()) >= min(n, 4)
+
+
+def test_clock_offsets_per_system_do_not_count_as_faults() -> None:
+    """A large receiver clock (and a different one per system) is absorbed, not tested."""
+    rng = np.random.default_rng(6)
+    prs = _epoch(10, 3.0, rng)
+    prs.rho[5:] += 7e4  # a second "system" with its own clock
+    prs = ValidPseudoranges(
+        prs.sats,
+        ["G"] * 5 + ["C"] * 5,
+        prs.sat_pos,
+        prs.rho,
+        prs.sat_clock / C,
+        prs.sigma,
+        prs.elevation,
+        prs.cn0,
+    )
+    res = screen_pseudoranges(prs, RX, np.eye(3) * 4.0, 3.29)
+    assert bool(res.keep.all())
