@@ -54,7 +54,7 @@ def main() -> None:
         print(rows[-1], flush=True)
     print(
         f"\n## coplane eval on the bundled recording (bench/bench_eval.py, {dt.date.today()}, 2 cores)\n\n"
-        f"4 vehicles x 600 epochs, DGNSS, LM window of 5 epochs, Huber. Loading the recording: "
+        f"4 vehicles x 600 epochs, DGNSS, the methods' defaults (docs/fgo.md). Loading the recording: "
         f"{load_s:.1f} s (once). Wall time per method = every vehicle's SPP, Doppler, plane and node "
         f"message plus the fusion solve, median of {args.repeats} runs, with the default {jobs} jobs and "
         "with `--jobs 1`.\n\n"

@@ -2,7 +2,8 @@
 
     .venv/bin/python bench/real_data_regression.py     # about 2-3 minutes on 2 cores
 
-Prints a Markdown section and writes it to docs/results/real-data.md (for docs/results.md).
+Prints a Markdown section and writes it to docs/results/sections/real-data.md, the section
+bench/make_results.py assembles into docs/results.md.
 Static receivers with a surveyed point are processed kinematically (the estimators are not told the
 antenna is static) and compared with RTKLIB on all epochs and on the epochs RTKLIB solves; the
 moving HK rover has no truth and gets divergence indicators. tests/evaluate/
@@ -30,7 +31,7 @@ from coplane.recording.reader import open_recording
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("COPLANE_REAL_DATA", REPO.parent / "shared" / "data" / "real"))
-OUT = REPO / "docs" / "results" / "real-data.md"
+OUT = REPO / "docs" / "results" / "sections" / "real-data.md"  # a section of docs/results.md
 METHODS = ["non-cp", "pc-self", "non-cp-ekf", "dd-cp", "gamp-cp"]
 # (folder, what it is, DGNSS modes to run: None = the recording's default)
 STATIC: list[tuple[str, str, list[bool | None]]] = [

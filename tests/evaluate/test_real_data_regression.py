@@ -2,7 +2,7 @@
 
 The estimators process the static receivers kinematically (they are not told the antenna stands
 still) and RTKLIB (pyrtklib postpos) runs on the same RINEX in the same mode; bench/
-real_data_regression.py prints the full tables (docs/results/real-data.md). The bounds below are
+real_data_regression.py prints the full tables (docs/results.md, "Real data"). The bounds below are
 issue 12's acceptance where it states one, else the measured value with a margin (said where).
 """
 
