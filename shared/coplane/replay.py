@@ -22,6 +22,7 @@ import numpy as np
 from coplane.errors import ConfigError
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
+from coplane.recording.problems import RecordingError
 from coplane.typing import AnyArray
 
 if TYPE_CHECKING:
@@ -35,9 +36,20 @@ if TYPE_CHECKING:
 DEFAULT_UWB_SIGMA_M = 0.3  # without a [uwb] table in the manifest
 
 
+# A replay longer than this many nominal epochs is refused (a month at 1 Hz): the schedule lists
+# every nominal epoch, so a corrupt span would otherwise exhaust memory.
+MAX_REPLAY_EPOCHS = 31 * 86400
+
+
 def nominal_grid(first: GpsTime, last: GpsTime, interval_s: float) -> Iterator[GpsTime]:
+    """Every nominal epoch from `first` to `last`; refuses spans of more than MAX_REPLAY_EPOCHS."""
     t0 = first.round_to(interval_s)
     n = round((last.round_to(interval_s) - t0) / interval_s)
+    if n > MAX_REPLAY_EPOCHS:
+        raise RecordingError(
+            f"observations span {first} to {last}: {n + 1} epochs of {interval_s} s, more than the "
+            f"{MAX_REPLAY_EPOCHS} a replay allows; check the epoch time tags"
+        )
     for k in range(n + 1):
         yield (t0 + k * interval_s).round_to(interval_s)
 

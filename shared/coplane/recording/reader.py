@@ -18,7 +18,7 @@ from coplane.gtime import GpsTime
 from coplane.recording.csvfiles import read_truth, read_uwb
 from coplane.recording.manifest import load_manifest
 from coplane.recording.model import Manifest, NavData, ObsEpoch, ObsHeader, TruthPoint, UwbRange
-from coplane.recording.problems import Problems
+from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_nav import read_nav_files
 from coplane.recording.rinex_obs import SignalCodes, read_obs
 
@@ -61,8 +61,16 @@ class Recording:
 
     @property
     def nav(self) -> NavData:
+        """The broadcast ephemerides; a recording whose nav files hold none cannot be solved."""
         if self._nav is None:
-            self._nav = read_nav_files(self.manifest.nav_files, self.problems)
+            nav = read_nav_files(self.manifest.nav_files, self.problems)
+            if not nav.ephemerides:
+                files = ", ".join(str(p) for p in self.manifest.nav_files)
+                raise RecordingError(
+                    f"no usable broadcast ephemeris in the navigation file(s) {files} "
+                    f"({self.problems.total} problem(s) reported): nothing can be positioned"
+                )
+            self._nav = nav
         return self._nav
 
     # ---- observations

@@ -48,6 +48,9 @@ PSEUDORANGE_MIN_M = 1.5e7
 PSEUDORANGE_MAX_M = 5.0e7
 SNR_MIN_DBHZ = 0.0
 SNR_MAX_DBHZ = 70.0
+# An epoch more than this after the previous one is held until the next epoch shows whether the
+# recording really paused (it follows) or the tag is corrupt (it does not): a day.
+MAX_EPOCH_JUMP_S = 86400.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -411,6 +414,9 @@ class _Body:
         self.fields = fields
         self.wanted = frozenset(wanted)
         self.last: GpsTime | None = None
+        # an epoch far after the last one, held until the next epoch shows whether it is a real
+        # gap (the next one follows it) or a corrupt time tag (the next one does not)
+        self.pending: tuple[ObsEpoch, int] | None = None
 
     # ---- problems
     def _p(self, kind: str, reason: str, line: int | None = None) -> None:
@@ -460,11 +466,27 @@ class _Body:
         return SatObservation(sat, pr, dop, snr, cp)
 
     # ---- epochs
-    def _emit(self, ep: _EpochLine, sats: list[SatObservation], lineno: int) -> ObsEpoch | None:
+    def _emit(self, ep: _EpochLine, sats: list[SatObservation], lineno: int) -> list[ObsEpoch]:
+        """The epochs this epoch line releases (0-2): a held jump first, then itself.
+
+        Epochs must increase. One more than MAX_EPOCH_JUMP_S after the last is held: if the next
+        epoch follows it, it was a real gap; if not, it is a corrupt time tag (a wrong year, say)
+        and is skipped, so it neither stops every later epoch as "not after" nor stretches the
+        replay over decades.
+        """
         assert ep.time is not None
+        out: list[ObsEpoch] = []
+        if self.pending is not None:
+            held, held_line = self.pending
+            self.pending = None
+            if ep.time - held.time > 0.0:
+                out.append(held)
+                self.last = held.time
+            else:
+                self._jump(held, held_line, f"the next epoch {ep.time} does not follow it")
         if self.last is not None and ep.time <= self.last:
             self._p("non-monotonic-time", f"epoch {ep.time} is not after {self.last}: skipped", lineno)
-            return None
+            return out
         seen: set[str] = set()
         kept: list[SatObservation] = []
         for s in sats:
@@ -473,8 +495,27 @@ class _Body:
                 continue
             seen.add(s.sat)
             kept.append(s)
+        epoch = ObsEpoch(ep.time, tuple(kept), ep.flag, ep.clock)
+        if self.last is not None and ep.time - self.last > MAX_EPOCH_JUMP_S:
+            self.pending = (epoch, lineno)
+            return out
         self.last = ep.time
-        return ObsEpoch(ep.time, tuple(kept), ep.flag, ep.clock)
+        out.append(epoch)
+        return out
+
+    def _jump(self, held: ObsEpoch, lineno: int, why: str) -> None:
+        after = (
+            f"{held.time - self.last:.0f} s after epoch {self.last}" if self.last is not None else "far ahead"
+        )
+        self._p(
+            "epoch-time-jump", f"epoch {held.time} is {after} and {why}: a corrupt time tag, skipped", lineno
+        )
+
+    def _flush(self) -> None:
+        """End of file: a held jump that nothing followed is a corrupt time tag."""
+        if self.pending is not None:
+            self._jump(*self.pending, "nothing follows it")
+            self.pending = None
 
     def _resync(self, is_epoch: Callable[[str], bool]) -> int:
         """Skip lines until the next epoch line (pushed back); returns how many were skipped."""
@@ -531,9 +572,8 @@ class _Body:
                 self._skip_special(ep.n, self._is_epoch3)
                 continue
             sats = self._records3(ep.n)
-            out = self._emit(ep, sats, lineno)
-            if out is not None:
-                yield out
+            yield from self._emit(ep, sats, lineno)
+        self._flush()
 
     def _records3(self, n: int) -> list[SatObservation]:
         """Read `n` satellite records; garbage lines do not count; stop early at an epoch line."""
@@ -596,9 +636,8 @@ class _Body:
                 self._skip_records2(len(sat_ids) * lines_per_sat)
                 continue
             sats = self._records2(sat_ids, lines_per_sat)
-            out = self._emit(ep, sats, lineno)
-            if out is not None:
-                yield out
+            yield from self._emit(ep, sats, lineno)
+        self._flush()
 
     def _sat_list2(self, line: str, n: int) -> list[str] | None:
         ids: list[str] = []
