@@ -190,7 +190,7 @@ class BaseCorrections:
         """Reads the base station's file only when `use_dgnss`."""
         base = recording.manifest.base
         if not use_dgnss or base is None:
-            return cls({}, None, recording.nav)
+            return cls({}, None, NavData())  # no corrections ever: the ephemerides are not needed
         return cls(base_by_epoch(recording), np.asarray(base.position_ecef_m), recording.nav)
 
     def at(self, t: GpsTime) -> DgnssCorrections | None:
