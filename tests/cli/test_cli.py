@@ -80,3 +80,19 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
         "rmse_vs_interruption_u1.png",
         "plane_map.png",
     } <= pngs
+
+
+def test_eval_reports_the_recordings_input_problems(tmp_path: Path) -> None:
+    """UWB rows with NaN, negative or absurd ranges are dropped by the reader and counted in eval's
+    output (they used to vanish silently); the run itself goes on with the valid rows."""
+    from coplane.sim.generate import simulate
+
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=10, seed=5)
+    uwb = rec / "uwb.csv"
+    lines = uwb.read_text().splitlines()
+    week, tow = lines[1].split(",")[:2]
+    bad = [f"{week},{tow},u1,u2,{r}" for r in ("nan", "-3.0", "1e308")]
+    uwb.write_text("\n".join([*lines, *bad]) + "\n")
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "mci", "--out", str(tmp_path / "eval")])
+    assert r.exit_code == 0, r.output
+    assert "3 input problems" in r.output, r.output

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from coplane.cli.options import interruption_rates, method_names, recording_or_default
-from coplane.cli.render import console, print_accuracy
+from coplane.cli.render import console, print_accuracy, print_problems
 
 
 def eval_(
@@ -64,3 +64,4 @@ def eval_(
         f"wrote {out}/accuracy.md, accuracy_by_environment.md (pooled, with p99 and max),"
         f" {len(ev.figures)} figures and solutions/"
     )
+    print_problems(rec.problems.counts)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -44,3 +45,17 @@ def print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
             if vid in per:
                 table.add_row(label, *row(per[vid]))
         console.print(table)
+
+
+def print_problems(counts: Mapping[str, int]) -> None:
+    """One line: how many input problems the reader found, by kind (nothing when there were none).
+
+    Every bad row or epoch is reported where it was found (`--verbose` logs each); this is the
+    count a user must not miss after a run that otherwise looks clean.
+    """
+    total = sum(counts.values())
+    if total:
+        kinds = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))
+        console.print(
+            f"[yellow]{total} input problems[/yellow]: " + ", ".join(f"{k} x{n}" for k, n in kinds if n)
+        )

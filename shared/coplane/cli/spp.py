@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from coplane.cli.render import console, fmt
+from coplane.cli.render import console, fmt, print_problems
 
 COLUMNS = (
     "vehicle",
@@ -62,8 +62,4 @@ def spp(
         )
         console.print(f"wrote {v.pos_path}")
     console.print(table)
-    if report.problems_total:
-        console.print(
-            f"[yellow]{report.problems_total} input problems[/yellow]: "
-            + ", ".join(f"{k} x{n}" for k, n in report.problems.most_common())
-        )
+    print_problems(report.problems)
