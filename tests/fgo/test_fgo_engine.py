@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as hst
-from support.fgo_synthetic import SyntheticFleet, error_stats, make_fleet
+from support.fgo_synthetic import SyntheticFleet, error_stats, make_fleet, run
 
 from coplane.estimation.contract import (
     EpochInput,
@@ -56,13 +56,6 @@ def interrupt_ranges(  # the offline form of interrupt_range, for these tests
         tuple(r for r in ranges if not interrupt_range((r.a, r.b), k, rate, rng_seed, block=block))
         for k, ranges in enumerate(ranges_by_epoch)
     ]
-
-
-def run(
-    fleet: SyntheticFleet, cfg: FgoConfig, epochs: Sequence[EpochInput] | None = None
-) -> list[FleetSolution]:
-    est = FusionEstimator(cfg)
-    return [est.step(e) for e in (fleet.epochs if epochs is None else epochs)]
 
 
 @cache

@@ -6,21 +6,13 @@ import dataclasses
 import math
 
 import numpy as np
-from support.fgo_synthetic import SyntheticFleet, error_stats, make_fleet
+from support.fgo_synthetic import error_stats, make_fleet, run
 
-from coplane.estimation.contract import FleetSolution
 from coplane.fgo import factors as F
-from coplane.fgo.config import FgoConfig
-from coplane.fgo.engine import FusionEstimator
 from coplane.geo import up_vector
 from coplane.methods import get_method
 
 NLOS = {"nlos_per_vehicle": 1, "nlos_bias": (10.0, 30.0)}
-
-
-def run(fleet: SyntheticFleet, cfg: FgoConfig) -> list[FleetSolution]:
-    est = FusionEstimator(cfg)
-    return [est.step(e) for e in fleet.epochs]
 
 
 def test_motion_fallback_bounds_the_vertical_separately() -> None:

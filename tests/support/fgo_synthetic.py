@@ -26,6 +26,7 @@ from coplane.estimation.contract import (
     VehicleEpochInput,
     VelocityObs,
 )
+from coplane.fgo.config import FgoConfig
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
@@ -289,3 +290,13 @@ def error_stats(
     return ErrorStats(
         float(np.sqrt(np.mean(h**2))), float(np.sqrt(np.mean(v**2))), float(h.max()), float(v.max()), len(hs)
     )
+
+
+def run(
+    fleet: SyntheticFleet, cfg: FgoConfig, epochs: Sequence[EpochInput] | None = None
+) -> list[FleetSolution]:
+    """The estimator with `cfg` stepped over the fleet's epochs (or `epochs`), one solution each."""
+    from coplane.fgo.engine import FusionEstimator
+
+    est = FusionEstimator(cfg)
+    return [est.step(e) for e in (fleet.epochs if epochs is None else epochs)]

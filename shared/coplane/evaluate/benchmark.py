@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coplane.evaluate.metrics import PooledStats, accuracy_by_environment
+from coplane.evaluate.metrics import PooledStats, accuracy_by_environment, enu_errors
 from coplane.evaluate.runner import run_method
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.methods import MethodSpec
@@ -74,7 +74,7 @@ class TailEpoch:
 
     recording: str
     vehicle: str
-    seconds: float  # since the vehicle's first solution
+    seconds: float  # since the vehicle's first solved truth epoch
     environment: str
     h_error_m: float
 
@@ -104,20 +104,16 @@ def pooled_by_environment(
             sol[key] = run.positions.get(v.id, {})
             truth[key] = {t: np.asarray(p) for t, p in rec.truth_at(v.id).items()}
             env[key] = rec.environment_at(v.id)
-            first = min(sol[key], default=None)
-            for t, p in sol[key].items():
-                if tail is not None and first is not None and t in truth[key]:
-                    e = enu_rotation(*ecef_to_geodetic(truth[key][t])[:2]) @ (np.asarray(p) - truth[key][t])
-                    if float(np.hypot(e[0], e[1])) > tail_m:
-                        h = float(np.hypot(e[0], e[1]))
-                        tail.append(
-                            TailEpoch(rec.manifest.root.name, v.id, t - first, env[key].get(t, ""), h)
-                        )
-                cov = run.covariances.get(v.id, {}).get(t)
-                if cov is None or t not in truth[key] or not np.all(np.isfinite(cov)):
+            times, errs = enu_errors(sol[key], truth[key])
+            covs = run.covariances.get(v.id, {})
+            for t, e in zip(times, errs, strict=True):
+                h = float(np.hypot(e[0], e[1]))
+                if tail is not None and h > tail_m:
+                    tail.append(TailEpoch(rec.manifest.root.name, v.id, t - times[0], env[key].get(t, ""), h))
+                cov = covs.get(t)
+                if cov is None or not np.all(np.isfinite(cov)):
                     continue
                 r = enu_rotation(*ecef_to_geodetic(truth[key][t])[:2])
-                e = r @ (np.asarray(p) - truth[key][t])
                 c = r @ cov @ r.T
                 h_in.append(float(e[:2] @ np.linalg.solve(c[:2, :2], e[:2])) <= CHI2_95_2DOF)
                 v_in.append(abs(e[2]) <= 1.96 * float(np.sqrt(c[2, 2])))
