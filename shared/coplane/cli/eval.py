@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from coplane.cli.options import interruption_rates, method_names, recording_or_default
-from coplane.cli.render import console, print_accuracy, print_problems
+from coplane.cli.render import STRICT_HELP, check_input, console, print_accuracy, print_problems
 
 
 def eval_(
@@ -37,9 +37,11 @@ def eval_(
             min=1, help="Processes for the vehicle steps (same results for any); default: one per core."
         ),
     ] = None,
+    strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
+    from coplane.recording.health import health_warnings, input_health
     from coplane.recording.reader import open_recording
 
     rates = interruption_rates(interruption)
@@ -65,3 +67,5 @@ def eval_(
         f" {len(ev.figures)} figures and solutions/"
     )
     print_problems(rec.problems.counts)
+    fixes = sum(len(p) for r in ev.runs for p in r.positions.values())
+    check_input(health_warnings(input_health(rec), fixes), strict)

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import typer
 from rich.console import Console
 from rich.table import Table
 
@@ -59,3 +60,19 @@ def print_problems(counts: Mapping[str, int]) -> None:
         console.print(
             f"[yellow]{total} input problems[/yellow]: " + ", ".join(f"{k} x{n}" for k, n in kinds if n)
         )
+
+
+STRICT_HELP = (
+    "Exit with code 3 when nothing was positioned or more than 5 % of the input records had a problem."
+)
+STRICT_EXIT_CODE = 3  # `--strict` and the input failed health_warnings (README, commands)
+
+
+def check_input(warnings: list[str], strict: bool) -> None:
+    """Print each input warning; under `--strict` any warning ends the command with exit code 3
+    (after the outputs were written, so the user can look at them)."""
+    for w in warnings:
+        err_console.print(f"[yellow]warning:[/yellow] {w}")
+    if warnings and strict:
+        err_console.print(f"[red]--strict:[/red] exiting with code {STRICT_EXIT_CODE}")
+        raise typer.Exit(STRICT_EXIT_CODE)

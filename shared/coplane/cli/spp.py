@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from coplane.cli.render import console, fmt, print_problems
+from coplane.cli.render import STRICT_HELP, check_input, console, fmt, print_problems
 
 COLUMNS = (
     "vehicle",
@@ -36,9 +36,11 @@ def spp(
         bool, typer.Option(help="Apply DGNSS corrections from the recording's base station.")
     ] = False,
     fde: Annotated[bool, typer.Option(help="RAIM fault detection and exclusion.")] = True,
+    strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
 ) -> None:
     """Single point positioning of each vehicle; writes .pos and prints availability and accuracy."""
     from coplane.evaluate.spp_run import spp_to_pos
+    from coplane.recording.health import health_warnings
 
     report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=True)
     table = Table(title=f"SPP {'DGNSS' if report.dgnss else 'standalone'}: {report.recording}")
@@ -63,3 +65,4 @@ def spp(
         console.print(f"wrote {v.pos_path}")
     console.print(table)
     print_problems(report.problems)
+    check_input(health_warnings(report.health, sum(v.n_fixes for v in report.vehicles)), strict)

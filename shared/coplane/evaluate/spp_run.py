@@ -20,6 +20,7 @@ from coplane.evaluate.metrics import AccuracyStats, accuracy
 from coplane.evaluate.solution_files import Q_DGPS, Q_SINGLE, PosRecord, write_pos
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, base_corrections, solve_epoch
 from coplane.gtime import GpsTime
+from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import Recording, open_recording
 
 log = logging.getLogger(__name__)
@@ -107,6 +108,7 @@ class SppReport:
     dgnss: bool
     vehicles: list[VehicleSppSummary]
     problems: Counter[str]  # input problems found while reading, by kind
+    health: InputHealth  # records kept against problems, for --strict
 
     @property
     def problems_total(self) -> int:
@@ -150,4 +152,4 @@ def spp_to_pos(
         truth = rec.truth_at(vid)
         st = accuracy(fixes, {t: np.asarray(p) for t, p in truth.items()}) if truth else None
         summaries.append(VehicleSppSummary(vid, target, run.n_epochs, len(fixes), st, run.no_solution))
-    return SppReport(rec.manifest.name, dgnss, summaries, Counter(rec.problems.counts))
+    return SppReport(rec.manifest.name, dgnss, summaries, Counter(rec.problems.counts), input_health(rec))

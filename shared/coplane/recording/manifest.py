@@ -90,6 +90,8 @@ def load_manifest(root: Path) -> Manifest:
             doc = tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise RecordingError(f"{toml_path}: not valid TOML ({exc})") from exc
+    except UnicodeDecodeError as exc:  # tomllib decodes UTF-8 itself and lets this through
+        raise RecordingError(f"{toml_path}: not UTF-8 text (byte {exc.start}): not a manifest") from exc
     except OSError as exc:
         raise RecordingError(f"{toml_path}: cannot read ({exc.strerror or exc})") from exc
     c = _Ctx(root_dir, toml_path)
