@@ -32,6 +32,7 @@ from coplane.recording.reader import open_recording
 from coplane.replay import fleet_id
 
 from .bus_client import Bus, Ingest, ZenohBus
+from .history import open_history
 from .hub import StreamHub
 from .models import GeoJsonFeatureCollection, Problem, StreamEvent
 from .routers import accuracy, dashboard, health, metrics, planes, stream, vehicles
@@ -163,6 +164,8 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         ingest.bind(asyncio.get_running_loop())
+        # the accepted-solutions log: loaded before subscribing (an injected bus means a test: none)
+        history = open_history(settings, state) if bus is None else None
         the_bus.start(ingest)
         log.info(
             "api started", extra={"fleet": fleet, "vehicles": len(state.vehicles), "truth": len(state.truth)}
@@ -172,6 +175,8 @@ def create_app(
         finally:
             hub.close()
             await asyncio.to_thread(the_bus.close)
+            if history is not None:
+                history.close()
             log.info("api stopped", extra={"solutions": state.solutions})
 
     app = FastAPI(

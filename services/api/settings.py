@@ -58,6 +58,11 @@ class ApiSettings(ServiceSettings):
         default=10_000, ge=10, description="Bus payloads waiting to be decoded before new ones are dropped"
     )
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
+    db: str = Field(
+        default="auto",
+        description="Accepted solutions log (SQLite), loaded on start: auto = <state dir>/api-<fleet>-<router>.sqlite,"
+        " none = off, or a path (docs/reliability/durability.md)",
+    )
     access_log: bool = False
     log_level: str = "INFO"
 

@@ -31,6 +31,7 @@ from coplane.recording.manifest import load_manifest
 from coplane.replay import replay_setup
 from coplane.steps import epoch_time, gps_time
 
+from .durability import Durability
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
@@ -66,6 +67,7 @@ class FusionServer:
         self.last_solve_s: float | None = None
         self.started = time.monotonic()
         self.waiting_since: float | None = None
+        self.durable = Durability.for_server(self)  # the solution log (opened by run)
 
     def node(self) -> BusNode:
         """The server's place on the bus: every vehicle's node key and the agents' tokens in,
@@ -80,7 +82,7 @@ class FusionServer:
                 Publication(self.keys.diagnostics, must_deliver=True),
             ],
             subscribe=[
-                Subscription(self.keys.all_nodes),
+                Subscription(self.keys.all_nodes, history=True),  # agents' caches, after a restart
                 Subscription(self.keys.all_alive("agent"), liveliness=True),
             ],
         )
@@ -213,6 +215,7 @@ class FusionServer:
                 "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
             )
             last_diag = 0.0
+            self.durable.start(self, node, self.keys.solution)  # the solution log; resume after a crash
             try:
                 while not self.stop.is_set():
                     if (event := node.get(timeout=0.02)) is not None:
@@ -221,7 +224,7 @@ class FusionServer:
                     while (t := self.ready_epoch(now)) is not None:
                         sol = self.solve(t)
                         if sol is not None:
-                            node.put(self.keys.solution, encode(sol))
+                            self.durable.publish(self, node, self.keys.solution, sol)  # committed first
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.keys.diagnostics, encode(self.diagnostics()))
                         last_diag = now
@@ -230,3 +233,4 @@ class FusionServer:
                     self.handle(event)
                 node.put(self.keys.diagnostics, encode(self.diagnostics()))
                 log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
+                self.durable.close()

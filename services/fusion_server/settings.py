@@ -33,4 +33,12 @@ class FusionSettings(ServiceSettings):
     seed: int = 0
     lease_ms: int = Field(default=2000, ge=500)
     diagnostics_period_s: float = Field(default=1.0, gt=0.0)
+    db: str = Field(
+        default="auto",
+        description="Solution log (SQLite): auto = <state dir>/fusion-<fleet>-<method>-<router>.sqlite,"
+        " none = off, or a path (docs/reliability/durability.md)",
+    )
+    resume_max_age_s: float = Field(
+        default=300.0, ge=0.0, description="Resume from the log only if the crashed server wrote it lately"
+    )
     log_level: str = "INFO"

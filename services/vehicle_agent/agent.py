@@ -64,7 +64,8 @@ class VehicleAgent:
         return BusNode(
             session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
             token=self.keys.alive("agent", vid),
-            publish=[Publication(self.keys.node(vid), must_deliver=True)],
+            # history: a restarted fusion server still receives the last 120 (docs/reliability/durability.md)
+            publish=[Publication(self.keys.node(vid), must_deliver=True, history=120)],
             subscribe=[Subscription(self.keys.solution)],
         )
 

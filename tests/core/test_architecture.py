@@ -40,6 +40,7 @@ LAYERS: dict[str, int] = {
     "evaluate": 11,
     # shells
     "runtime": 12,
+    "store": 12,  # the solution log (SQLite) the services and the fleet collector keep
     "bus": 13,
     "fleet": 14,
     "vehicle_agent": 15,

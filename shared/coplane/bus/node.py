@@ -24,6 +24,7 @@ from types import TracebackType
 from typing import Any
 
 import zenoh
+import zenoh.ext as zx
 
 from coplane.bus.codec import payload_bytes
 
@@ -33,19 +34,25 @@ log = logging.getLogger("coplane.bus")
 @dataclass(frozen=True)
 class Publication:
     """A key this node puts on. `must_deliver`: reliable with congestion BLOCK (node messages,
-    solutions); otherwise Zenoh's defaults, where the latest value wins (diagnostics)."""
+    solutions); otherwise Zenoh's defaults, where the latest value wins (diagnostics).
+    `history`: keep the last N samples in a cache (a Zenoh advanced publisher) that a subscriber
+    with `history=True` receives when it starts late, e.g. a restarted fusion server."""
 
     key: str
     must_deliver: bool = False
+    history: int = 0
 
 
 @dataclass(frozen=True)
 class Subscription:
     """A key expression this node listens to. `liveliness`: follow the liveliness tokens under it
-    instead of samples, starting with the tokens already alive (history)."""
+    instead of samples, starting with the tokens already alive (history). `history`: first
+    receive what the matching publishers with a cache still hold, also from publishers that
+    appear later (a Zenoh advanced subscriber); plain publishers are heard as usual."""
 
     key: str
     liveliness: bool = False
+    history: bool = False
 
 
 @dataclass(frozen=True)
@@ -102,6 +109,9 @@ class BusNode:
     def open(self) -> BusNode:
         """Open the session and declare everything (blocks until a router is up if the config
         says to wait for one)."""
+        if any(p.history for p in self._publish):
+            # a publication cache needs timestamped samples (shared/notes.md, "Late joiners")
+            self._config.insert_json5("timestamping/enabled", "true")
         session = zenoh.open(self._config)
         self._session = session
         try:
@@ -119,10 +129,27 @@ class BusNode:
                     "congestion_control": zenoh.CongestionControl.BLOCK,
                     "reliability": zenoh.Reliability.RELIABLE,
                 }
-            self._publishers[p.key] = session.declare_publisher(p.key, **qos)
+            if p.history:
+                self._publishers[p.key] = zx.declare_advanced_publisher(
+                    session,
+                    p.key,
+                    cache=zx.CacheConfig(max_samples=p.history),
+                    publisher_detection=True,  # so history subscribers find it when it starts late
+                    **qos,
+                )
+            else:
+                self._publishers[p.key] = session.declare_publisher(p.key, **qos)
         for s in self._subscribe:
+            sub: Any
             if s.liveliness:
                 sub = session.liveliness().declare_subscriber(s.key, self._on_presence, history=True)
+            elif s.history:
+                sub = zx.declare_advanced_subscriber(
+                    session,
+                    s.key,
+                    self._on_sample,
+                    history=zx.HistoryConfig(detect_late_publishers=True),
+                )
             else:
                 sub = session.declare_subscriber(s.key, self._on_sample)
             self._subscribers.append(sub)

@@ -6,8 +6,9 @@ message, so the estimator can be fed from the bus, from `coplane eval` or from a
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from coplane.gtime import GpsTime
 from coplane.plane.fit import constraint_error
@@ -125,3 +126,38 @@ class Estimator(Protocol):
     """
 
     def step(self, epoch: EpochInput) -> FleetSolution: ...
+
+
+@dataclass(frozen=True)
+class VehicleSeed:
+    """A vehicle's last solved state from before a restart (the fusion server's solution log).
+
+    An estimator that can resume takes it as the prior of the vehicle's next state, predicted to
+    that epoch and with its covariance grown by the elapsed time; a seed older than the estimator
+    cares about is ignored.
+    """
+
+    vehicle_id: str
+    time: GpsTime
+    position_m: Vec
+    covariance_m2: Vec | None = None  # 3x3 ECEF, None when it was not computed
+    clocks_s: dict[str, float] = field(default_factory=dict)
+
+
+@runtime_checkable
+class SeedableEstimator(Estimator, Protocol):
+    """An estimator that can resume vehicles from `VehicleSeed`s (optional part of the contract)."""
+
+    def seed(self, seed: VehicleSeed) -> None: ...
+
+
+def seed_estimator(estimator: Estimator, seeds: Iterable[VehicleSeed]) -> int:
+    """Hand `seeds` to `estimator` if it can take them; returns how many it was given (0: it
+    cannot, and starts every vehicle afresh as before, which is correct, only less informed)."""
+    if not isinstance(estimator, SeedableEstimator):
+        return 0
+    n = 0
+    for s in seeds:
+        estimator.seed(s)
+        n += 1
+    return n

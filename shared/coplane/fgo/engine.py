@@ -11,15 +11,21 @@ varies): every loop runs in sorted order and GTSAM is deterministic for a fixed 
 Never raises on bad data: invalid measurements are rejected and counted, vehicles that cannot be
 estimated are listed in `FleetSolution.skipped` with the reason, and a GTSAM failure of a cluster is
 retried with stronger priors, then that cluster's epoch is dropped.
+
+Resuming after a restart (`seed`): a vehicle's last solved state from the fusion server's log
+becomes, for its next new track, the initial value and a prior (position predicted by its Doppler
+velocity, covariance grown with the elapsed time and floored like the window's anchors; clocks
+with their random-walk sigma), so the track continues instead of restarting from SPP alone.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
-from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
+from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate, VehicleSeed
 from coplane.estimation.validate import ValidRange, out_of_order_reason, skipped_epoch, validate_epoch
 from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
@@ -27,8 +33,11 @@ from coplane.fgo.config import FgoConfig
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.solve import ClusterSolver
 from coplane.fgo.state import GraphState, StepStats
-from coplane.fgo.window import RangeEdge, StepRecord, Window
+from coplane.fgo.window import RangeEdge, StateBlock, StepRecord, Window
+from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
+
+SEED_MAX_AGE_S = 60.0  # a seed older than this (GPS time) says little about where the vehicle is
 
 
 class FusionEstimator:
@@ -43,6 +52,11 @@ class FusionEstimator:
         self._state = GraphState(Window(self.config.window_epochs))
         self._solver = ClusterSolver(self.config, self._state)
         self._last_time: GpsTime | None = None
+        self._seeds: dict[str, VehicleSeed] = {}
+
+    def seed(self, seed: VehicleSeed) -> None:
+        """Resume `seed.vehicle_id` from its state before a restart (used by its next new track)."""
+        self._seeds[seed.vehicle_id] = seed
 
     @property
     def tracked_vehicles(self) -> list[str]:
@@ -70,15 +84,22 @@ class FusionEstimator:
         stats.rejected.update(valid.rejected)
         stats.skipped.update(valid.skipped)
         preps: dict[str, Prepared] = {}
+        seeded: dict[str, VehicleSeed] = {}
         for vid, v in valid.vehicles.items():
+            if not st.window.by_vehicle.get(vid) and (sd := self._take_seed(vid, t)) is not None:
+                seeded[vid] = sd  # a new track starts at the seed's prediction instead of the SPP
+                v = dataclasses.replace(v, spp=self._predict(sd, v.velocity, t))
             got = prepare_vehicle(v, t, st, cfg, stats)
             if isinstance(got, str):
                 stats.skipped[vid] = got
+                seeded.pop(vid, None)
             else:
                 preps[vid] = got
+                if vid in seeded:
+                    got.rank_self += 3  # the seed's prior determines the position
         for vid in preps:
             if not st.window.by_vehicle.get(vid):
-                st.track_start[vid] = k  # a new track, from the SPP
+                st.track_start[vid] = k  # a new track, from the SPP (or its seed)
         ranges = self._warm(valid.ranges_between(preps), k, stats)
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
@@ -88,6 +109,8 @@ class FusionEstimator:
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):
             blk = build_block(preps[vid], k, t, st.keys, cfg)
+            if vid in seeded:
+                self._add_seed_priors(blk, seeded[vid], preps[vid].velocity, preps[vid].drift, t)
             rec.blocks[vid] = blk
             st.values.insertPoint3(blk.pos_key, blk.init_pos)
             for ck, clock_s in blk.init_clocks.items():
@@ -125,6 +148,43 @@ class FusionEstimator:
             rejected={kind: n for kind, n in sorted(stats.rejected.items()) if n},
             n_clusters=n_clusters,
         )
+
+    def _take_seed(self, vid: str, t: GpsTime) -> VehicleSeed | None:
+        """The vehicle's seed if it is usable at `t` (before `t`, not too old); used at most once."""
+        sd = self._seeds.pop(vid, None)
+        if sd is None or not (sd.time < t) or t - sd.time > SEED_MAX_AGE_S:
+            return None
+        return sd
+
+    @staticmethod
+    def _predict(sd: VehicleSeed, velocity: np.ndarray | None, t: GpsTime) -> np.ndarray:
+        dt = t - sd.time
+        p = np.asarray(sd.position_m, dtype=float)
+        return p + velocity * dt if velocity is not None else p
+
+    def _add_seed_priors(
+        self, blk: StateBlock, sd: VehicleSeed, velocity: np.ndarray | None, drift: float | None, t: GpsTime
+    ) -> None:
+        """Position and clock priors from the seed on the block's own variables (they leave the
+        window with the block). Without a velocity the position may have moved max_speed * dt."""
+        cfg = self.config
+        dt = t - sd.time
+        grow = (cfg.sigma_v if velocity is not None else cfg.max_speed) * dt
+        cov = None if sd.covariance_m2 is None else np.asarray(sd.covariance_m2, dtype=float).reshape(3, 3)
+        cov = F.floored_covariance(None if cov is None else cov + np.eye(3) * grow**2, cfg.anchor_sigma)
+        blk.graph.add(F.position_prior(blk.pos_key, self._predict(sd, velocity, t), cov))
+        n = 1
+        for system, ck in blk.clock_keys.items():
+            if system not in sd.clocks_s or ck not in blk.init_clocks:
+                continue
+            step_m = (drift or 0.0) * dt
+            sigma_m = F.clock_step_sigma_m(dt, drift is not None, cfg.clock_rw_sigma, cfg.clock_drift_sigma)
+            mean_m = C * sd.clocks_s[system] + step_m
+            if abs(C * blk.init_clocks[ck] - mean_m) > max(cfg.clock_jump_m, 5.0 * sigma_m):
+                continue  # the receiver clock jumped while the server was down: no clock prior
+            blk.graph.add(F.clock_prior(ck, mean_m / C, sigma_m / C))
+            n += 1
+        blk.counts["seed"] = blk.counts.get("seed", 0) + n
 
     def _warm(self, ranges: list[ValidRange], k: int, stats: StepStats) -> list[ValidRange]:
         """Ranges, without the short ones of vehicles tracked for less than `range_warmup_epochs`."""

@@ -1,9 +1,18 @@
 """The launcher's own listener: the fleet's solutions and diagnostics, for progress, the accuracy
-table and `--out` (the same `MethodRun` the in-process evaluator fills)."""
+table and `--out` (the same `MethodRun` the in-process evaluator fills).
+
+With `out`, every solution is also appended, as it arrives, to `out/solutions.sqlite` (a
+`coplane.store.SolutionLog`: the wire JSON, committed per solution), so a crash of `coplane fleet`
+loses nothing it already received; the CSV files and summaries are still written at the end from
+the collected run. SQLite rather than CSV rows with fsync: a transaction is either in the file or
+not, so a kill at any instant never leaves a torn last row, and the file is the same format the
+fusion server and the API keep (docs/reliability/durability.md).
+"""
 
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 from types import TracebackType
 
 from coplane.bus import (
@@ -18,6 +27,9 @@ from coplane.bus import (
 )
 from coplane.evaluate.runner import MethodRun, record_solution
 from coplane.messages import DiagnosticsMessage, SolutionMessage
+from coplane.store import SolutionLog
+
+STREAM_FILE = "solutions.sqlite"
 
 
 class Collector:
@@ -26,8 +38,14 @@ class Collector:
     Events are handled on Zenoh's thread (recording a solution is quick); read `run` under `lock`.
     """
 
-    def __init__(self, fleet: str, method: str, connect: str) -> None:
+    def __init__(self, fleet: str, method: str, connect: str, out: Path | None = None) -> None:
         self.keys = KeySpace(fleet)
+        self.stream: SolutionLog | None = None
+        if out is not None:
+            path = out / STREAM_FILE
+            for old in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
+                old.unlink(missing_ok=True)  # a new run, like the CSV files it rewrites
+            self.stream = SolutionLog(path, synchronous="NORMAL")
         self.run = MethodRun(method, 0.0)
         self.lock = threading.Lock()
         self.epochs = 0
@@ -54,6 +72,8 @@ class Collector:
             self.bad += 1
             return
         with self.lock:
+            if self.stream is not None:
+                self.stream.append(sol, payload)  # on disk before it counts as received
             record_solution(self.run, sol, {})
             self.epochs += 1
 
@@ -64,7 +84,13 @@ class Collector:
             self.bad += 1
 
     def close(self) -> None:
-        self.node.close()
+        try:
+            self.node.close()
+        finally:
+            with self.lock:
+                if self.stream is not None:
+                    self.stream.close()
+                    self.stream = None
 
     def __enter__(self) -> Collector:
         return self

@@ -102,7 +102,7 @@ def run_fleet(
     try:
         procs.start(router_spec(port))
         wait_for_port(port)
-        with Collector(fleet_name, o.method, connect) as collector:
+        with Collector(fleet_name, o.method, connect, out=o.out) as collector:
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
             for spec in fleet_services(
                 path,

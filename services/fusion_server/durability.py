@@ -1,0 +1,169 @@
+"""The fusion server's durability: every solution is in its SQLite log before it is published, and a
+server restarted after a crash resumes from that log (docs/reliability/durability.md).
+
+Resume happens only when the previous server of this fleet and method did not stop cleanly (the
+log's `writer` entry is still `open`) and its last solution is recent (`resume_max_age_s`): a clean
+stop (SIGTERM, end of a replay) means the next start is a new run. Resuming continues `seq`, the
+solved-epoch count and the per-vehicle counters, never re-solves an epoch at or before the last
+logged one, seeds each vehicle's estimator state from its last logged solution (estimators that
+cannot take seeds start afresh) and publishes the last logged solution once more, in case the crash
+came between its commit and its publication (consumers drop a repeated epoch). Epochs missed while
+the server was down are solved from the node messages the agents' publication caches replay to its
+history subscription (`coplane.bus.Subscription(history=True)`), as far as those caches reach.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coplane.bus import BusNode, encode
+from coplane.estimation.contract import VehicleSeed, seed_estimator
+from coplane.messages import SolutionMessage
+from coplane.steps import gps_time
+from coplane.store import SolutionLog, StoredSolution, log_path
+
+if TYPE_CHECKING:
+    from .server import FusionServer
+
+log = logging.getLogger("coplane.fusion_server")
+
+
+@dataclass(frozen=True)
+class Resumed:
+    """What a restarted server took over from its log."""
+
+    last: StoredSolution
+    seeds: int  # vehicles whose state the estimator was seeded with
+    age_s: float  # wall seconds since the last solution was committed
+
+
+class Durability:
+    """The server's solution log; `None` path: durability off (every method is then a no-op)."""
+
+    def __init__(self, path: Path | None, fleet: str, method: str, resume_max_age_s: float = 300.0) -> None:
+        self.path = path
+        self.fleet = fleet
+        self.method = method
+        self.resume_max_age_s = resume_max_age_s
+        self.log: SolutionLog | None = None  # opened by `start`, so building a server does no I/O
+        self.resumed: Resumed | None = None
+        self.failed = 0  # appends that failed (their solutions were not published)
+
+    @classmethod
+    def for_server(cls, server: FusionServer) -> Durability:
+        """The log the settings name (`db`: auto, none, or a path), not opened yet."""
+        s = server.s
+        path = log_path(s.db, "fusion", server.fleet, server.spec.name, connect=s.connect)
+        return cls(path, server.fleet, server.spec.name, s.resume_max_age_s)
+
+    def start(self, server: FusionServer, node: BusNode, key: str) -> None:
+        """Open the log, resume from it if the last server crashed, and republish its last solution
+        (called once the bus is up, before the first event is handled)."""
+        if self.path is not None and self.log is None:
+            self.log = SolutionLog(self.path)
+            self.resume(server)
+            self.republish(node, key)
+
+    # -- start ---------------------------------------------------------------------------------
+    def resume(self, server: FusionServer, now: float | None = None) -> Resumed | None:
+        """Take over the previous server's state if it crashed recently; mark the log open."""
+        lg = self.log
+        if lg is None:
+            return None
+        now = time.time() if now is None else now
+        crashed = lg.meta("writer") == "open"
+        last = lg.last(self.fleet, self.method) if crashed else None
+        if last is not None and now - last.appended_unix_s <= self.resume_max_age_s:
+            self.resumed = self._take_over(server, lg, last, now)
+        elif crashed:
+            log.info("solution log not resumed: last solution too old", extra={"log": str(lg.path)})
+        lg.set_meta(writer="open", opened_unix_s=now)
+        return self.resumed
+
+    def _take_over(self, server: FusionServer, lg: SolutionLog, last: StoredSolution, now: float) -> Resumed:
+        sol = last.solution
+        server.step.seq = sol.seq + 1
+        server.solved_up_to = gps_time(sol.epoch)
+        snap: dict[str, Any] = lg.meta("server", {}) or {}
+        server.epochs_solved = int(snap.get("epochs_solved", 0))
+        server.node_payloads = int(snap.get("node_payloads", 0))
+        server.last_solve_s = snap.get("last_solve_s")
+        for vid, counts in (snap.get("counters") or {}).items():
+            if vid in server.counters:
+                server.counters[vid] = Counter({k: int(n) for k, n in counts.items()})
+        server.rejected_by_reason = Counter({k: int(n) for k, n in (snap.get("rejected") or {}).items()})
+        gen = getattr(sol, "generation", None)
+        if gen is not None and hasattr(server, "generation"):
+            server.generation = gen  # a resumed server is the same generation, not a new one
+        seeds = []
+        for vid, row in lg.last_per_vehicle(self.fleet, self.method).items():
+            vs = next(v for v in row.solution.vehicles if v.vehicle_id == vid)
+            cov = None if vs.covariance_m2 is None else np.array(vs.covariance_m2, dtype=float).reshape(3, 3)
+            seeds.append(
+                VehicleSeed(
+                    vid, gps_time(row.solution.epoch), np.array(vs.position_ecef_m), cov, dict(vs.clocks_s)
+                )
+            )
+        n = seed_estimator(server.step.estimator, seeds)
+        r = Resumed(last, n, now - last.appended_unix_s)
+        log.info(
+            "resumed from the solution log",
+            extra={"log": str(lg.path), "seq": sol.seq, "epochs_solved": server.epochs_solved, "seeded": n},
+        )
+        return r
+
+    def republish(self, node: BusNode, key: str) -> None:
+        """After a resume, publish the last logged solution again (its first publication may have
+        been lost with the crash)."""
+        if self.resumed is not None:
+            node.put(key, encode(self.resumed.last.solution))
+
+    # -- each solution -------------------------------------------------------------------------
+    def commit(self, server: FusionServer, sol: SolutionMessage) -> bytes | None:
+        """The payload to publish, once the solution and the server's counters are committed; None
+        if the log failed (the solution is then not published: nothing goes out that is not on disk)."""
+        payload = encode(sol)
+        if self.log is None:
+            return payload
+        snap = {
+            "epochs_solved": server.epochs_solved,
+            "node_payloads": server.node_payloads,
+            "last_solve_s": server.last_solve_s,
+            "counters": {v: dict(c) for v, c in server.counters.items()},
+            "rejected": dict(server.rejected_by_reason),
+        }
+        try:
+            self.log.append(sol, payload, meta={"server": snap})
+        except Exception:
+            self.failed += 1
+            log.exception("solution log append failed; solution not published", extra={"seq": sol.seq})
+            return None
+        return payload
+
+    def publish(self, server: FusionServer, node: BusNode, key: str, sol: SolutionMessage) -> None:
+        """Commit, then publish (the server's one way to put a solution)."""
+        payload = self.commit(server, sol)
+        if payload is not None:
+            node.put(key, payload)
+
+    # -- stop ----------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Close the log. Called from the server's `finally`: a clean stop marks the log closed (the
+        next server of this fleet starts a new run); an exception on its way out leaves it open, so
+        a restart resumes as after a crash."""
+        lg, self.log = self.log, None
+        if lg is None:
+            return
+        try:
+            if sys.exc_info()[0] is None:
+                lg.set_meta(writer="closed", closed_unix_s=time.time())
+        finally:
+            lg.close()

@@ -1,0 +1,36 @@
+"""Where the services keep their logs when the operator does not say: one file per fleet, service
+and router, under the state directory (`$COPLANE_STATE_DIR`, else `$XDG_STATE_HOME/coplane`, else
+`~/.local/state/coplane`), never inside the working tree."""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+DISABLED = ("", "none", "off")
+
+
+def default_state_dir() -> Path:
+    env = os.environ.get("COPLANE_STATE_DIR")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_STATE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "coplane"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.-]+", "-", text).strip("-")[:80] or "x"
+
+
+def log_path(setting: str | None, *parts: str, connect: Sequence[str] = ()) -> Path | None:
+    """The log file a `db` setting names: None when disabled (`none`, `off` or empty), the path as
+    given, or for `auto` `<state dir>/<parts>-<router>.sqlite`. The router endpoint is part of the
+    default name so fleets on different routers (tests on free ports) never share a file."""
+    if setting is None or setting.strip().lower() in DISABLED:
+        return None
+    if setting != "auto":
+        return Path(setting).expanduser()
+    name = "-".join(_slug(p) for p in (*parts, *(connect[:1] or ["local"])))
+    return default_state_dir() / f"{name}.sqlite"
