@@ -5,11 +5,11 @@ a central finite difference of the geometric range with an Earth-rotation (Sagna
 moving satellite and a moving receiver, plus the receiver drift, minus the satellite clock drift,
 converted to a RINEX Doppler (positive when approaching) with the system's wavelength.
 
-The solver follows RTKLIB's `resdop`, whose Sagnac range-rate term has the opposite sign of the
-time derivative of the Sagnac range term in `coplane.gnss.geometry.sagnac_ranges` (and of the
-simulator's `coplane.sim.sky.range_rate`); see RTKLIB issue #764. The exact-recovery tests use the
-solver's own convention (`SOLVER_SAGNAC`); `test_sagnac_rate_is_derivative_of_sagnac_range` pins
-the discrepancy (a bias of about 1 cm/s) as a strict xfail, so a fix shows up.
+The solver's Sagnac range-rate term is the time derivative of the Sagnac range term in
+`coplane.gnss.geometry.sagnac_ranges` (and of the simulator's `coplane.sim.sky.range_rate`). RTKLIB's
+`resdop` has the opposite sign (RTKLIB issue #764), which biased velocities by about 1 cm/s;
+`test_sagnac_rate_is_derivative_of_sagnac_range` pins the physical sign, and the RTKLIB sign must
+now miss by about that much (`test_rtklib_sign_is_about_a_cm_per_s_off`).
 """
 
 from __future__ import annotations
@@ -34,9 +34,10 @@ V_RX = np.array([12.0, -7.5, 3.25])  # m/s, ECEF
 DRIFT = 123.4  # receiver clock drift, m/s
 SAT_RADIUS = 2.66e7
 # sign of the Sagnac term whose time derivative is the Sagnac range rate: +1 is the derivative of
-# geometry.sagnac_ranges (physical), -1 what solve_doppler_velocity models (RTKLIB resdop)
+# geometry.sagnac_ranges (physical, what solve_doppler_velocity models), -1 RTKLIB resdop's sign
 PHYSICAL_SAGNAC = 1.0
-SOLVER_SAGNAC = -1.0
+RTKLIB_SAGNAC = -1.0
+SOLVER_SAGNAC = PHYSICAL_SAGNAC
 
 # (sat, azimuth deg, elevation deg): a spread of GPS and BeiDou satellites above the 10 deg mask
 SKY = [
@@ -141,15 +142,16 @@ def test_physical_doppler_within_a_few_cm_per_s() -> None:
     assert res.drift_mps == pytest.approx(DRIFT, abs=0.03)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="solver's Sagnac rate has RTKLIB resdop's sign, opposite to d/dt of geometry.sagnac_ranges "
-    "(RTKLIB issue #764); not changed during the behaviour-preserving restructuring",
-)
 def test_sagnac_rate_is_derivative_of_sagnac_range() -> None:
     """The solver's Sagnac range-rate term is the time derivative of the Sagnac range term (exact recovery)."""
     res = solve_doppler_velocity(_epoch(sagnac=PHYSICAL_SAGNAC), RX)
     np.testing.assert_allclose(res.velocity_mps, V_RX, atol=1e-5)
+
+
+def test_rtklib_sign_is_about_a_cm_per_s_off() -> None:
+    """Doppler made with RTKLIB resdop's Sagnac sign is off by the size of the term: it is not noise."""
+    res = solve_doppler_velocity(_epoch(sagnac=RTKLIB_SAGNAC), RX)
+    assert 0.002 < float(np.linalg.norm(res.velocity_mps - V_RX)) < 0.05
 
 
 def test_range_rate_sign_is_rinex() -> None:

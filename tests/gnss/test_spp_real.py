@@ -18,11 +18,13 @@ import pytest
 from support import rtklib_ref as ref
 
 from coplane.evaluate.metrics import accuracy
+from coplane.evaluate.spp_run import run_spp
 from coplane.gnss.epoch_solver import EpochSolverOptions, base_corrections, solve_epoch
 from coplane.gnss.measurements import prepare_epoch
 from coplane.gnss.spp import SppOptions, solve_spp
 from coplane.gtime import GpsTime
 from coplane.recording.problems import Problems
+from coplane.recording.reader import open_recording
 from coplane.recording.rinex_nav import read_nav_files
 from coplane.recording.rinex_obs import read_obs
 
@@ -109,6 +111,22 @@ def test_doppler_velocity_matches_rtklib_on_static_receiver(real_data: Path) -> 
     assert len(speeds) > 250
     assert np.median(speeds) < 0.05  # the antenna does not move
     assert np.median(diffs) < 0.05
+
+
+@pytest.mark.parametrize(
+    "folder", ["matrtklib_nagoya_static_20240624", "urbannav_hk_tst_20200603_static_f9p"]
+)
+def test_static_doppler_velocity_has_no_sagnac_bias(real_data: Path, folder: str) -> None:
+    """On a static antenna the mean Doppler velocity is zero. With RTKLIB resdop's Sagnac-rate sign
+    (RTKLIB issue #764) it was 6-8 mm/s on both receivers; with the physical sign it is about 1 mm/s."""
+    rec = open_recording(real_data / folder)
+    (run,) = run_spp(rec, None, dgnss=False).values()
+    v = np.array(
+        [r.velocity.velocity_mps for r in run.results.values() if r.velocity is not None and r.velocity.ok]
+    )
+    assert len(v) > 250
+    print(f"{folder}: mean velocity {np.round(v.mean(axis=0) * 1000, 1)} mm/s over {len(v)} epochs")
+    assert float(np.linalg.norm(v.mean(axis=0))) < 0.003
 
 
 def test_fde_lowers_max_error_in_urban_canyon(real_data: Path) -> None:

@@ -57,13 +57,15 @@ def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeas
     vs = np.array([m.state.vel for m in use]).reshape(-1, 3)
     rate = np.array([m.range_rate_mps for m in use])
     drift = np.array([m.state.drift_s_per_s for m in use])
-    # Sagnac rate with the receiver velocity part moved into the design matrix (RTKLIB resdop)
-    sag_s = OMEGA_E_GPS / C * (vs[:, 1] * p[0] - vs[:, 0] * p[1])
+    # Sagnac rate: the time derivative of geometry.sagnac_ranges' term w/c (xs yr - ys xr), its
+    # satellite-velocity part here and its receiver-velocity part in the design matrix. RTKLIB's
+    # resdop has the opposite sign (RTKLIB issue #764; GTSAM's DopplerFactor was fixed the same way).
+    sag_s = OMEGA_E_GPS / C * (vs[:, 0] * p[1] - vs[:, 1] * p[0])
     y = rate - (np.einsum("ij,ij->i", vs, e) + sag_s - C * drift)
     a = np.column_stack(
         [
-            -e[:, 0] + OMEGA_E_GPS / C * ps[:, 1],
-            -e[:, 1] - OMEGA_E_GPS / C * ps[:, 0],
+            -e[:, 0] - OMEGA_E_GPS / C * ps[:, 1],
+            -e[:, 1] + OMEGA_E_GPS / C * ps[:, 0],
             -e[:, 2],
             np.ones(len(use)),
         ]
