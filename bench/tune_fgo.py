@@ -38,6 +38,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     },
     "paper-window": {"solver": "lm-window"},  # the paper's LM window + anchors instead of iSAM2
     "no-fde": {"fde_k": None},
+    "fde-keep-on-rejected-prediction": {"fde_snapshot_fallback": False},
     "gate3-no-fde": {"fde_k": None, "gate_k": 3.0},
     "cauchy": {"robust": "cauchy"},
     "sigma-v-0.2": {"sigma_v": 0.2},

@@ -82,6 +82,20 @@ def test_a_wrong_prediction_excludes_nothing() -> None:
     assert res.prediction_rejected and bool(res.keep.all())
 
 
+def test_a_wrong_prediction_falls_back_to_snapshot_raim() -> None:
+    """With `snapshot_fallback` the rejected prediction is dropped, not the test: the epoch's own
+    redundancy still finds an NLOS range, and a clean epoch stays whole."""
+    rng = np.random.default_rng(5)
+    off = RX + np.array([80.0, -40.0, 30.0])
+    for trial in range(10):
+        prs = _epoch(10, 3.0, rng, {trial % 10: 60.0})
+        res = screen_pseudoranges(prs, off, np.eye(3) * 1.0, 3.29, snapshot_fallback=True)
+        assert res.prediction_rejected
+        assert not res.keep[trial % 10] and int(res.keep.sum()) >= 8
+    clean = screen_pseudoranges(_epoch(10, 3.0, rng), off, np.eye(3) * 1.0, 3.29, snapshot_fallback=True)
+    assert clean.prediction_rejected and int(clean.keep.sum()) >= 9
+
+
 @pytest.mark.parametrize("n", [4, 5, 6])
 def test_never_below_four(n: int) -> None:
     rng = np.random.default_rng(5)

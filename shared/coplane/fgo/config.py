@@ -70,6 +70,9 @@ class FgoConfig:
     # covariance + the displacement noise, eigenvalues floored at fde_prior_floor_m^2). None: off.
     fde_k: float | None = None
     fde_prior_floor_m: float = 2.0
+    # When most of an epoch fails against the prediction, the prediction is rejected; then test
+    # the epoch on its own (snapshot RAIM) instead of keeping every pseudorange (screen.py).
+    fde_snapshot_fallback: bool = False
     # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).

@@ -22,6 +22,7 @@ Written with numpy because GTSAM has no snapshot RAIM: the graph's own robust ma
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,8 +53,13 @@ def screen_pseudoranges(
     min_keep: int = 4,
     divergence_fraction: float = 0.5,
     divergence_min: int = 6,
+    snapshot_fallback: bool = False,
 ) -> ScreenResult:
-    """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance."""
+    """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance.
+
+    `snapshot_fallback`: when the prediction is rejected, test the epoch again without the prior
+    (snapshot RAIM: the epoch's own redundancy) instead of keeping every pseudorange; an over-
+    confident prediction in a canyon must not let the NLOS ranges it failed to explain through."""
     n = len(prs)
     keep = np.ones(n, dtype=bool)
     if n == 0:
@@ -97,6 +103,12 @@ def screen_pseudoranges(
         if n_fail_first is None:
             n_fail_first = int((w > k).sum())
             if n >= divergence_min and n_fail_first > divergence_fraction * n:
+                if snapshot_fallback:
+                    # no prior, so no prediction to reject: the w-test runs to its end
+                    snapshot = screen_pseudoranges(
+                        prs, predicted, np.eye(3) * 1e12, k, min_keep=min_keep, divergence_min=n + 1
+                    )
+                    return dataclasses.replace(snapshot, prediction_rejected=True)
                 return ScreenResult(np.ones(n, dtype=bool), (), True)
         worst = int(np.argmax(w))
         if w[worst] <= k:
