@@ -13,16 +13,17 @@ estimated are listed in `FleetSolution.skipped` with the reason, and a GTSAM fai
 retried with stronger priors, then that cluster's epoch is dropped.
 
 Resuming after a restart (`seed`): a vehicle's last solved state from the fusion server's log
-becomes, for its next new track, the initial value and a prior (position predicted by its Doppler
-velocity, covariance grown with the elapsed time and floored like the window's anchors; clocks
-with their random-walk sigma), so the track continues instead of restarting from SPP alone.
+enters the window as that vehicle's newest state (position and covariance as logged, clocks), in
+a step of its own before the next epoch; the vehicle's next state then links to it like to any
+earlier one (motion and clock links, gating and FDE at the prediction), so its track continues
+instead of restarting from SPP alone.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
+import gtsam
 import numpy as np
 
 from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate, VehicleSeed
@@ -30,6 +31,7 @@ from coplane.estimation.validate import ValidRange, out_of_order_reason, skipped
 from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.solve import ClusterSolver
 from coplane.fgo.state import GraphState, StepStats
@@ -38,6 +40,8 @@ from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 
 SEED_MAX_AGE_S = 60.0  # a seed older than this (GPS time) says little about where the vehicle is
+SEED_FLOOR_M = 0.05  # smallest sigma of a seed's position prior (m): never a hard constraint
+SEED_CLOCK_FLOOR_M = 1.0  # smallest sigma of a seed's clock prior (m of range)
 
 
 class FusionEstimator:
@@ -72,6 +76,8 @@ class FusionEstimator:
         reason = out_of_order_reason(epoch, self._last_time)
         if reason is not None:
             return skipped_epoch(epoch, self._last_time, reason, time.perf_counter() - t0)
+        if self._seeds:
+            self._push_seeds(epoch.time)  # takes one step index of its own
         k = st.step
         t = epoch.time
         for blk in st.window.prune(k - cfg.window_epochs + 1):
@@ -84,22 +90,15 @@ class FusionEstimator:
         stats.rejected.update(valid.rejected)
         stats.skipped.update(valid.skipped)
         preps: dict[str, Prepared] = {}
-        seeded: dict[str, VehicleSeed] = {}
         for vid, v in valid.vehicles.items():
-            if not st.window.by_vehicle.get(vid) and (sd := self._take_seed(vid, t)) is not None:
-                seeded[vid] = sd  # a new track starts at the seed's prediction instead of the SPP
-                v = dataclasses.replace(v, spp=self._predict(sd, v.velocity, t))
             got = prepare_vehicle(v, t, st, cfg, stats)
             if isinstance(got, str):
                 stats.skipped[vid] = got
-                seeded.pop(vid, None)
             else:
                 preps[vid] = got
-                if vid in seeded:
-                    got.rank_self += 3  # the seed's prior determines the position
         for vid in preps:
             if not st.window.by_vehicle.get(vid):
-                st.track_start[vid] = k  # a new track, from the SPP (or its seed)
+                st.track_start[vid] = k  # a new track, from the SPP
         ranges = self._warm(valid.ranges_between(preps), k, stats)
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
@@ -109,8 +108,6 @@ class FusionEstimator:
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):
             blk = build_block(preps[vid], k, t, st.keys, cfg)
-            if vid in seeded:
-                self._add_seed_priors(blk, seeded[vid], preps[vid].velocity, preps[vid].drift, t)
             rec.blocks[vid] = blk
             st.values.insertPoint3(blk.pos_key, blk.init_pos)
             for ck, clock_s in blk.init_clocks.items():
@@ -149,42 +146,72 @@ class FusionEstimator:
             n_clusters=n_clusters,
         )
 
-    def _take_seed(self, vid: str, t: GpsTime) -> VehicleSeed | None:
-        """The vehicle's seed if it is usable at `t` (before `t`, not too old); used at most once."""
-        sd = self._seeds.pop(vid, None)
-        if sd is None or not (sd.time < t) or t - sd.time > SEED_MAX_AGE_S:
-            return None
-        return sd
+    def _push_seeds(self, t: GpsTime) -> None:
+        """Put the usable seeds into the window as one step of their own, before epoch `t`.
 
-    @staticmethod
-    def _predict(sd: VehicleSeed, velocity: np.ndarray | None, t: GpsTime) -> np.ndarray:
-        dt = t - sd.time
-        p = np.asarray(sd.position_m, dtype=float)
-        return p + velocity * dt if velocity is not None else p
+        Each seed becomes its vehicle's newest state: its position and clocks as values, its
+        covariance as the state's reported covariance, and priors at those values (position with
+        that covariance, clocks loose). The vehicle's next epoch then links to it like to any
+        earlier state: motion and clock links, gating and FDE at the prediction, anchors.
+        """
+        cfg, st = self.config, self._state
+        seeds = {
+            vid: sd
+            for vid, sd in sorted(self._seeds.items())
+            if sd.time < t and t - sd.time <= SEED_MAX_AGE_S and not st.window.by_vehicle.get(vid)
+        }
+        self._seeds.clear()
+        if not seeds:
+            return
+        k = st.step
+        for blk in st.window.prune(k - cfg.window_epochs + 1):
+            for key in blk.keys:
+                st.values.erase(key)
+            st.cov.pop(blk.pos_key, None)
+        rec = StepRecord(k, max(sd.time for sd in seeds.values()), {}, [])
+        for vid, sd in seeds.items():
+            blk = self._seed_block(sd, k)
+            rec.blocks[vid] = blk
+            st.values.insertPoint3(blk.pos_key, blk.init_pos)
+            for ck, clock_s in blk.init_clocks.items():
+                st.values.insert(ck, c=clock_s)
+            st.track_start[vid] = k
+        st.window.push(rec)
+        st.step += 1
 
-    def _add_seed_priors(
-        self, blk: StateBlock, sd: VehicleSeed, velocity: np.ndarray | None, drift: float | None, t: GpsTime
-    ) -> None:
-        """Position and clock priors from the seed on the block's own variables (they leave the
-        window with the block). Without a velocity the position may have moved max_speed * dt."""
-        cfg = self.config
-        dt = t - sd.time
-        grow = (cfg.sigma_v if velocity is not None else cfg.max_speed) * dt
+    def _seed_block(self, sd: VehicleSeed, k: int) -> StateBlock:
+        cfg, st = self.config, self._state
+        slot = st.keys.slot(sd.vehicle_id)
+        pk = position_key(slot, k)
+        pos = np.asarray(sd.position_m, dtype=float)
         cov = None if sd.covariance_m2 is None else np.asarray(sd.covariance_m2, dtype=float).reshape(3, 3)
-        cov = F.floored_covariance(None if cov is None else cov + np.eye(3) * grow**2, cfg.anchor_sigma)
-        blk.graph.add(F.position_prior(blk.pos_key, self._predict(sd, velocity, t), cov))
-        n = 1
-        for system, ck in blk.clock_keys.items():
-            if system not in sd.clocks_s or ck not in blk.init_clocks:
-                continue
-            step_m = (drift or 0.0) * dt
-            sigma_m = F.clock_step_sigma_m(dt, drift is not None, cfg.clock_rw_sigma, cfg.clock_drift_sigma)
-            mean_m = C * sd.clocks_s[system] + step_m
-            if abs(C * blk.init_clocks[ck] - mean_m) > max(cfg.clock_jump_m, 5.0 * sigma_m):
-                continue  # the receiver clock jumped while the server was down: no clock prior
-            blk.graph.add(F.clock_prior(ck, mean_m / C, sigma_m / C))
-            n += 1
-        blk.counts["seed"] = blk.counts.get("seed", 0) + n
+        cov = F.floored_covariance(cov, SEED_FLOOR_M if cov is not None else cfg.anchor_sigma)
+        st.cov[pk] = cov
+        g = gtsam.NonlinearFactorGraph()
+        g.add(F.position_prior(pk, pos, cov))
+        clocks = {s: c for s, c in sorted(sd.clocks_s.items()) if s in CLOCK_CHR}
+        cks = {s: clock_key(slot, k, s) for s in clocks}
+        # the log has no clock covariance: the position's, which GNSS geometry ties to the clock
+        clock_sigma_m = max(SEED_CLOCK_FLOOR_M, float(np.sqrt(np.trace(cov))))
+        for s, ck in cks.items():
+            g.add(F.clock_prior(ck, clocks[s], clock_sigma_m / C))
+        return StateBlock(
+            vehicle_id=sd.vehicle_id,
+            step=k,
+            time=sd.time,
+            pos_key=pk,
+            clock_keys=cks,
+            init_pos=pos,
+            init_clocks={cks[s]: c for s, c in clocks.items()},
+            graph=g,
+            counts={"seed": 1 + len(cks)},
+            links=[],
+            n_pseudoranges=0,
+            plane_used=False,
+            velocity=None,
+            clock_drift_mps=None,
+            has_fix=False,
+        )
 
     def _warm(self, ranges: list[ValidRange], k: int, stats: StepStats) -> list[ValidRange]:
         """Ranges, without the short ones of vehicles tracked for less than `range_warmup_epochs`."""
