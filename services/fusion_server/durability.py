@@ -62,6 +62,8 @@ class Durability:
         """The log the settings name (`db`: auto, none, or a path), not opened yet."""
         s = server.s
         path = log_path(s.db, "fusion", server.fleet, server.spec.name, connect=s.connect)
+        if path is not None and path.is_file():
+            SolutionLog(path, writer=False).close()  # a corrupt or foreign file fails now, named
         return cls(path, server.fleet, server.spec.name, s.resume_max_age_s)
 
     def start(self, server: FusionServer, node: BusNode, key: str) -> None:

@@ -154,6 +154,5 @@ def test_a_corrupt_log_stops_the_server_naming_the_file(replay: Replay, tmp_path
 
     db = tmp_path / "fusion.sqlite"
     db.write_bytes(b"garbage" * 1000)
-    s = FusionServer(FusionSettings(recording=replay.recording, db=str(db)))
-    with pytest.raises(StoreError, match=r"fusion\.sqlite"):
-        s.durable.start(s, FakeNode(), s.keys.solution)  # type: ignore[arg-type]
+    with pytest.raises(StoreError, match=r"fusion\.sqlite"):  # at once, before the bus is opened
+        FusionServer(FusionSettings(recording=replay.recording, db=str(db)))
