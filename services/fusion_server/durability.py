@@ -5,9 +5,11 @@ Resume happens only when the previous server of this fleet and method did not st
 log's `writer` entry is still `open`) and its last solution is recent (`resume_max_age_s`): a clean
 stop (SIGTERM, end of a replay) means the next start is a new run. Resuming continues `seq`, the
 solved-epoch count and the per-vehicle counters, never re-solves an epoch at or before the last
-logged one, seeds each vehicle's estimator state from its last logged solution (estimators that
-cannot take seeds start afresh) and publishes the last logged solution once more, in case the crash
-came between its commit and its publication (consumers drop a repeated epoch). Epochs missed while
+logged one, and seeds each vehicle's estimator state from its last logged solution (estimators that
+cannot take seeds start afresh). If the crash came between a commit and its publication, lockstep
+agents wait for that solution forever: so when, `REPUBLISH_AFTER_S` after the resume, agents are
+live but no newer epoch has arrived, the last logged solution is published once more (consumers
+drop a repeated epoch). Epochs missed while
 the server was down are solved from the node messages the agents' publication caches replay to its
 history subscription (`coplane.bus.Subscription(history=True)`), as far as those caches reach.
 """
@@ -35,6 +37,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("coplane.fusion_server")
 
+REPUBLISH_AFTER_S = 3.0  # lockstep agents resend every second (agent `resend_s`)
+
 
 @dataclass(frozen=True)
 class Resumed:
@@ -56,6 +60,8 @@ class Durability:
         self.log: SolutionLog | None = None  # opened by `start`, so building a server does no I/O
         self.resumed: Resumed | None = None
         self.failed = 0  # appends that failed (their solutions were not published)
+        self.republished = False
+        self._republish_at: float | None = None
 
     @classmethod
     def for_server(cls, server: FusionServer) -> Durability:
@@ -66,13 +72,13 @@ class Durability:
             SolutionLog(path, writer=False).close()  # a corrupt or foreign file fails now, named
         return cls(path, server.fleet, server.spec.name, s.resume_max_age_s)
 
-    def start(self, server: FusionServer, node: BusNode, key: str) -> None:
-        """Open the log, resume from it if the last server crashed, and republish its last solution
-        (called once the bus is up, before the first event is handled)."""
+    def start(self, server: FusionServer, now: float | None = None) -> None:
+        """Open the log and resume from it if the last server crashed (called once the bus is up,
+        before the first event is handled)."""
         if self.path is not None and self.log is None:
             self.log = SolutionLog(self.path)
-            self.resume(server)
-            self.republish(node, key)
+            if self.resume(server) is not None:
+                self._republish_at = (time.monotonic() if now is None else now) + REPUBLISH_AFTER_S
 
     # -- start ---------------------------------------------------------------------------------
     def resume(self, server: FusionServer, now: float | None = None) -> Resumed | None:
@@ -122,11 +128,20 @@ class Durability:
         )
         return r
 
-    def republish(self, node: BusNode, key: str) -> None:
-        """After a resume, publish the last logged solution again (its first publication may have
-        been lost with the crash)."""
-        if self.resumed is not None:
-            node.put(key, encode(self.resumed.last.solution))
+    def tick(self, server: FusionServer, node: BusNode, key: str, now: float | None = None) -> None:
+        """Called every loop: once, `REPUBLISH_AFTER_S` after a resume, publish the last logged
+        solution again if live agents are still waiting for it (nothing newer has arrived)."""
+        if self._republish_at is None or (time.monotonic() if now is None else now) < self._republish_at:
+            return
+        self._republish_at = None
+        assert self.resumed is not None
+        last = self.resumed.last.solution
+        t = gps_time(last.epoch)
+        progressed = server.solved_up_to != t or any(t < p for p in server.pending)
+        if server.live and not progressed:
+            node.put(key, encode(last))
+            self.republished = True
+            log.info("republished the last logged solution", extra={"seq": last.seq})
 
     # -- each solution -------------------------------------------------------------------------
     def commit(self, server: FusionServer, sol: SolutionMessage) -> bytes | None:

@@ -215,7 +215,7 @@ class FusionServer:
                 "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
             )
             last_diag = 0.0
-            self.durable.start(self, node, self.keys.solution)  # the solution log; resume after a crash
+            self.durable.start(self)  # the solution log; resume after a crash
             try:
                 while not self.stop.is_set():
                     if (event := node.get(timeout=0.02)) is not None:
@@ -225,6 +225,7 @@ class FusionServer:
                         sol = self.solve(t)
                         if sol is not None:
                             self.durable.publish(self, node, self.keys.solution, sol)  # committed first
+                    self.durable.tick(self, node, self.keys.solution)
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.keys.diagnostics, encode(self.diagnostics()))
                         last_diag = now

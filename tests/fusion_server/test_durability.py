@@ -59,7 +59,7 @@ class FakeNode:
 def _server(replay: Replay, db: Path) -> tuple[FusionServer, FakeNode]:
     s = FusionServer(FusionSettings(recording=replay.recording, db=str(db)))
     node = FakeNode()
-    s.durable.start(s, node, s.keys.solution)  # type: ignore[arg-type]
+    s.durable.start(s, now=0.0)
     s.live = set(s.known)
     return s, node
 
@@ -97,7 +97,11 @@ def test_resume_reseeds_and_never_resolves_a_logged_epoch(replay: Replay, tmp_pa
     assert b.step.seq == 8 and b.epochs_solved == 8
     assert b.solved_up_to == gps_time(published[-1].epoch)
     assert {v: dict(c) for v, c in b.counters.items()} == counters
-    # the last logged solution goes out again (its publication may have died with the server)
+    # live agents and nothing newer after a while: the last logged solution goes out again (its
+    # publication may have died with the server, and lockstep agents would wait for it forever)
+    b.durable.tick(b, node_b, b.keys.solution, now=1.0)  # type: ignore[arg-type]
+    assert node_b.puts == []
+    b.durable.tick(b, node_b, b.keys.solution, now=10.0)  # type: ignore[arg-type]
     assert SolutionMessage.model_validate_json(node_b.puts[0][1]) == published[-1]
     # the agents' caches replay epochs 4..7 (already solved) and the server goes on from 8
     _feed(b, node_b, replay, range(4, 14))
@@ -117,7 +121,13 @@ def test_resume_reseeds_and_never_resolves_a_logged_epoch(replay: Replay, tmp_pa
         for v in s.vehicles
     )
     assert worst < 5.0, worst
-    b.durable.close()
+    _crash(b)
+    c, node_c = _server(replay, db)
+    assert c.step.seq == 14
+    c.live = set()  # the agents are gone: nobody waits for a solution
+    c.durable.tick(c, node_c, c.keys.solution, now=10.0)  # type: ignore[arg-type]
+    assert node_c.puts == [] and not c.durable.republished
+    c.durable.close()
 
 
 def test_clean_stop_starts_a_new_run(replay: Replay, tmp_path: Path) -> None:
@@ -137,13 +147,13 @@ def test_old_crash_is_not_resumed_and_db_none_disables(replay: Replay, tmp_path:
     _feed(a, node, replay, range(2))
     _crash(a)
     b = FusionServer(FusionSettings(recording=replay.recording, db=str(db), resume_max_age_s=0.0))
-    b.durable.start(b, FakeNode(), b.keys.solution)  # type: ignore[arg-type]
+    b.durable.start(b)
     assert b.durable.resumed is None and b.step.seq == 0
     b.durable.close()
     off = FusionServer(FusionSettings(recording=replay.recording, db="none"))
     assert off.durable.path is None
     n = FakeNode()
-    off.durable.start(off, n, off.keys.solution)  # type: ignore[arg-type]
+    off.durable.start(off)
     sol = replay.reference[0]
     off.durable.publish(off, n, off.keys.solution, sol)  # type: ignore[arg-type]
     assert n.puts == [(off.keys.solution, encode(sol))]
