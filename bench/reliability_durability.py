@@ -254,9 +254,9 @@ def render(
         )
     lines += [
         "",
-        "- *published* counts what the launcher's collector received, including the last logged",
-        "  solution that a resumed server publishes once more (its first publication may have died",
-        "  with the crash; consumers drop a repeated epoch), hence one more than *logged*.",
+        "- *published* counts what the launcher's collector received. A resumed server publishes its",
+        "  last logged solution once more only if, 3 s after the resume, agents are live but nothing",
+        "  newer has arrived (lockstep agents waiting for a publication that died with the crash).",
         "- *max Δ*: the largest distance between a logged position and the same vehicle and epoch of",
         "  an uninterrupted in-process run (`coplane eval`'s path), before and after the kill point.",
         "  Before it the bus run is the in-process run; after it the restarted server's window begins",
