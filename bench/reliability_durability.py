@@ -294,6 +294,8 @@ def render(
         "  `--resume_max_age_s` (300: an older crashed log starts a new run). A clean stop (SIGTERM,",
         "  end of a replay) marks the log closed, so the next start is a new run, not a resume.",
         "- API: `--db auto|none|PATH` (default auto: `<state dir>/api-<fleet>-<router>.sqlite`).",
+        "- Both logs are bounded: the fusion server keeps its last 86,400 solutions, the API its last",
+        "  max(history_per_vehicle, accuracy_window); each prunes on start and every 3,600 appends.",
         "- State dir: `$COPLANE_STATE_DIR`, else `$XDG_STATE_HOME/coplane`, else `~/.local/state/coplane`.",
         "- A corrupt or foreign file, a newer schema, or a second writer is an error naming the file.",
         "",

@@ -4,8 +4,9 @@ Every solution the `FleetState` takes is appended (SQLite, `coplane.store.Soluti
 time it was received; on start, before the bus is subscribed, the log is replayed through the same
 `FleetState.on_solution` with those receive times, so tracks, latest states, plane counts and
 accuracy after a restart equal those before it (docs/reliability/durability.md). The log keeps
-the last `keep` solutions (the longest of the track and accuracy windows), so it and the start-up
-replay stay bounded; all-time accuracy figures then cover that many epochs after a restart.
+the last `keep` solutions (the longest of the track and accuracy windows; pruned on start and
+every `PRUNE_EVERY` appends), so it and the start-up replay stay bounded; all-time accuracy
+figures then cover that many epochs after a restart.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from .state import FleetState
 
 log = logging.getLogger("coplane.api")
 
+PRUNE_EVERY = 3_600  # appends between two prunes of the log to its last `keep` solutions
+
 
 class ApiHistory:
     """The log of solutions the API took, and the hook that records them."""
@@ -31,6 +34,7 @@ class ApiHistory:
         self.log = SolutionLog(path, synchronous="NORMAL")
         self.keep = keep
         self.failed = 0
+        self.appends = 0
 
     def load(self, state: FleetState) -> int:
         """Replay the logged solutions of this fleet into `state`; returns how many were taken."""
@@ -45,6 +49,9 @@ class ApiHistory:
         ingestion (the in-memory state stays right, only the next restart would miss it)."""
         try:
             self.log.append(sol, now=now)
+            self.appends += 1
+            if self.appends % PRUNE_EVERY == 0:
+                self.log.prune(self.keep)
         except Exception:
             self.failed += 1
             log.exception("API history append failed", extra={"seq": sol.seq})

@@ -12,6 +12,8 @@ live but no newer epoch has arrived, the last logged solution is published once 
 drop a repeated epoch). Epochs missed while
 the server was down are solved from the node messages the agents' publication caches replay to its
 history subscription (`coplane.bus.Subscription(history=True)`), as far as those caches reach.
+The log keeps the last `KEEP_SOLUTIONS` solutions (pruned on start and every `PRUNE_EVERY`
+appends): resuming needs only the newest.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ if TYPE_CHECKING:
 log = logging.getLogger("coplane.fusion_server")
 
 REPUBLISH_AFTER_S = 3.0  # lockstep agents resend every second (agent `resend_s`)
+KEEP_SOLUTIONS = 86_400  # the log keeps the last day at 1 Hz; resuming needs only the newest
+PRUNE_EVERY = 3_600  # appends between two prunes
 
 
 @dataclass(frozen=True)
@@ -61,6 +65,7 @@ class Durability:
         self.resumed: Resumed | None = None
         self.failed = 0  # appends that failed (their solutions were not published)
         self.republished = False
+        self.appends = 0
         self._republish_at: float | None = None
 
     @classmethod
@@ -77,6 +82,7 @@ class Durability:
         before the first event is handled)."""
         if self.path is not None and self.log is None:
             self.log = SolutionLog(self.path)
+            self.log.prune(KEEP_SOLUTIONS)
             if self.resume(server) is not None:
                 self._republish_at = (time.monotonic() if now is None else now) + REPUBLISH_AFTER_S
 
@@ -159,6 +165,9 @@ class Durability:
         }
         try:
             self.log.append(sol, payload, meta={"server": snap})
+            self.appends += 1
+            if self.appends % PRUNE_EVERY == 0:
+                self.log.prune(KEEP_SOLUTIONS)
         except Exception:
             self.failed += 1
             log.exception("solution log append failed; solution not published", extra={"seq": sol.seq})

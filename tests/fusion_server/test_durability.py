@@ -166,3 +166,21 @@ def test_a_corrupt_log_stops_the_server_naming_the_file(replay: Replay, tmp_path
     db.write_bytes(b"garbage" * 1000)
     with pytest.raises(StoreError, match=r"fusion\.sqlite"):  # at once, before the bus is opened
         FusionServer(FusionSettings(recording=replay.recording, db=str(db)))
+
+
+def test_the_log_stays_bounded(replay: Replay, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from coplane.fusion_server import durability
+
+    monkeypatch.setattr(durability, "KEEP_SOLUTIONS", 2)
+    monkeypatch.setattr(durability, "PRUNE_EVERY", 3)
+    db = tmp_path / "fusion.sqlite"
+    a, node = _server(replay, db)
+    _feed(a, node, replay, range(7))
+    assert len(node.puts) == 7
+    with SolutionLog(db, writer=False) as r:
+        assert [s.seq for s in r.solutions()] == [4, 5, 6]  # pruned to 2 at the 6th append, then one more
+    _crash(a)
+    b, _ = _server(replay, db)  # prunes on start, and still resumes from the newest
+    assert b.step.seq == 7 and b.epochs_solved == 7
+    assert b.durable.log is not None and b.durable.log.count() == 2
+    b.durable.close()
