@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -54,16 +55,70 @@ def setup_logging(service: str, level: str = "INFO") -> logging.Logger:
     return logging.getLogger(f"coplane.{service}")
 
 
-def stop_event() -> threading.Event:
-    """An Event set on SIGTERM or SIGINT, so main loops end cleanly (tokens undeclared, files closed)."""
-    ev = threading.Event()
+# -- clean shutdown ------------------------------------------------------------------------------
+# Every process stops on SIGINT (Ctrl-C, which the terminal sends to the whole process group) and
+# SIGTERM (docker stop, the fleet launcher) within STOP_GRACE_S, and exits 128 + the signal (130,
+# 143) as shells report a process a signal ended. The first signal sets the stop event and starts a
+# watchdog: what has not finished cleanly by then (a hung session close) is cut short.
 
-    def _handler(signum: int, _frame: Any) -> None:
-        logging.getLogger("coplane").info("signal received, stopping", extra={"signal": signum})
+STOP_GRACE_S = 3.0
+_signals: list[int] = []
+_events: list[threading.Event] = []
+_watchdog: list[tuple[float, Callable[[], None] | None]] = []  # (grace_s, on_deadline) of stop_event
+
+
+def received_signal() -> int | None:
+    """The first SIGINT/SIGTERM this process received, if any."""
+    return _signals[0] if _signals else None
+
+
+def exit_code(default: int = 0) -> int:
+    """128 + the first stop signal received (130 for SIGINT, 143 for SIGTERM), else `default`."""
+    sig = received_signal()
+    return 128 + sig if sig is not None else default
+
+
+def _deadline(grace_s: float, on_deadline: Callable[[], None] | None) -> None:
+    logging.getLogger("coplane").error("did not stop in time, exiting", extra={"grace_s": grace_s})
+    try:
+        if on_deadline is not None:
+            on_deadline()
+    finally:
+        logging.shutdown()
+        os._exit(exit_code(1))
+
+
+def notify_signal(signum: int) -> None:
+    """Record a stop signal: set the stop events and, on the first one, start the watchdog. For
+    code that owns the signal handlers itself (uvicorn in the API)."""
+    first = not _signals
+    _signals.append(signum)
+    logging.getLogger("coplane").info("signal received, stopping", extra={"signal": signum})
+    for ev in _events:
         ev.set()
+    if first and _watchdog:
+        grace_s, on_deadline = _watchdog[-1]
+        timer = threading.Timer(grace_s, _deadline, (grace_s, on_deadline))
+        timer.daemon = True
+        timer.start()
 
-    signal.signal(signal.SIGTERM, _handler)
-    signal.signal(signal.SIGINT, _handler)
+
+def stop_event(
+    grace_s: float | None = STOP_GRACE_S, on_deadline: Callable[[], None] | None = None
+) -> threading.Event:
+    """An Event set on SIGTERM or SIGINT, so main loops end cleanly (tokens undeclared, files closed).
+
+    `grace_s` after the first signal the process exits with `exit_code()` regardless, after
+    `on_deadline` (e.g. killing child processes); None: no watchdog. Later signals are logged only.
+    """
+    ev = threading.Event()
+    if _signals:
+        ev.set()
+    _events.append(ev)
+    if grace_s is not None:
+        _watchdog.append((grace_s, on_deadline))
+    signal.signal(signal.SIGTERM, lambda signum, _frame: notify_signal(signum))
+    signal.signal(signal.SIGINT, lambda signum, _frame: notify_signal(signum))
     return ev
 
 

@@ -15,6 +15,7 @@ import yaml
 import zenoh
 
 from coplane.fleet import COMPOSE_RECORDING, COMPOSE_ROUTER, compose_document, fleet_of, fleet_services
+from coplane.fleet.compose import router_config_text
 from coplane.sim.generate import bundled_default_path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -25,23 +26,53 @@ def _committed() -> dict:
 
 
 def test_committed_compose_is_the_generated_one() -> None:
-    _, vehicles = fleet_of(bundled_default_path())
+    fleet, vehicles = fleet_of(bundled_default_path())
     assert _committed() == compose_document(vehicles), "run `coplane compose` and commit docker-compose.yml"
+    router = (REPO / "deploy" / "zenoh" / "router.json5").read_text()
+    assert router == router_config_text(vehicles, fleet), (
+        "run `coplane compose` and commit deploy/zenoh/router.json5"
+    )
+
+
+def test_compose_is_secure_and_local_by_default() -> None:
+    """TLS router with ACL, one identity per service, certificates from the one-shot service, ports
+    published on 127.0.0.1 unless COPLANE_BIND says otherwise."""
+    doc = _committed()
+    services = doc["services"]
+    assert services["zenoh-router"]["ports"] == ["${COPLANE_BIND:-127.0.0.1}:7447:7447"]
+    assert services["api"]["ports"] == ["${COPLANE_BIND:-127.0.0.1}:8000:8000"]
+    assert services["certs"]["command"][:3] == ["coplane", "certs", "init"]
+    _, vehicles = fleet_of(bundled_default_path())
+    identities = {
+        n: s["environment"]["COPLANE_BUS_IDENTITY"] for n, s in services.items() if "environment" in s
+    }
+    assert identities == {"fusion-server": "fusion", "api": "api"} | {
+        f"agent-{v}": f"vehicle-{v}" for v in vehicles
+    }
+    for name in identities:
+        assert services[name]["depends_on"]["certs"] == {"condition": "service_completed_successfully"}
+        assert "coplane-certs:/certs:ro" in services[name]["volumes"]
+        assert COMPOSE_ROUTER in services[name]["command"][services[name]["command"].index("--connect") + 1]
+    assert COMPOSE_ROUTER.startswith("tls/")
+    cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "router.json5"))
+    assert cfg.get_json("access_control/default_permission") == '"deny"'
+    assert cfg.get_json("transport/link/tls/enable_mtls") == "true"
+    assert cfg.get_json("listen/endpoints") == '["tls/[::]:7447"]'
 
 
 def test_compose_starts_what_the_launcher_starts() -> None:
     """Same services, same modules, same arguments up to the recording path and router address."""
     _, vehicles = fleet_of(bundled_default_path())
     launcher = fleet_services(
-        bundled_default_path(), "pc", "realtime", 1.0, "tcp/127.0.0.1:7447", vehicles, api=True
+        bundled_default_path(), "pc", "realtime", 1.0, "tls/127.0.0.1:7447", vehicles, api=True
     )
     compose = _committed()["services"]
-    assert set(compose) == {"zenoh-router"} | {s.name for s in launcher}
+    assert set(compose) == {"zenoh-router", "certs"} | {s.name for s in launcher}
     assert {f"agent-{v}" for v in vehicles} <= set(compose)
 
     def norm(args: list[str]) -> list[str]:
         out = [a.replace(str(bundled_default_path()), "REC").replace(COMPOSE_RECORDING, "REC") for a in args]
-        return [a.replace("tcp/127.0.0.1:7447", "ROUTER").replace(COMPOSE_ROUTER, "ROUTER") for a in out]
+        return [a.replace("tls/127.0.0.1:7447", "ROUTER").replace(COMPOSE_ROUTER, "ROUTER") for a in out]
 
     for spec in launcher:
         cmd = compose[spec.name]["command"]
@@ -49,8 +80,8 @@ def test_compose_starts_what_the_launcher_starts() -> None:
         extra = cmd[3 + len(spec.args) :]
         assert norm(cmd[3 : 3 + len(spec.args)]) == norm(spec.args)
         assert extra in ([], ["--host", "0.0.0.0"])
-    assert compose["api"]["ports"] == ["8000:8000"]
     assert all("healthcheck" in compose[s.name] for s in launcher)
+    assert all(compose[s.name]["environment"]["COPLANE_BUS_IDENTITY"] == s.identity for s in launcher)
 
 
 def test_compose_file_validates_with_docker_compose() -> None:

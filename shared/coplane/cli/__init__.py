@@ -14,6 +14,7 @@ import typer
 from rich.markup import escape
 from typer.core import TyperGroup
 
+from coplane.cli.certs import certs_app
 from coplane.cli.compose import compose
 from coplane.cli.eval import eval_
 from coplane.cli.fleet import fleet
@@ -68,3 +69,4 @@ app.command()(spp)
 app.command("eval")(eval_)
 app.command()(fleet)
 app.command()(compose)
+app.add_typer(certs_app)

@@ -14,9 +14,16 @@ def compose(
     out: Annotated[Path, typer.Option(help="Where to write the compose file.")] = Path("docker-compose.yml"),
     method: Annotated[str, typer.Option(help="Estimator method.")] = "pc",
     pace: Annotated[str, typer.Option(help="lockstep or realtime.")] = "realtime",
+    router_config: Annotated[
+        Path | None,
+        typer.Option(
+            help="Where to write the router's config; default deploy/zenoh/router.json5 beside --out."
+        ),
+    ] = None,
 ) -> None:
-    """Write docker-compose.yml for the bundled recording from the launcher's own service list."""
+    """Write docker-compose.yml (and the router's TLS + access-control config) for the bundled
+    recording from the launcher's own service list."""
     from coplane.fleet import write_compose
 
-    result = write_compose(out, method, pace)
-    console.print(f"wrote {result.path} ({result.services} services)")
+    result = write_compose(out, method, pace, router_config)
+    console.print(f"wrote {result.path} ({result.services} services) and {result.router_config}")

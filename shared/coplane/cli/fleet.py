@@ -1,8 +1,12 @@
-"""`coplane fleet`: replay a recording as a fleet of processes over Zenoh (coplane.fleet.run_fleet)."""
+"""`coplane fleet`: replay a recording as a fleet of processes over Zenoh (coplane.fleet.run_fleet).
+
+Ctrl-C (SIGINT, to the whole process group) or SIGTERM (to this process alone) stops every
+process of the fleet, together, and exits 130 or 143 within 5 s; if a stop hangs, the watchdog
+kills the children and exits anyway (coplane.runtime.stop_event).
+"""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -30,11 +34,32 @@ def fleet(
     logs: Annotated[Path | None, typer.Option(help="Folder for each process's JSON log.")] = None,
     seed: Annotated[int, typer.Option(help="Seed (planes, interruption).")] = 0,
     interruption: Annotated[float, typer.Option(help="Ranging interruption rate in %.")] = 0.0,
+    insecure: Annotated[
+        bool, typer.Option(help="Plain TCP, no certificates, no access control (debugging only).")
+    ] = False,
+    certs: Annotated[
+        Path | None,
+        typer.Option(
+            help="Certificates folder, made or completed as needed; default: ~/.local/state/coplane/certs."
+        ),
+    ] = None,
 ) -> None:
-    """Replay a recording as a fleet of processes over Zenoh and print the accuracy table."""
+    """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
+
+    The bus is secure by default: mutual TLS, one certificate per process, router access control.
+    """
     from tqdm import tqdm
 
-    from coplane.fleet import FleetOptions, run_fleet
+    from coplane.fleet import FleetOptions, FleetProcesses, run_fleet
+    from coplane.runtime import STOP_GRACE_S, exit_code, stop_event
+
+    procs = FleetProcesses()
+    # the children get STOP_GRACE_S; this process needs a little more to reap them
+    stop = stop_event(grace_s=STOP_GRACE_S + 1.5, on_deadline=procs.kill_all)
+    if insecure:
+        err_console.print(
+            "[bold red]WARNING: --insecure: plain TCP, no authentication, no access control[/bold red]"
+        )
 
     options = FleetOptions(
         recording=recording_or_default(recording),
@@ -48,6 +73,8 @@ def fleet(
         logs=logs,
         seed=seed,
         interruption=interruption / 100,
+        insecure=insecure,
+        certs=certs,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 
@@ -64,21 +91,21 @@ def fleet(
         close_bar()
         _render(result)
         console.print(f"serving: API on {result.api_url} (Ctrl-C to stop)")
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
+        stop.wait()
 
     try:
-        result = run_fleet(options, progress, keep_serving if serve else None)
+        result = run_fleet(options, progress, keep_serving if serve else None, stop, procs)
     finally:
         close_bar()
-    if not serve:
+    if not serve or result.interrupted:
         _render(result)
+    if stop.is_set():
+        raise typer.Exit(exit_code())
 
 
 def _render(result: FleetResult) -> None:
+    if result.interrupted:
+        err_console.print("interrupted: the table covers the epochs solved so far")
     if result.failed_agents:
         err_console.print(f"[red]agents failed:[/red] {result.failed_agents} (see --logs)")
     print_accuracy(

@@ -7,6 +7,7 @@ docker-compose.yml is generated from the same service list (coplane.fleet.compos
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from coplane.bus.security import API, FUSION, ROUTER, BusSecurity, vehicle_identity
 from coplane.recording.manifest import load_manifest
 from coplane.replay import fleet_id
 
@@ -28,6 +30,9 @@ ROUTER_MODULE = "coplane.bus.router"
 FUSION_MODULE = "coplane.fusion_server"
 AGENT_MODULE = "coplane.vehicle_agent"
 API_MODULE = "coplane.api"
+# stopping the fleet: the services get SIGTERM together and STOP_GRACE_S (coplane.runtime) to end
+# cleanly, so the whole fleet is gone well within the 5 s a Ctrl-C may take
+STOP_TIMEOUT_S = 4.0
 
 
 def free_port() -> int:
@@ -55,6 +60,7 @@ class ServiceSpec:
     name: str  # compose service name
     module: str  # python -m <module>
     args: list[str] = field(default_factory=list)
+    identity: str = ""  # its bus identity: the certificate it connects with (coplane.bus.security)
 
 
 def fleet_of(recording: Path) -> tuple[str, list[str]]:
@@ -63,8 +69,13 @@ def fleet_of(recording: Path) -> tuple[str, list[str]]:
     return fleet_id(man.name), [v.id for v in man.vehicles]
 
 
-def router_spec(port: int) -> ServiceSpec:
-    return ServiceSpec("zenoh-router", ROUTER_MODULE, ["--listen", f"tcp/127.0.0.1:{port}"])
+def router_spec(port: int, secure: bool = False, fleet: str | None = None) -> ServiceSpec:
+    """The Python router on 127.0.0.1:`port`; `secure`: TLS (its ACL then comes from the certificates
+    folder in its environment), `fleet`: grant only that fleet's keys."""
+    args = ["--listen", f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"]
+    if fleet is not None:
+        args += ["--fleet", fleet]
+    return ServiceSpec("zenoh-router", ROUTER_MODULE, args, ROUTER)
 
 
 def fleet_services(
@@ -103,6 +114,7 @@ def fleet_services(
                 "--deadline_s",
                 str(max(0.05, 0.5 / speed)),
             ],
+            FUSION,
         )
     ]
     for vid in vehicles:
@@ -127,6 +139,7 @@ def fleet_services(
                     str(seed),
                     *start,
                 ],
+                vehicle_identity(vid),
             )
         )
     if api:
@@ -135,6 +148,7 @@ def fleet_services(
                 "api",
                 API_MODULE,
                 ["--recording", rec, "--connect", f'["{connect}"]', "--port", str(api_port)],
+                API,
             )
         )
     return out
@@ -142,10 +156,22 @@ def fleet_services(
 
 @dataclass
 class FleetProcesses:
-    """The running processes by service name; each one's output goes to `log_dir/<name>.log`."""
+    """The running processes by service name; each one's output goes to `log_dir/<name>.log`.
+
+    `security`: each process joins the bus as its spec's identity with these certificates (or
+    explicitly insecure); None: the processes inherit this process's environment.
+    """
 
     procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     log_dir: Path | None = None
+    security: BusSecurity | None = None
+
+    def env_for(self, spec: ServiceSpec) -> dict[str, str]:
+        if self.security is None:
+            return {}
+        if self.security.secure and spec.identity:
+            return self.security.as_identity(spec.identity).env()
+        return self.security.env()
 
     def start(self, spec: ServiceSpec, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
         out: Any = subprocess.DEVNULL
@@ -156,8 +182,10 @@ class FleetProcesses:
             [sys.executable, "-m", spec.module, *spec.args],
             stdout=out,
             stderr=out,
-            env={**os.environ, **(env or {})},
+            env={**os.environ, **self.env_for(spec), **(env or {})},
         )
+        if out is not subprocess.DEVNULL:
+            out.close()  # the child has its own descriptor
         self.procs[spec.name] = p
         log.debug("started", extra={"process": spec.name, "pid": p.pid})
         return p
@@ -165,18 +193,38 @@ class FleetProcesses:
     def stop(self, name: str, timeout: float = 10.0) -> None:
         """SIGTERM (the services then end cleanly: tokens withdrawn, final diagnostics sent),
         SIGKILL after `timeout` seconds."""
-        p = self.procs.get(name)
-        if p is None or p.poll() is not None:
-            return
-        p.send_signal(signal.SIGTERM)
-        try:
-            p.wait(timeout)
-        except subprocess.TimeoutExpired:
-            log.warning("did not stop, killing it", extra={"process": name, "pid": p.pid})
-            p.kill()
-            p.wait()
+        self.stop_many([name], timeout)
 
-    def stop_all(self) -> None:
-        """Stop in reverse start order (the router last)."""
-        for name in reversed(list(self.procs)):
-            self.stop(name)
+    def stop_many(self, names: Sequence[str], timeout: float) -> None:
+        """SIGTERM to all of `names` at once, then wait for them together; SIGKILL what is left
+        after `timeout` seconds. Every one is reaped (no zombies)."""
+        running = [(n, p) for n in names if (p := self.procs.get(n)) is not None and p.poll() is None]
+        for _, p in running:
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for name, p in running:
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("did not stop, killing it", extra={"process": name, "pid": p.pid})
+                p.kill()
+                p.wait()
+
+    def stop_all(self, timeout: float = STOP_TIMEOUT_S) -> None:
+        """Stop every service at once, then the router (so the services' last messages still
+        leave); within about `timeout` seconds in all."""
+        names = list(self.procs)
+        services = [n for n in names if n != "zenoh-router"]
+        self.stop_many(services, timeout * 0.75)
+        self.stop_many([n for n in names if n not in services], timeout * 0.25)
+
+    def kill_all(self) -> None:
+        """SIGKILL every process still running and reap it (the last resort of a stuck stop)."""
+        for p in self.procs.values():
+            if p.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    p.kill()
+        for p in self.procs.values():
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                p.wait(1.0)

@@ -3,16 +3,28 @@
 Starts a Zenoh router, the fusion server, one vehicle agent per vehicle (and the API when asked),
 listens to the solutions itself (`Collector`) and stops everything cleanly. The caller renders the
 `FleetResult`; progress and "keep serving" are the caller's callbacks, so this module prints nothing.
+
+Secure by default: certificates for the recording's identities are made (or reused) in
+`FleetOptions.certs` (default `default_certs_dir()`), the router listens on TLS with mutual
+authentication and access control, and every process connects as its own identity (the collector
+as `monitor`). `insecure=True` runs plain TCP without access control, for debugging only.
+
+`stop` (an Event, set by the caller's signal handler) ends a replay early or ends serving; every
+process is then stopped together (coplane.fleet.launcher.FleetProcesses.stop_all).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from coplane.bus.certs import init_certs
+from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecure
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
@@ -53,6 +65,28 @@ class FleetOptions:
     logs: Path | None = None
     seed: int = 0
     interruption: float = 0.0
+    insecure: bool = False
+    certs: Path | None = None  # the certificates folder; default: default_certs_dir()
+
+
+def default_certs_dir() -> Path:
+    """$COPLANE_BUS_CERTS if set, else $XDG_STATE_HOME/coplane/certs (~/.local/state/coplane/certs)."""
+    if env := os.environ.get("COPLANE_BUS_CERTS"):
+        return Path(env)
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "coplane" / "certs"
+
+
+def fleet_security(options: FleetOptions, vehicles: list[str]) -> BusSecurity:
+    """The fleet's bus security: certificates made or completed for these vehicles, or insecure."""
+    if options.insecure:
+        warn_insecure("coplane fleet --insecure")
+        return BusSecurity(insecure=True)
+    folder = (options.certs or default_certs_dir()).resolve()
+    made = init_certs(folder, vehicles)
+    if made.created:
+        log.info("certificates made", extra={"folder": str(folder), "identities": ",".join(made.created)})
+    return BusSecurity(certs=folder, insecure=False)
 
 
 @dataclass
@@ -70,6 +104,8 @@ class FleetResult:
     n_epochs: int
     solutions_dir: Path | None = None  # where --out wrote the solution CSVs
     api_url: str | None = None
+    secure: bool = True
+    interrupted: bool = False  # stopped by `stop` before the replay ended
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -79,30 +115,38 @@ def run_fleet(
     options: FleetOptions,
     progress: Progress | None = None,
     serve: Callable[[FleetResult], None] | None = None,
+    stop: threading.Event | None = None,
+    procs: FleetProcesses | None = None,
 ) -> FleetResult:
-    """Run the replay to its end and return what the launcher collected.
+    """Run the replay to its end (or until `stop` is set) and return what the launcher collected.
 
     `serve`: called with the result while the fusion server, API and router still run (they are
-    stopped when it returns; `coplane fleet --serve` waits there for Ctrl-C). Without it the
-    fusion server is stopped first, so its final diagnostics are in the result.
+    stopped when it returns; `coplane fleet --serve` waits there for `stop`). Without it the
+    fusion server is stopped first, so its final diagnostics are in the result. `procs`: the
+    process table to fill (the caller's signal watchdog kills what it holds).
     """
     o = options
     if o.pace not in PACES:
         raise ConfigError(f"--pace must be lockstep or realtime, got {o.pace!r}")
     get_method(o.method)
+    stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
     fleet_name, vehicles = fleet_of(path)
     interval = rec.manifest.interval_s
     n_epochs = len({t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), interval)})
+    security = fleet_security(o, vehicles)
     port = o.port or free_port()
-    connect = f"tcp/127.0.0.1:{port}"
-    procs = FleetProcesses(log_dir=o.logs)
+    connect = f"{'tls' if security.secure else 'tcp'}/127.0.0.1:{port}"
+    procs = procs if procs is not None else FleetProcesses()
+    procs.log_dir, procs.security = o.logs, security
     log.info("fleet starting", extra={"fleet": fleet_name, "vehicles": len(vehicles), "router": connect})
     try:
-        procs.start(router_spec(port))
+        procs.start(router_spec(port, security.secure, fleet_name))
         wait_for_port(port)
-        with Collector(fleet_name, o.method, connect, out=o.out) as collector:
+        with use_security(security.as_identity(MONITOR) if security.secure else security):
+            collector = Collector(fleet_name, o.method, connect, out=o.out)
+        with collector:
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
             for spec in fleet_services(
                 path,
@@ -119,18 +163,18 @@ def run_fleet(
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
-            while any(procs.procs[a].poll() is None for a in agents):
-                time.sleep(POLL_S)
+            while any(procs.procs[a].poll() is None for a in agents) and not stop.wait(POLL_S):
                 if progress is not None:
                     progress(collector.epochs, n_epochs)
-            time.sleep(0.5)  # the last solution is on its way
+            if not stop.is_set():
+                stop.wait(0.5)  # the last solution is on its way
             if progress is not None:
                 progress(collector.epochs, n_epochs)
-            if serve is None:
+            if serve is None and not stop.is_set():
                 procs.stop("fusion-server")  # it publishes its final diagnostics on the way out
-                time.sleep(0.3)
+                stop.wait(0.3)
             failed = {a: rc for a in agents if (rc := procs.procs[a].returncode)}
-            if failed:
+            if failed and not stop.is_set():
                 log.error(
                     "agents failed", extra={"agents": ",".join(f"{a}={rc}" for a, rc in failed.items())}
                 )
@@ -142,14 +186,16 @@ def run_fleet(
                 run=collector.run,
                 stats=run_stats(collector.run, rec),
                 diagnostics=collector.diag,
-                failed_agents=failed,
+                failed_agents={} if stop.is_set() else failed,
                 n_epochs=n_epochs,
                 api_url=f"http://127.0.0.1:{o.api_port}" if o.api else None,
+                secure=security.secure,
+                interrupted=stop.is_set(),
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)
                 result.solutions_dir = o.out / "solutions" / collector.run.label
-            if serve is not None:
+            if serve is not None and not stop.is_set():
                 serve(result)
             return result
     finally:

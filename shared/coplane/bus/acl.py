@@ -1,0 +1,107 @@
+"""The router's access control: what each certificate common name may do, default deny.
+
+Zenoh 1.10 checks every message crossing the router against rules of (message type, flow, key
+expressions) granted to subjects (here: certificate common names, which mTLS makes trustworthy).
+`ingress` is what a client sends to the router, `egress` what the router forwards to it; anything
+not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fleet>`:
+
+| identity | sends (ingress) | receives (egress) |
+| --- | --- | --- |
+| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`) | `P/solution`; queries for its own cache; subscriber declarations on node keys |
+| `fusion` | put `P/solution`, `P/diagnostics`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches | every node put, cache reply and token; agent tokens; subscriber declarations on solution and diagnostics |
+| `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
+| `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
+| `router` | nothing (it is the server side of TLS only) | nothing |
+
+A Zenoh client's publisher sends only while it knows of a matching subscriber, so the publishers
+also receive the subscriber declarations on their keys (measured: without them a publisher declared
+before its subscribers never delivers). A vehicle's node publisher keeps a history cache (a Zenoh advanced publisher): its queryable and
+liveliness token live under the verbatim chunk `@adv`, which `**` never matches, so those keys are
+granted explicitly. `<fleet>` is `*` unless a fleet is named: a certificate is a vehicle's
+identity, not a fleet's. `delete`, `declare_queryable` elsewhere and plain `query` are granted to
+nobody.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from coplane.bus.keys import KeySpace
+from coplane.bus.security import API, FUSION, MONITOR, vehicle_identity
+
+Grant = tuple[str, tuple[str, ...], tuple[str, ...]]  # (flow, messages, key expressions)
+
+SUBSCRIBE_LIVELINESS = ("declare_liveliness_subscriber", "liveliness_query")
+
+
+def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
+    """Every identity's grants (see the module docstring)."""
+    k = KeySpace(fleet)
+    p = k.prefix
+    nodes_adv = f"{k.all_nodes}/@adv/**"
+    alive_all = f"{p}/alive/*/*"
+    out: dict[str, list[Grant]] = {}
+    for v in vehicles:
+        own = f"{p}/vehicle/{v}/**"
+        adv = f"{k.node(v)}/@adv/**"
+        out[vehicle_identity(v)] = [
+            ("ingress", ("put",), (own,)),
+            ("ingress", ("declare_subscriber",), (k.solution,)),
+            ("ingress", ("liveliness_token",), (k.alive("agent", v), adv)),
+            ("ingress", ("declare_queryable",), (adv,)),
+            ("ingress", ("reply",), (own, adv)),
+            ("egress", ("put",), (k.solution,)),
+            ("egress", ("query",), (adv,)),
+            ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv)),
+        ]
+    out[FUSION] = [
+        ("ingress", ("put",), (k.solution, k.diagnostics)),
+        ("ingress", ("liveliness_token",), (k.all_alive("fusion"),)),
+        ("ingress", ("declare_subscriber",), (k.all_nodes, nodes_adv)),
+        ("ingress", SUBSCRIBE_LIVELINESS, (k.all_alive("agent"), nodes_adv)),
+        ("ingress", ("query",), (nodes_adv,)),
+        ("egress", ("put",), (k.all_nodes,)),
+        ("egress", ("reply",), (k.all_nodes, nodes_adv)),
+        ("egress", ("liveliness_token",), (k.all_alive("agent"), nodes_adv)),
+        ("egress", ("declare_subscriber",), (k.solution, k.diagnostics)),
+    ]
+    readers = [
+        ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics)),
+        ("ingress", SUBSCRIBE_LIVELINESS, (alive_all,)),
+        ("egress", ("put",), (k.solution, k.diagnostics)),
+        ("egress", ("liveliness_token",), (alive_all,)),
+    ]
+    out[API] = [*readers, ("ingress", ("liveliness_token",), (k.all_alive("api"),))]
+    out[MONITOR] = list(readers)
+    return out
+
+
+def access_control(vehicles: Sequence[str], fleet: str = "*") -> dict[str, Any]:
+    """The router's `access_control` section: default deny, one subject per identity."""
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for identity, granted in grants(vehicles, fleet).items():
+        ids = []
+        for i, (flow, messages, keys) in enumerate(granted):
+            rid = f"{identity}-{i}"
+            ids.append(rid)
+            rules.append(
+                {
+                    "id": rid,
+                    "messages": list(messages),
+                    "flows": [flow],
+                    "permission": "allow",
+                    "key_exprs": list(keys),
+                }
+            )
+        subjects.append({"id": identity, "cert_common_names": [identity]})
+        policies.append({"id": identity, "rules": ids, "subjects": [identity]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
