@@ -1,12 +1,26 @@
-"""Helpers for multi-process tests: a short simulated recording and a fleet of real processes."""
+"""Helpers for multi-process tests: a short simulated recording and a fleet of real processes.
+
+`running_fleet` is secure by default, as `coplane fleet` is: certificates in a temporary folder,
+a TLS router with access control, every process as its own identity, and the test's own sessions
+(the collector, watchers) as the read-only `monitor` identity.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
+from coplane.bus import MONITOR, BusSecurity, use_security
+from coplane.bus.certs import init_certs
 from coplane.fleet import (
     Collector,
     FleetProcesses,
@@ -27,15 +41,27 @@ def running_fleet(
     log_dir: Path | None = None,
     extra_fusion_args: Sequence[str] = (),
     start_delay_s: float = 5.0,
+    secure: bool = True,
 ) -> Iterator[tuple[FleetProcesses, Collector, str, list]]:
-    """Router, fusion server and one agent per vehicle as processes; yields (procs, collector, connect, specs)."""
+    """Router, fusion server and one agent per vehicle as processes; yields (procs, collector, connect, specs).
+
+    `secure`: mutual TLS and access control (see the module docstring); False: plain TCP."""
     fleet, vehicles = fleet_of(recording)
     port = free_port()
-    connect = f"tcp/127.0.0.1:{port}"
-    procs = FleetProcesses(log_dir=log_dir)
+    connect = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
+    stack = ExitStack()
+    security = BusSecurity(insecure=True)
+    if secure:
+        certs = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="coplane-certs-")))
+        init_certs(certs, vehicles)
+        security = BusSecurity(certs=certs)
+        stack.enter_context(use_security(security.as_identity(MONITOR)))
+    else:
+        stack.enter_context(use_security(security))
+    procs = FleetProcesses(log_dir=log_dir, security=security)
     collector = None
     try:
-        procs.start(router_spec(port))
+        procs.start(router_spec(port, secure, fleet))
         wait_for_port(port)
         collector = Collector(fleet, method, connect)
         start = time.time() + start_delay_s if pace == "realtime" else None
@@ -50,6 +76,7 @@ def running_fleet(
         if collector is not None:
             collector.close()
         procs.stop_all()
+        stack.close()
 
 
 def wait_until(cond: Callable[[], bool], timeout: float, what: str) -> None:
@@ -63,3 +90,109 @@ def wait_until(cond: Callable[[], bool], timeout: float, what: str) -> None:
 
 def agents_done(procs: FleetProcesses) -> bool:
     return all(p.poll() is not None for n, p in procs.procs.items() if n.startswith("agent-"))
+
+
+# -- clean shutdown: a process tree, signalled and timed -------------------------------------------
+
+
+def _children_by_parent() -> dict[int, list[int]]:
+    out: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            out.setdefault(ppid, []).append(int(d.name))
+    return out
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process below `pid` right now (from /proc)."""
+    kids, out, todo = _children_by_parent(), [], [pid]
+    while todo:
+        for c in kids.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def running(pid: int) -> bool:
+    """Alive and not a zombie (a zombie is an exited child nobody has reaped)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def start_serving_fleet(
+    recording: Path, work: Path, extra: Sequence[str] = (), timeout: float = 240.0
+) -> subprocess.Popen[bytes]:
+    """`coplane fleet --serve` in its own process group (as a terminal runs it); returns once it
+    says it is serving (the replay is over, the API and the bus still run)."""
+    api_port = free_port()
+    cmd = [sys.executable, "-m", "coplane.cli", "fleet", str(recording), "--port", "0"]
+    cmd += [
+        "--api-port",
+        str(api_port),
+        "--serve",
+        "--certs",
+        str(work / "certs"),
+        "--logs",
+        str(work / "logs"),
+    ]
+    p = subprocess.Popen(
+        [*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True
+    )
+    assert p.stdout is not None
+    os.set_blocking(p.stdout.fileno(), False)
+    seen = b""
+    deadline = time.monotonic() + timeout
+    while b"serving:" not in seen:
+        if p.poll() is not None or time.monotonic() > deadline:
+            p.kill()
+            raise AssertionError(
+                f"coplane fleet --serve did not start serving:\n{seen.decode(errors='replace')[-3000:]}"
+            )
+        seen += p.stdout.read() or b""
+        time.sleep(0.1)
+    return p
+
+
+@dataclass
+class StopTiming:
+    """What a stop signal did: the exit code, seconds until the parent exited and until the last
+    descendant was gone, and the descendants still running after `timeout`."""
+
+    code: int | None
+    parent_s: float
+    all_s: float
+    left: list[int]
+    n_processes: int
+
+
+def signal_and_time(p: subprocess.Popen[bytes], sig: int, group: bool, timeout: float = 10.0) -> StopTiming:
+    """Send `sig` to the process group (Ctrl-C in a terminal) or to the parent alone, and time the stop."""
+    tree = descendants(p.pid)
+    t0 = time.monotonic()
+    if group:
+        os.killpg(p.pid, sig)
+    else:
+        p.send_signal(sig)
+    try:
+        code: int | None = p.wait(timeout)
+    except subprocess.TimeoutExpired:
+        code = None
+    parent_s = time.monotonic() - t0
+    while any(running(c) for c in tree) and time.monotonic() - t0 < timeout:
+        time.sleep(0.02)
+    all_s = time.monotonic() - t0
+    left = [c for c in tree if running(c)]
+    for c in left:  # never leave a stray process behind a failed test
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(c, signal.SIGKILL)
+    if code is None:
+        p.kill()
+        p.wait()
+    return StopTiming(code, parent_s, all_s, left, len(tree))

@@ -3,11 +3,17 @@
 Each command parses its options, calls a library function and renders what it returns. A
 `CoplaneError` from any of them is caught here, once: the user sees its message and the process
 exits with its `exit_code`; any other exception is a bug and keeps its traceback.
+
+Ctrl-C (SIGINT) and SIGTERM end any command cleanly, through the `with` blocks on the way out
+(worker processes joined, files closed), with exit code 130 or 143. `coplane fleet` handles both
+signals itself, to stop its processes together (coplane.cli.fleet).
 """
 
 from __future__ import annotations
 
 import logging
+import signal
+import threading
 from typing import Annotated, Any
 
 import typer
@@ -24,15 +30,34 @@ from coplane.cli.spp import spp
 from coplane.errors import CoplaneError
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread like KeyboardInterrupt so `with` blocks unwind."""
+
+
+def _raise_terminated(_signum: int, _frame: Any) -> None:
+    raise _Terminated
+
+
 class _CoplaneGroup(TyperGroup):
     """The command group; its `invoke` runs every subcommand, so one handler covers them all."""
 
     def invoke(self, ctx: Any) -> Any:  # a click Context: recent typer vendors its own click
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, _raise_terminated) if main else None
         try:
             return super().invoke(ctx)
         except CoplaneError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # "[base]" is text, not a style
             raise typer.Exit(exc.exit_code) from exc
+        except KeyboardInterrupt as exc:
+            err_console.print("interrupted")
+            raise typer.Exit(128 + signal.SIGINT) from exc
+        except _Terminated as exc:
+            err_console.print("terminated")
+            raise typer.Exit(128 + signal.SIGTERM) from exc
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
 
 
 app = typer.Typer(
