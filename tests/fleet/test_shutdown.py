@@ -64,8 +64,6 @@ def test_every_service_exits_128_plus_the_signal(recording: Path, tmp_path: Path
             connect,
             "--pace",
             "realtime",
-            "--speed",
-            "0.25",
         ],
         "agent": [
             "coplane.vehicle_agent",
