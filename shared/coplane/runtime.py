@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -9,7 +10,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +121,22 @@ def stop_event(
     signal.signal(signal.SIGTERM, lambda signum, _frame: notify_signal(signum))
     signal.signal(signal.SIGINT, lambda signum, _frame: notify_signal(signum))
     return ev
+
+
+@contextlib.contextmanager
+def stop_signals(
+    grace_s: float | None = STOP_GRACE_S, on_deadline: Callable[[], None] | None = None
+) -> Iterator[threading.Event]:
+    """`stop_event` for a block of a longer-lived process (a CLI command run in-process by tests):
+    the previous handlers come back when the block ends."""
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    n_events, n_watchdogs = len(_events), len(_watchdog)
+    try:
+        yield stop_event(grace_s, on_deadline)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        del _events[n_events:], _watchdog[n_watchdogs:]
 
 
 # -- configuration -------------------------------------------------------------------------------

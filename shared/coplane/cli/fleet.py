@@ -51,11 +51,9 @@ def fleet(
     from tqdm import tqdm
 
     from coplane.fleet import FleetOptions, FleetProcesses, run_fleet
-    from coplane.runtime import STOP_GRACE_S, exit_code, stop_event
+    from coplane.runtime import STOP_GRACE_S, exit_code, stop_signals
 
     procs = FleetProcesses()
-    # the children get STOP_GRACE_S; this process needs a little more to reap them
-    stop = stop_event(grace_s=STOP_GRACE_S + 1.5, on_deadline=procs.kill_all)
     if insecure:
         err_console.print(
             "[bold red]WARNING: --insecure: plain TCP, no authentication, no access control[/bold red]"
@@ -93,10 +91,12 @@ def fleet(
         console.print(f"serving: API on {result.api_url} (Ctrl-C to stop)")
         stop.wait()
 
-    try:
-        result = run_fleet(options, progress, keep_serving if serve else None, stop, procs)
-    finally:
-        close_bar()
+    # the children get STOP_GRACE_S; this process needs a little more to reap them
+    with stop_signals(grace_s=STOP_GRACE_S + 1.5, on_deadline=procs.kill_all) as stop:
+        try:
+            result = run_fleet(options, progress, keep_serving if serve else None, stop, procs)
+        finally:
+            close_bar()
     if not serve or result.interrupted:
         _render(result)
     if stop.is_set():
