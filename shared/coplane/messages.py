@@ -39,6 +39,8 @@ SatId = Annotated[str, Field(pattern=SAT_ID_PATTERN)]
 Ecef = Annotated[tuple[float, float, float], Field(description="WGS-84 ECEF metres")]
 Cov3 = Annotated[list[float], Field(min_length=9, max_length=9, description="3x3 row-major, m^2")]
 Metres = Annotated[float, Field(ge=-1e8, le=1e8)]
+# A fusion server run: consumers reset their state only when it changes (a resumed server keeps it)
+Generation = Annotated[str, Field(pattern=r"^[0-9a-f]{8,32}$")]
 
 MAX_SATELLITES = 64
 MAX_RANGES = 256
@@ -232,6 +234,7 @@ class SolutionMessage(_Model):
     factor_counts: dict[str, int] = Field(default_factory=dict)
     missing: list[VehicleId] = Field(default_factory=list)  # live vehicles that did not report
     oldest_node_sent_unix_s: float | None = None  # for end-to-end latency (node publish -> solution)
+    generation: Generation | None = None  # the server run that solved it (same after a resume)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
@@ -261,5 +264,8 @@ class DiagnosticsMessage(_Model):
     rejected_by_reason: dict[str, int] = Field(default_factory=dict)  # includes unattributable payloads
     live_vehicles: list[str] = Field(default_factory=list)
     node_payloads: int = Field(default=0, ge=0)  # every payload seen on node keys
+    pending_epochs: int = Field(default=0, ge=0)  # epochs waiting to be solved
+    pending_limit: int = Field(default=0, ge=0)  # the bound on pending_epochs (0: not reported)
+    generation: Generation | None = None
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
