@@ -1,8 +1,11 @@
-"""Shared fixtures: where the real RINEX sets live (../shared/data/real beside the repo)."""
+"""Shared fixtures: where the real RINEX sets live (../shared/data/real beside the repo), and a
+private state directory for the whole run."""
 
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -17,3 +20,20 @@ def real_data() -> Path:
     if not REAL_DATA.is_dir():
         pytest.fail(f"real RINEX data not found at {REAL_DATA} (set COPLANE_REAL_DATA)")
     return REAL_DATA
+
+
+_STATE_DIR: str | None = None
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Services started by tests (in-process or as children, which inherit the environment) keep
+    their solution logs in a fresh directory, never in the user's ~/.local/state/coplane: a test
+    must not resume from another run's log, nor leave files behind."""
+    global _STATE_DIR
+    _STATE_DIR = tempfile.mkdtemp(prefix="coplane-test-state-")
+    os.environ["COPLANE_STATE_DIR"] = _STATE_DIR
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _STATE_DIR is not None:
+        shutil.rmtree(_STATE_DIR, ignore_errors=True)
