@@ -18,8 +18,17 @@ from typing import Any
 import zenoh
 
 from coplane.bus.acl import access_control
+from coplane.bus.codec import MAX_PAYLOAD_BYTES
 from coplane.bus.security import ROUTER, BusSecurity, current_security, vehicle_of_identity
 from coplane.errors import ConfigError
+
+
+# Zenoh's defragmentation bound (`transport/link/rx/max_message_size`, default 1 GiB): a larger
+# fragmented message is dropped while it arrives instead of being buffered whole, by the router and
+# by every session. Twice the wire limit, so nothing `decode` would accept is ever cut. Measured with
+# Zenoh 1.10 (tests/bus/test_message_size.py): 8 and 20 MiB puts are dropped; the bound is not exact
+# (some puts of a few MiB still arrive), so `decode` stays the 1 MiB check before parsing.
+MAX_TRANSPORT_MESSAGE_BYTES = 2 * MAX_PAYLOAD_BYTES
 
 
 def secure_endpoint(endpoint: str) -> str:
@@ -71,6 +80,7 @@ def session_config(
     c = zenoh.Config()
     c.insert_json5("mode", json.dumps(mode))
     c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("transport/link/rx/max_message_size", str(MAX_TRANSPORT_MESSAGE_BYTES))
     if connect:
         c.insert_json5("connect/endpoints", json.dumps(_endpoints(connect, sec)))
         if wait_for_router and mode != "router":
@@ -126,6 +136,7 @@ def router_document(
         "scouting": {"multicast": {"enabled": False}},
         "transport": {
             "link": {
+                "rx": {"max_message_size": MAX_TRANSPORT_MESSAGE_BYTES},
                 "tls": tls_section(
                     f"{certs}/ca.crt", f"{certs}/{ROUTER}.crt", f"{certs}/{ROUTER}.key", "listen"
                 )
