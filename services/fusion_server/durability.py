@@ -19,6 +19,7 @@ appends): resuming needs only the newest.
 from __future__ import annotations
 
 import logging
+import secrets
 import sys
 import time
 from collections import Counter
@@ -67,6 +68,12 @@ class Durability:
         self.republished = False
         self.appends = 0
         self._republish_at: float | None = None
+
+    @staticmethod
+    def new_generation() -> str:
+        """A fresh server generation: 16 random hex digits. Consumers reset their state only when
+        it changes, so a crash + resume (which keeps the logged one) is not a new run for them."""
+        return secrets.token_hex(8)
 
     @classmethod
     def for_server(cls, server: FusionServer) -> Durability:
@@ -153,6 +160,9 @@ class Durability:
     def commit(self, server: FusionServer, sol: SolutionMessage) -> bytes | None:
         """The payload to publish, once the solution and the server's counters are committed; None
         if the log failed (the solution is then not published: nothing goes out that is not on disk)."""
+        gen = getattr(server, "generation", None)
+        if gen is not None and sol.generation != gen:
+            sol = sol.model_copy(update={"generation": gen})  # every solution names its server run
         payload = encode(sol)
         if self.log is None:
             return payload

@@ -67,6 +67,7 @@ class FusionServer:
         self.last_solve_s: float | None = None
         self.started = time.monotonic()
         self.waiting_since: float | None = None
+        self.generation = Durability.new_generation()  # this run; a resume keeps the logged one
         self.durable = Durability.for_server(self)  # the solution log (opened by run)
 
     def node(self) -> BusNode:

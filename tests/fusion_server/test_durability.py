@@ -103,10 +103,12 @@ def test_resume_reseeds_and_never_resolves_a_logged_epoch(replay: Replay, tmp_pa
     assert node_b.puts == []
     b.durable.tick(b, node_b, b.keys.solution, now=10.0)  # type: ignore[arg-type]
     assert SolutionMessage.model_validate_json(node_b.puts[0][1]) == published[-1]
+    assert b.generation == a.generation == published[-1].generation  # a resume is the same run
     # the agents' caches replay epochs 4..7 (already solved) and the server goes on from 8
     _feed(b, node_b, replay, range(4, 14))
     after = [SolutionMessage.model_validate_json(p) for _, p in node_b.puts[1:]]
     assert [p.seq for p in after] == list(range(8, 14))
+    assert {p.generation for p in after} == {a.generation}
     assert after[0].factor_counts.get("seed", 0) >= 3  # each vehicle resumed from its last state
     assert sum(c["late"] for c in b.counters.values()) == 3 * 4  # replays counted, not re-solved
     with SolutionLog(db, writer=False) as r:
@@ -137,6 +139,7 @@ def test_clean_stop_starts_a_new_run(replay: Replay, tmp_path: Path) -> None:
     a.durable.close()  # SIGTERM path
     b, node_b = _server(replay, db)
     assert b.durable.resumed is None and b.step.seq == 0 and b.solved_up_to is None
+    assert b.generation != a.generation  # a new run: consumers may reset
     assert node_b.puts == []
     b.durable.close()
 
@@ -156,7 +159,7 @@ def test_old_crash_is_not_resumed_and_db_none_disables(replay: Replay, tmp_path:
     off.durable.start(off)
     sol = replay.reference[0]
     off.durable.publish(off, n, off.keys.solution, sol)  # type: ignore[arg-type]
-    assert n.puts == [(off.keys.solution, encode(sol))]
+    assert n.puts == [(off.keys.solution, encode(sol.model_copy(update={"generation": off.generation})))]
 
 
 def test_a_corrupt_log_stops_the_server_naming_the_file(replay: Replay, tmp_path: Path) -> None:
