@@ -96,3 +96,34 @@ def test_eval_reports_the_recordings_input_problems(tmp_path: Path) -> None:
     r = runner.invoke(app, ["eval", str(rec), "--methods", "mci", "--out", str(tmp_path / "eval")])
     assert r.exit_code == 0, r.output
     assert "3 input problems" in r.output, r.output
+
+
+def test_fleet_prints_the_input_problems_and_fails_strict(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`coplane fleet` reports the recording's problem count as eval and spp do, and `--strict`
+    turns a recording that positioned nothing into exit code 3 (the replay itself is stubbed)."""
+    import coplane.fleet as fleet_pkg
+    from coplane.evaluate.runner import MethodRun
+    from coplane.fleet import FleetResult
+    from coplane.recording.health import InputHealth
+
+    def fake_run(*args: object, **kwargs: object) -> FleetResult:
+        return FleetResult(
+            recording_name="r",
+            method="pc",
+            vehicles=["u1"],
+            truth_vehicles=[],
+            run=MethodRun("pc", 0.0),
+            stats={},
+            diagnostics=None,
+            failed_agents={},
+            n_epochs=0,
+            input_problems={"epoch-time-jump": 2, "uwb-range": 1},
+            input_health=InputHealth(records=10, problems=3),
+        )
+
+    monkeypatch.setattr(fleet_pkg, "run_fleet", fake_run)
+    r = runner.invoke(app, ["fleet", "--no-api", "--insecure"])
+    assert r.exit_code == 0, r.output
+    assert "3 input problems" in r.output and "epoch-time-jump x2" in r.output, r.output
+    r = runner.invoke(app, ["fleet", "--no-api", "--insecure", "--strict"])
+    assert r.exit_code == 3, r.output

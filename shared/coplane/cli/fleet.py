@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from coplane.cli.options import recording_or_default
-from coplane.cli.render import console, err_console, print_accuracy
+from coplane.cli.render import STRICT_HELP, check_input, console, err_console, print_accuracy, print_problems
 
 if TYPE_CHECKING:
     from coplane.fleet import FleetResult
@@ -43,6 +43,7 @@ def fleet(
             help="Certificates folder, made or completed as needed; default: ~/.local/state/coplane/certs."
         ),
     ] = None,
+    strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
 ) -> None:
     """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
 
@@ -101,6 +102,17 @@ def fleet(
         _render(result)
     if stop.is_set():
         raise typer.Exit(exit_code())
+    _check_input(result, strict)
+
+
+def _check_input(result: FleetResult, strict: bool) -> None:
+    """The recording's input-problem count and warnings, as `coplane eval` prints them."""
+    from coplane.recording.health import health_warnings
+
+    print_problems(result.input_problems)
+    if result.input_health is not None:
+        fixes = sum(len(p) for p in result.run.positions.values())
+        check_input(health_warnings(result.input_health, fixes), strict)
 
 
 def _render(result: FleetResult) -> None:

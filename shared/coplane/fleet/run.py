@@ -20,7 +20,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from coplane.bus.certs import init_certs
@@ -40,6 +40,7 @@ from coplane.fleet.launcher import (
 )
 from coplane.messages import DiagnosticsMessage
 from coplane.methods import get_method
+from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import open_recording
 from coplane.replay import vehicle_schedule
 
@@ -106,6 +107,8 @@ class FleetResult:
     api_url: str | None = None
     secure: bool = True
     interrupted: bool = False  # stopped by `stop` before the replay ended
+    input_problems: dict[str, int] = field(default_factory=dict)  # what the recording's reader found
+    input_health: InputHealth | None = None  # records kept vs problems (`--strict`)
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -191,6 +194,8 @@ def run_fleet(
                 api_url=f"http://127.0.0.1:{o.api_port}" if o.api else None,
                 secure=security.secure,
                 interrupted=stop.is_set(),
+                input_problems=dict(rec.problems.counts),
+                input_health=input_health(rec),
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)
