@@ -23,6 +23,7 @@ from coplane.runtime import (
     exit_code,
     notify_signal,
     received_signal,
+    service_main,
     setup_logging,
     stop_event,
 )
@@ -91,4 +92,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(service_main("api", main))

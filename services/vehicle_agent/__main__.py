@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from coplane.runtime import exit_code, setup_logging, stop_event
+from coplane.runtime import exit_code, service_main, setup_logging, stop_event
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -22,4 +22,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(service_main("agent", main))

@@ -171,3 +171,22 @@ class ServiceSettings(BaseSettings):
                 )
             )
         return tuple(sources)
+
+
+def service_main(service: str, body: Callable[[], int]) -> int:
+    """Run a service's `main` body; a user-fixable problem (`CoplaneError`: a corrupt solution log,
+    a bad recording, a wrong option; or invalid settings) ends it with one clear line and the
+    error's exit code instead of a traceback. Anything else is a bug and keeps its traceback."""
+    from pydantic import ValidationError
+
+    from coplane.errors import CoplaneError
+
+    try:
+        return body()
+    except CoplaneError as exc:
+        logging.getLogger(f"coplane.{service}").error("cannot run: %s", exc)
+        print(f"{service}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except ValidationError as exc:
+        print(f"{service}: invalid settings: {exc}", file=sys.stderr)
+        return 2
