@@ -7,4 +7,8 @@ COPY shared shared
 COPY services services
 RUN pip install .
 # the bundled recording ships inside the package data (shared/coplane/data/recordings/default)
+# the services' solution logs (COPLANE_STATE_DIR): a named volume mounted here starts as a copy of
+# this empty folder, owned by the services' user
+RUN mkdir -p /state && chown 65534:65534 /state
+ENV COPLANE_STATE_DIR=/state
 USER nobody

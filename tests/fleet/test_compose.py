@@ -60,6 +60,19 @@ def test_compose_is_secure_and_local_by_default() -> None:
     assert cfg.get_json("listen/endpoints") == '["tls/[::]:7447"]'
 
 
+def test_solution_logs_live_on_a_named_volume() -> None:
+    """The fusion server and the API keep their solution logs (docs/reliability/durability.md) on
+    the `coplane-state` volume, so a container restart or `docker compose down/up` resumes."""
+    doc = _committed()
+    assert "coplane-state" in doc["volumes"]
+    for name in ("fusion-server", "api"):
+        svc = doc["services"][name]
+        assert svc["environment"]["COPLANE_STATE_DIR"] == "/state"
+        assert "coplane-state:/state" in svc["volumes"]
+    dockerfile = (REPO / "Dockerfile").read_text()
+    assert "chown 65534:65534 /state" in dockerfile and "ENV COPLANE_STATE_DIR=/state" in dockerfile
+
+
 def test_compose_starts_what_the_launcher_starts() -> None:
     """Same services, same modules, same arguments up to the recording path and router address."""
     _, vehicles = fleet_of(bundled_default_path())

@@ -26,6 +26,9 @@ COMPOSE_ROUTER = "tls/zenoh-router:7447"
 ZENOH_IMAGE = "eclipse/zenoh:1.10.2"
 CERTS_VOLUME = "coplane-certs"
 CERTS_DIR = "/certs"  # where every container sees the certificates
+STATE_VOLUME = "coplane-state"  # the fusion server's and the API's solution logs (survive `down`/`up`)
+STATE_DIR = "/state"  # COPLANE_STATE_DIR in the image (Dockerfile)
+STATEFUL = ("fusion-server", "api")  # the services that keep a solution log
 IMAGE_USER = "65534:65534"  # `nobody`, the Dockerfile's USER: owns the identity keys
 BIND = "${COPLANE_BIND:-127.0.0.1}"  # the host address the router and API ports are published on
 ROUTER_CONFIG = Path("deploy/zenoh/router.json5")
@@ -114,12 +117,15 @@ def compose_document(
             "restart": "on-failure",
             "healthcheck": _router_healthcheck(),
         }
+        if spec.name in STATEFUL:
+            svc["volumes"] = [certs_ro, f"{STATE_VOLUME}:{STATE_DIR}"]
+            svc["environment"]["COPLANE_STATE_DIR"] = STATE_DIR
         if spec.name == "api":
             svc["ports"] = [f"{BIND}:8000:8000"]
             svc["command"] = [*svc["command"], "--host", "0.0.0.0"]
             svc["healthcheck"] = _api_healthcheck()
         services[spec.name] = svc
-    return {"services": services, "volumes": {CERTS_VOLUME: {}}}
+    return {"services": services, "volumes": {CERTS_VOLUME: {}, STATE_VOLUME: {}}}
 
 
 def router_config_text(vehicles: Sequence[str], fleet: str) -> str:
