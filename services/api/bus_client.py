@@ -103,6 +103,15 @@ class Ingest:
             ev = self.state.stream_event(sol, now)
             if ev is not None:
                 self.hub.publish(ev)
+            return
+        v = self.state.last_verdict
+        if v is not None and v.reason is not None and v.reason != "repeat":
+            n = self.state.rejected["solution", v.reason]
+            if n in (1, 10, 100, 1000) or n % 10_000 == 0:  # forged floods must not flood the log
+                log.warning(
+                    "untrusted solution ignored",
+                    extra={"reason": v.reason, "seq": sol.seq, "generation": sol.generation, "count": n},
+                )
 
     def diagnostics(self, payload: bytes) -> None:
         try:

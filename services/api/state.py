@@ -3,9 +3,11 @@
 Pure and synchronous: no I/O, no clock of its own (callers pass `now`), so unit tests drive it
 with hand-made messages; `views` turns it into the served models. Everything is bounded: vehicles
 (`max_vehicles`, ids validated), track points per vehicle (`history_per_vehicle`), errors kept for
-CEP95 (`accuracy_window`); counters are keyed by fixed slugs only. Solved epochs only move
-forward: a repeated epoch is a duplicate, an older one means the replay restarted, and the fleet
-picture is reset for it (see docs/api.md, "Solved epochs only move forward").
+CEP95 (`accuracy_window`); counters are keyed by fixed slugs only. Every solution passes the
+consumers' `SolutionGate` first (`coplane.bus.trust`): solved epochs only move forward within a
+server generation (a repeated epoch is a duplicate, an older one stale), implausible positions and
+epochs are rejected, and the fleet picture is reset only when a new server generation takes over
+(see docs/api.md, "Which solutions the API takes").
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from coplane.bus.trust import SolutionGate, Verdict
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
@@ -116,6 +119,7 @@ class FleetState:
         truth: Mapping[str, Mapping[GpsTime, Iterable[float]]] | None = None,
         known_vehicles: Iterable[str] = (),
         started: float = 0.0,
+        gate: SolutionGate | None = None,
     ) -> None:
         self.fleet = fleet
         self.history = history_per_vehicle
@@ -125,8 +129,12 @@ class FleetState:
         self.started = started
         self.truth = {v: TruthTrack(p) for v, p in (truth or {}).items() if p}
         self.vehicles: dict[str, StoredVehicle] = {}
-        for v in known_vehicles:
+        known = list(known_vehicles)
+        for v in known:
             self._vehicle(v)
+        # with a recording the fleet's vehicles are known: no other id is taken from a solution
+        self.gate = gate or SolutionGate(fleet, vehicles=known or None, max_vehicles=max_vehicles)
+        self.last_verdict: Verdict | None = None  # of the latest solution offered (for the ingest's log)
         self.fusion_alive: set[str] = set()
         self.solutions = 0
         self.duplicates = 0
@@ -176,7 +184,8 @@ class FleetState:
         return _v3(self._origin_rot @ (np.asarray(ecef, dtype=float) - self._origin_ecef))
 
     def _rewind(self, method: str) -> None:
-        """A replay restarted: forget tracks, states and this method's accuracy (others stay)."""
+        """A new server generation took over (the gate said so): forget tracks, states and this
+        method's accuracy (others stay)."""
         self.rewinds += 1
         for v in self.vehicles.values():
             v.track.clear()
@@ -191,20 +200,25 @@ class FleetState:
 
     # -- inputs ------------------------------------------------------------------------------
     def on_solution(self, sol: SolutionMessage, now: float) -> bool:
-        """Take one fleet solution; False if it was not used (other fleet, duplicate epoch)."""
-        if sol.fleet != self.fleet:
-            self.reject("solution", "wrong-fleet")
-            return False
+        """Take one fleet solution if the gate lets it through; False if it was not used (the reason
+        is counted: `duplicates` for a repeated epoch, `rejected["solution", reason]` otherwise,
+        `rejected["vehicle", reason]` for vehicles left out of a taken one)."""
         if sol.method not in self.accuracy and len(self.accuracy) >= MAX_METHODS:
             self.reject("solution", "too-many-methods")
             return False
-        t = GpsTime(sol.epoch.week, sol.epoch.tow)
-        if self.last_t is not None:
-            if t == self.last_t:
+        verdict = self.last_verdict = self.gate.check(sol, now)
+        if verdict.solution is None:
+            if verdict.reason == "repeat":
                 self.duplicates += 1
-                return False
-            if t < self.last_t:
-                self._rewind(sol.method)
+            else:
+                self.reject("solution", verdict.reason or "untrusted")
+            return False
+        for _, reason in verdict.dropped:
+            self.reject("vehicle", reason)
+        if verdict.reset:
+            self._rewind(sol.method)
+        sol = verdict.solution
+        t = GpsTime(sol.epoch.week, sol.epoch.tow)
         self.last_t = t
         self.last_method = sol.method
         self.last_received = now

@@ -3,6 +3,11 @@
 Lockstep: publish epoch t, wait for the fleet solution of t (resending t every `resend_s`, so a
 restarted fusion server picks it up), ingest it, go on with t+1. Realtime: publish on the wall
 clock (scaled by `speed`) and ingest whatever solutions have arrived; never block on the server.
+
+Only solutions the consumers' `SolutionGate` accepts (`coplane.bus.trust`: this fleet and method,
+positions on the Earth, epochs moving forward within one server generation, no impossible jumps,
+only the manifest's vehicles) reach the step's plane history: a forged solution must never shape
+the planes this vehicle fits.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import Counter
 
 from coplane.bus import (
     BadMessage,
@@ -23,6 +29,7 @@ from coplane.bus import (
     encode,
     session_config,
 )
+from coplane.bus.trust import SolutionGate
 from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
 from coplane.recording.reader import open_recording
@@ -47,6 +54,7 @@ class VehicleAgent:
         )
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)
+        self.gate = SolutionGate(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
         self.step = setup.vehicle_step(rec, vid)
         self.schedule = vehicle_schedule(rec.vehicle_epochs(vid), man.interval_s)
         # only this vehicle's file, the base and uwb.csv are read: agents start fast
@@ -69,20 +77,47 @@ class VehicleAgent:
             subscribe=[Subscription(self.keys.solution)],
         )
 
-    def _ingest_one(self, ev: BusEvent) -> SolutionMessage | None:
+    @property
+    def untrusted(self) -> Counter[str]:
+        """Solutions (and vehicles in them) the gate kept out of the plane history, by reason."""
+        return self.gate.counts
+
+    def _ingest_one(self, ev: BusEvent, expect: GpsTime | None = None) -> SolutionMessage | None:
+        """Decode, gate and ingest one bus event; the solution taken, or None. `expect`: this
+        agent's current epoch (solutions far beyond it are forged; a gap before it is no reason to
+        reject the one a lockstep agent waits for)."""
         if not isinstance(ev, Payload):
             return None
         try:
             sol = decode(SolutionMessage, ev.data)
         except BadMessage as exc:
             self.bad_solutions += 1
-            log.warning("rejected solution payload", extra={"reason": str(exc)})
+            if self.bad_solutions in (1, 10, 100, 1000) or self.bad_solutions % 10_000 == 0:
+                log.warning(
+                    "rejected solution payload", extra={"reason": str(exc), "count": self.bad_solutions}
+                )
             return None
-        if sol.fleet != self.fleet:
+        return self._take(self.gate.check(sol, time.time(), expect).solution, sol)
+
+    def _take(self, taken: SolutionMessage | None, offered: SolutionMessage) -> SolutionMessage | None:
+        """Ingest what the gate let through; count and (rate-limited) log what it did not."""
+        if taken is None:
+            reason = self.gate.last_reason or "untrusted"
+            n = self.gate.counts[reason]
+            if reason not in ("repeat", "wrong-fleet") and (n in (1, 10, 100, 1000) or n % 10_000 == 0):
+                log.warning(
+                    "untrusted solution ignored",
+                    extra={
+                        "reason": reason,
+                        "seq": offered.seq,
+                        "generation": offered.generation,
+                        "count": n,
+                    },
+                )
             return None
-        self.step.ingest(sol)
+        self.step.ingest(taken)
         self.ingested += 1
-        return sol
+        return taken
 
     def run(self) -> int:
         """Replay the whole schedule; returns the number of node messages published."""
@@ -109,7 +144,7 @@ class VehicleAgent:
                     if self.stop.wait(max(0.0, due - time.time())):
                         break
                 for ev in node.drain():  # ingest what has arrived, in order
-                    self._ingest_one(ev)
+                    self._ingest_one(ev, expect=t)
                 msg = self.step.process(t, ep, self.corrections.at(t), self.uwb.get(t, ()))
                 msg = msg.model_copy(update={"sent_unix_s": time.time()})  # latency stamp only
                 payload = encode(msg)
@@ -129,7 +164,10 @@ class VehicleAgent:
             ev = node.get(timeout=0.05)
             sol = None
             if ev is not None:
-                sol = self._ingest_one(ev)
+                sol = self._ingest_one(ev, expect=t)
+            elif (held := self.gate.held) is not None and (v := self.gate.release(time.time())) is not None:
+                # a restarted server's first solution, held until the old one went quiet
+                sol = self._take(v.solution, held)
             elif time.monotonic() - last_send > self.s.resend_s:
                 node.put(key, payload)  # the server dedups; a restarted server needs it
                 last_send = time.monotonic()

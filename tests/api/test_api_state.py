@@ -134,7 +134,11 @@ def test_duplicates_and_restarted_replay() -> None:
         assert st.on_solution(solution(k, T0 + float(k), [vehicle_state("a", ecef_at(1, 0))]), 0.0)
     assert not st.on_solution(solution(2, T0 + 2.0, [vehicle_state("a", ecef_at(1, 0))]), 0.0)
     assert st.duplicates == 1
-    assert st.on_solution(solution(0, T0, [vehicle_state("a", ecef_at(2, 0))], method="mci"), 0.0)
+    restart = solution(0, T0, [vehicle_state("a", ecef_at(2, 0))], method="mci")
+    assert not st.on_solution(restart, 0.0)  # same generation (none), older epoch: stale, no reset
+    assert st.rejected["solution", "stale"] == 1 and st.rewinds == 0
+    # a new server run (another generation), once the old one has gone quiet: reset
+    assert st.on_solution(restart.model_copy(update={"generation": "0123abcd"}), 10.0)
     assert st.rewinds == 1
     tr = views.track(st, "a")
     assert tr is not None and len(tr.points) == 1  # the new run's track only
@@ -143,7 +147,8 @@ def test_duplicates_and_restarted_replay() -> None:
     assert not st.on_solution(solution(5, T0 + 5.0, [vehicle_state("a", ecef_at(1, 0))], fleet="other"), 0)
     assert st.rejected["solution", "wrong-fleet"] == 1
     for k in range(30):  # accuracy is per method: their number is bounded
-        st.on_solution(solution(9 + k, T0 + 9.0 + k, [vehicle_state("a", ecef_at(1, 0))], method=f"m{k}"), 0)
+        sol = solution(9 + k, T0 + 9.0 + k, [vehicle_state("a", ecef_at(1, 0))], method=f"m{k}")
+        st.on_solution(sol.model_copy(update={"generation": "0123abcd"}), 10.0)
     assert len(st.accuracy) == 16 and st.rejected["solution", "too-many-methods"] == 30 - 14
 
 

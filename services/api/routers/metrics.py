@@ -122,12 +122,16 @@ class FleetCollector(Collector):
         dup = CounterMetricFamily("coplane_api_duplicate_solutions", "Solutions for an epoch already seen")
         dup.add_metric([], float(st.duplicates))
         yield dup
-        rw = CounterMetricFamily("coplane_api_replay_restarts", "Solved epochs went back: state was reset")
+        rw = CounterMetricFamily(
+            "coplane_api_replay_restarts", "A new fusion server generation took over: state was reset"
+        )
         rw.add_metric([], float(st.rewinds))
         yield rw
         rej = CounterMetricFamily(
             "coplane_api_rejected",
-            "Bus payloads the API could not use, by source and kind",
+            "Bus payloads the API could not use, by source and kind (source=solution: the"
+            " SolutionGate's reasons, e.g. off-earth, stale, too-far-ahead, new-generation;"
+            " source=vehicle: vehicles left out of a taken solution)",
             labels=["source", "kind"],
         )
         for (source, kind), n in sorted(st.rejected.items()):

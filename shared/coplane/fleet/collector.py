@@ -7,11 +7,17 @@ loses nothing it already received; the CSV files and summaries are still written
 the collected run. SQLite rather than CSV rows with fsync: a transaction is either in the file or
 not, so a kill at any instant never leaves a torn last row, and the file is the same format the
 fusion server and the API keep (docs/reliability/durability.md).
+
+Only solutions the consumers' `SolutionGate` accepts (`coplane.bus.trust`) are recorded or written:
+a forged or implausible solution never reaches the results on disk; `untrusted` counts them.
 """
 
 from __future__ import annotations
 
 import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
 
@@ -23,8 +29,10 @@ from coplane.bus import (
     Payload,
     Subscription,
     decode,
+    encode,
     session_config,
 )
+from coplane.bus.trust import SolutionGate
 from coplane.evaluate.runner import MethodRun, record_solution
 from coplane.messages import DiagnosticsMessage, SolutionMessage
 from coplane.store import SolutionLog
@@ -38,8 +46,16 @@ class Collector:
     Events are handled on Zenoh's thread (recording a solution is quick); read `run` under `lock`.
     """
 
-    def __init__(self, fleet: str, method: str, connect: str, out: Path | None = None) -> None:
+    def __init__(
+        self,
+        fleet: str,
+        method: str,
+        connect: str,
+        out: Path | None = None,
+        vehicles: Iterable[str] | None = None,
+    ) -> None:
         self.keys = KeySpace(fleet)
+        self.gate = SolutionGate(fleet, method=method, vehicles=vehicles)
         self.stream: SolutionLog | None = None
         if out is not None:
             path = out / STREAM_FILE
@@ -72,6 +88,11 @@ class Collector:
             self.bad += 1
             return
         with self.lock:
+            taken = self.gate.check(sol, time.time()).solution
+            if taken is None:
+                return  # counted in `untrusted`
+            if taken is not sol:  # some vehicles were left out: store what was taken
+                sol, payload = taken, encode(taken)
             if self.stream is not None:
                 self.stream.append(sol, payload)  # on disk before it counts as received
             record_solution(self.run, sol, {})
@@ -82,6 +103,11 @@ class Collector:
             self.diag = decode(DiagnosticsMessage, payload)
         except BadMessage:
             self.bad += 1
+
+    @property
+    def untrusted(self) -> Counter[str]:
+        """Solutions (and vehicles in them) the gate did not let through, by reason."""
+        return self.gate.counts
 
     def close(self) -> None:
         try:
