@@ -33,6 +33,8 @@ One vehicle dropped (counted as `vehicle-unknown`, `vehicle-jump`, `too-many-veh
     `max_speed_mps * epoch gap + jump_margin_m`. A genuine estimator may re-initialise one vehicle
     from a poor fix, and lockstep agents must still receive the epoch, so only that vehicle goes;
   - a new vehicle once `max_vehicles` are remembered (bounded memory without a known set).
+  If no vehicle of a non-empty message is left, the message is rejected (`no-trusted-vehicle`)
+  without moving the epoch, so the genuine solution of that epoch is still taken.
 
 Generations: every solution names its server run (`SolutionMessage.generation`; the same after a
 resume from the log, so a crash is not a new run). Only a different generation lets a consumer
@@ -194,38 +196,55 @@ class SolutionGate:
         return self.check(sol, now)
 
     def _accept(self, sol: SolutionMessage, t: GpsTime, now: float, *, reset: bool) -> Verdict:
-        if reset or self.run is None:
-            self.run = _Run(sol.generation, t, now, now)
-            self.held = None
-            if reset:
-                self.resets += 1
-        run = self.run
-        run.epoch, run.accepted_at, run.seen_at = t, now, now
+        """Take `sol` without the vehicles that fail their own checks; if none is left of a
+        non-empty message, reject it without moving the epoch (so the genuine one still counts)."""
+        fresh = reset or self.run is None
+        positions = {} if fresh or self.run is None else self.run.positions
         keep: list[VehicleState] = []
         dropped: list[tuple[str, str]] = []
         for vs in sol.vehicles:
-            reason = self._vehicle_reason(run, vs, t)
+            reason = self._vehicle_reason(positions, len(keep), vs, t)
             if reason is None:
                 keep.append(vs)
-                run.positions[vs.vehicle_id] = (t, vs.position_ecef_m)
             else:
                 self.counts[reason] += 1
                 dropped.append((vs.vehicle_id, reason))
+        if sol.vehicles and not keep:
+            return self._reject("no-trusted-vehicle")
+        if fresh:
+            self.run = _Run(sol.generation, t, now, now)
+            self.held = None
+            self.resets += reset
+        run = self.run
+        assert run is not None
+        run.epoch, run.accepted_at, run.seen_at = t, now, now
+        for vs in keep:
+            run.positions[vs.vehicle_id] = (t, vs.position_ecef_m)
         self.accepted += 1
         self.last_reason = None
         out = sol if not dropped else sol.model_copy(update={"vehicles": keep})
         return Verdict(out, reset=reset, dropped=tuple(dropped))
 
-    def _vehicle_reason(self, run: _Run, vs: VehicleState, t: GpsTime) -> str | None:
-        """Why one vehicle of an accepted message is dropped (None: it is kept)."""
+    def _vehicle_reason(
+        self,
+        positions: dict[str, tuple[GpsTime, tuple[float, float, float]]],
+        adding: int,
+        vs: VehicleState,
+        t: GpsTime,
+    ) -> str | None:
+        """Why one vehicle of a message is dropped (None: it is kept); `adding`: vehicles of this
+        message already kept (they may be new ones, counted against the cap)."""
         if self.vehicles is not None and vs.vehicle_id not in self.vehicles:
             return "vehicle-unknown"
-        last = run.positions.get(vs.vehicle_id)
-        if last is None and len(run.positions) >= self.max_vehicles:
-            return "too-many-vehicles"  # with no known set, invented ids must not grow memory
-        if last is not None:
-            t0, p0 = last
-            dist = math.dist(p0, vs.position_ecef_m)
-            if dist > self.max_speed_mps * abs(t.seconds - t0.seconds) + self.jump_margin_m:
-                return "vehicle-jump"
+        last = positions.get(vs.vehicle_id)
+        if last is None:
+            if len(positions) + adding >= self.max_vehicles:
+                return "too-many-vehicles"  # with no known set, invented ids must not grow memory
+            return None
+        t0, p0 = last
+        if (
+            math.dist(p0, vs.position_ecef_m)
+            > self.max_speed_mps * abs(t.seconds - t0.seconds) + self.jump_margin_m
+        ):
+            return "vehicle-jump"
         return None

@@ -1,0 +1,95 @@
+"""A vehicle agent fed genuine and forged solutions (issue 13): forged positions never reach its
+plane history (they cut u3's usable planes from 19 epochs to 1 and pushed its error to 25 m).
+
+The agent is built from a short simulated recording; its bus side is replaced by handing it
+`Payload` events directly, and every solution its step ingests is recorded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from coplane.bus import Payload, encode
+from coplane.evaluate.runner import run_method
+from coplane.geo import enu_to_ecef
+from coplane.messages import EpochTime, SolutionMessage, VehicleState
+from coplane.recording.reader import open_recording
+from coplane.sim.generate import simulate
+from coplane.steps import gps_time
+from coplane.vehicle_agent.agent import VehicleAgent
+from coplane.vehicle_agent.settings import AgentSettings
+
+GEN = "1234abcd1234abcd"
+
+
+@pytest.fixture(scope="module")
+def genuine(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[SolutionMessage]]:
+    rec = simulate("urban-loop", tmp_path_factory.mktemp("rec") / "r", vehicles=3, duration_s=12, seed=3)
+    sols: list[SolutionMessage] = []
+    run_method(open_recording(rec), "pc", on_solution=lambda s, _m: sols.append(s), jobs=1)
+    return rec, [s.model_copy(update={"generation": GEN}) for s in sols]
+
+
+def _moved(vs: VehicleState, east_m: float) -> VehicleState:
+    x, y, z = (float(c) for c in enu_to_ecef([east_m, 0.0, 0.0], vs.position_ecef_m))
+    return vs.model_copy(update={"position_ecef_m": (x, y, z)})
+
+
+def _forgeries(s: SolutionMessage) -> list[SolutionMessage]:
+    """Valid messages a forger could put next to genuine solution `s`."""
+    ep = s.epoch
+    return [
+        s.model_copy(update={"epoch": EpochTime(week=ep.week - 1, tow=ep.tow)}),  # a week earlier
+        s.model_copy(update={"epoch": EpochTime(week=ep.week + 1, tow=ep.tow)}),  # a week ahead
+        s.model_copy(update={"vehicles": [_moved(v, 5000.0) for v in s.vehicles]}),  # 5 km away
+        s.model_copy(
+            update={
+                "vehicles": [v.model_copy(update={"position_ecef_m": (0.0, 0.0, 0.0)}) for v in s.vehicles]
+            }
+        ),
+        s.model_copy(update={"method": "mci"}),
+        s.model_copy(update={"generation": "feedfacefeedface"}),  # an invented server run
+    ]
+
+
+def test_agent_ingests_only_genuine_solutions(
+    genuine: tuple[Path, list[SolutionMessage]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rec, sols = genuine
+    agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc"))
+    taken: list[SolutionMessage] = []
+    monkeypatch.setattr(agent.step, "ingest", taken.append)
+    key = agent.keys.solution
+    for k, s in enumerate(sols):
+        t = gps_time(s.epoch)
+        order = [*_forgeries(s), s] if k else [s, *_forgeries(s)]  # then the forger gets in first
+        for m in (*order, s):  # the last: a resend / the republish after a resume
+            agent._ingest_one(Payload(key, encode(m)), expect=t)
+    assert taken == sols  # every genuine solution, each once, nothing else
+    n, u = len(sols), agent.untrusted
+    assert u["stale"] == u["too-far-ahead"] == u["off-earth"] == u["wrong-method"] == n
+    assert u["new-generation"] == n
+    assert u["no-trusted-vehicle"] == n - 1 and u["vehicle-jump"] == 3 * (n - 1)  # 5 km, 3 vehicles
+    assert u["repeat"] == n + 1  # the resends, and the 5 km one of the first epoch (after the genuine)
+
+
+def test_plane_history_is_the_clean_runs(genuine: tuple[Path, list[SolutionMessage]]) -> None:
+    """With the real step: u3's plane history after an attacked run is the clean run's."""
+    rec, sols = genuine
+    clean = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc"))
+    attacked = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc"))
+    for a in (clean, attacked):
+        a.step.first_epoch = gps_time(sols[0].epoch)  # as if it had published its first epoch
+    key = clean.keys.solution
+    for k, s in enumerate(sols):
+        t = gps_time(s.epoch)
+        for m in [*_forgeries(s), s] if k else [s, *_forgeries(s)]:  # as above
+            attacked._ingest_one(Payload(key, encode(m)), expect=t)
+        clean._ingest_one(Payload(key, encode(s)), expect=t)
+    assert attacked.ingested == clean.ingested == len(sols)
+    assert attacked.step._last_fused is not None and clean.step._last_fused is not None
+    assert attacked.step._last_fused[0] == clean.step._last_fused[0]
+    assert (attacked.step._last_fused[1] == clean.step._last_fused[1]).all()
+    assert len(attacked.step.history) == len(clean.step.history) > 0
