@@ -270,8 +270,14 @@ class FleetState:
         )
 
     def on_diagnostics(self, d: DiagnosticsMessage) -> bool:
+        """Take the server's counters; False for another fleet, or for another server generation
+        than the one whose solutions the gate follows (a stray or forged server's counters)."""
         if d.fleet != self.fleet:
             self.reject("diagnostics", "wrong-fleet")
+            return False
+        gen = self.gate.generation
+        if d.generation is not None and gen is not None and d.generation != gen:
+            self.reject("diagnostics", "other-generation")
             return False
         self.diagnostics = d
         for vid, c in d.vehicles.items():

@@ -117,3 +117,14 @@ def test_with_a_recording_only_its_vehicles_are_taken() -> None:
     assert st.on_solution(extra, 0.0)
     assert sorted(st.vehicles) == fleet.ids
     assert st.rejected["vehicle", "vehicle-unknown"] == 1
+
+
+def test_diagnostics_of_another_generation_are_ignored() -> None:
+    fleet = SyntheticFleet(n_vehicles=2, n_epochs=3)
+    st = fleet.state()
+    assert st.on_diagnostics(fleet.diagnostics(0).model_copy(update={"generation": GEN_B}))  # none yet
+    assert st.on_solution(fleet.solution(0).model_copy(update={"generation": GEN_A}), 0.0)
+    assert not st.on_diagnostics(fleet.diagnostics(1).model_copy(update={"generation": GEN_B}))
+    assert st.rejected["diagnostics", "other-generation"] == 1
+    assert st.on_diagnostics(fleet.diagnostics(2).model_copy(update={"generation": GEN_A}))
+    assert st.diagnostics is not None and st.diagnostics.epochs_solved == 3
