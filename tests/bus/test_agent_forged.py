@@ -7,6 +7,7 @@ The agent is built from a short simulated recording; its bus side is replaced by
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -93,3 +94,41 @@ def test_plane_history_is_the_clean_runs(genuine: tuple[Path, list[SolutionMessa
     assert attacked.step._last_fused[0] == clean.step._last_fused[0]
     assert (attacked.step._last_fused[1] == clean.step._last_fused[1]).all()
     assert len(attacked.step.history) == len(clean.step.history) > 0
+
+
+class _QuietNode:
+    """A bus node that delivers some events, then nothing (the server waits for the next epoch)."""
+
+    def __init__(self, events: list[Payload]) -> None:
+        self.events = list(events)
+        self.puts: list[tuple[str, bytes]] = []
+
+    def get(self, timeout: float | None = None) -> Payload | None:
+        if self.events:
+            return self.events.pop(0)
+        time.sleep(timeout or 0.0)
+        return None
+
+    def put(self, key: str, payload: bytes) -> None:
+        self.puts.append((key, payload))
+
+
+def test_lockstep_agent_is_not_stalled_by_a_fast_server_restart(
+    genuine: tuple[Path, list[SolutionMessage]],
+) -> None:
+    """The restarted server (a new generation) solves the awaited epoch once: the gate holds it
+    while the old server was heard recently and the agent takes it once that one is quiet."""
+    rec, sols = genuine
+    agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc"))
+    agent.gate.restart_quiet_s = 0.3
+    key = agent.keys.solution
+    for s in sols[:3]:
+        assert agent._ingest_one(Payload(key, encode(s)), expect=gps_time(s.epoch)) is not None
+    t = gps_time(sols[3].epoch)
+    restarted = sols[3].model_copy(update={"generation": "5ca1ab1e5ca1ab1e", "seq": 0})
+    node = _QuietNode([Payload(key, encode(restarted))])
+    t0 = time.monotonic()
+    agent._wait_for_solution(t, node, agent.keys.node("u3"), b"{}")  # type: ignore[arg-type]
+    assert time.monotonic() - t0 < 5.0
+    assert agent.gate.generation == "5ca1ab1e5ca1ab1e" and agent.gate.resets == 1
+    assert agent.ingested == 4
