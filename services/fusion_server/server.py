@@ -7,6 +7,7 @@ reason only (so hostile ids cannot grow memory). Membership follows Zenoh liveli
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
 import time
@@ -26,11 +27,13 @@ from coplane.bus import (
     session_config,
 )
 from coplane.gtime import GpsTime
+from coplane.logs import RateLimitedLog
 from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
 from coplane.recording.manifest import load_manifest
 from coplane.replay import replay_setup
 from coplane.steps import epoch_time, gps_time
 
+from .admission import Admission, AdmissionConfig
 from .durability import Durability
 from .settings import FusionSettings
 
@@ -67,6 +70,22 @@ class FusionServer:
         self.last_solve_s: float | None = None
         self.started = time.monotonic()
         self.waiting_since: float | None = None
+        self.admission = Admission(
+            AdmissionConfig(
+                interval_s=man.interval_s,
+                max_ahead_s=settings.max_ahead_s,
+                max_pending_epochs=settings.max_pending_epochs,
+                rate_per_s=settings.rate_limit_per_s,
+                rate_per_epoch=settings.rate_limit_per_epoch,
+                burst=settings.rate_limit_burst,
+                silent_after_s=settings.stall_timeout_s,
+                spp_residual_m=settings.spp_residual_max_m,
+                plane_tilt_deg=settings.plane_tilt_max_deg,
+                plane_distance_m=settings.plane_distance_max_m,
+                plane_policy=settings.plane_policy,
+            )
+        )
+        self.reject_log = RateLimitedLog(log, settings.reject_log_every_s)
         self.generation = Durability.new_generation()  # this run; a resume keeps the logged one
         self.durable = Durability.for_server(self)  # the solution log (opened by run)
 
@@ -99,12 +118,14 @@ class FusionServer:
         except Exception:
             log.exception("event handling failed")
 
-    def handle_node(self, key: str, payload: bytes) -> None:
+    def handle_node(self, key: str, payload: bytes, now: float | None = None) -> None:
+        """One node payload: decoded, then admitted into `pending` only if `Admission` lets it in
+        (docs/bus.md, Admission); every payload ends in exactly one counter bucket."""
+        now = time.monotonic() if now is None else now
         self.node_payloads += 1
         vid = KeySpace.vehicle_of_node_key(key)
         if vid is None or vid not in self.known:
-            self.rejected_by_reason["unknown-vehicle"] += 1
-            log.warning("rejected node message", extra={"key": key[:120], "reason": "unknown-vehicle"})
+            self._reject(None, "unknown-vehicle", key[:120])
             return
         c = self.counters[vid]
         c["received"] += 1
@@ -115,23 +136,54 @@ class FusionServer:
             if msg.fleet != self.fleet:
                 raise BadMessage("wrong-fleet", f"fleet {msg.fleet!r} != {self.fleet!r}")
         except BadMessage as exc:
-            c["rejected"] += 1
-            self.rejected_by_reason[exc.kind] += 1
-            log.warning("rejected node message", extra={"vehicle": vid, "reason": str(exc)})
+            self._reject(vid, exc.kind, str(exc))
             return
         t = gps_time(msg.epoch)
-        if self.solved_up_to is not None and not (self.solved_up_to < t):
+        digest = hashlib.blake2b(payload, digest_size=16).digest()
+        v = self.admission.check(
+            msg,
+            t,
+            digest,
+            now,
+            solved_up_to=self.solved_up_to,
+            pending_epochs=len(self.pending),
+            epoch_pending=t in self.pending,
+        )
+        if v.outcome == "late":
             c["late"] += 1
             return
-        if vid in self.pending.get(t, {}):
-            c["duplicate"] += 1
+        if v.outcome == "duplicate":
+            c["duplicate"] += 1  # an identical re-send (lockstep agents resend every second)
             return
+        if v.outcome == "reject" or v.message is None:
+            self._reject(vid, v.reason, v.detail or f"epoch {t}")
+            return
+        if v.plane_dropped:  # plane_policy "drop": the message is used without its plane (counts planes)
+            self.rejected_by_reason["plane-dropped"] += 1
+            self.reject_log.warning(
+                (vid, "plane-dropped"),
+                "dropped an implausible plane",
+                {"vehicle": vid, "reason": "plane-dropped", "detail": v.detail},
+            )
         if vid in self.latest and t < self.latest[vid]:
             c["out_of_order"] += 1  # still usable: its epoch is not solved yet
-        self.pending[t][vid] = msg
-        self.first_arrival.setdefault(t, time.monotonic())
+        self.pending[t][vid] = v.message
+        self.first_arrival.setdefault(t, now)
         if vid not in self.latest or self.latest[vid] < t:
             self.latest[vid] = t
+        self.admission.admitted(vid, t, msg.seq, digest, now)
+
+    def _reject(self, vid: str | None, reason: str, detail: str) -> None:
+        """Count a rejected payload (per vehicle when it names a known one) and log it, at most
+        once per (vehicle, reason) every `reject_log_every_s`: hostile input never floods the log."""
+        if vid is not None:
+            self.counters[vid]["rejected"] += 1
+        self.rejected_by_reason[reason] += 1
+        self.reject_log.warning(
+            (vid, reason),
+            "rejected node message",
+            {"vehicle": vid or "", "reason": reason, "detail": detail[:300]},
+        )
 
     def handle_alive(self, key: str, alive: bool) -> None:
         ident = KeySpace.id_of_alive_key(key)
@@ -147,18 +199,31 @@ class FusionServer:
                 log.info("vehicle offline", extra={"vehicle": vid})
             self.live.discard(vid)
             self.latest.pop(vid, None)
+            self.admission.offline(vid)  # a restarted agent counts its seq from 0 again
 
     # -- solving -------------------------------------------------------------------------------
     def ready_epoch(self, now: float) -> GpsTime | None:
-        """The next epoch to solve now, or None."""
+        """The next epoch to solve now, or None.
+
+        Realtime never solves an epoch ahead of the fleet's current epoch (`Admission.solve_limit`):
+        a message ahead of the fleet waits for it instead of making the fleet's epochs late. Lockstep
+        waits for each silent live vehicle once (`stall_timeout_s`), then not again until it sends."""
+        self._drop_beyond_window(now)
         if not self.pending:
             return None
         t = min(self.pending)
         if self.s.pace == "realtime":
+            limit = self.admission.solve_limit(now, self.solved_up_to)
+            if limit is not None and limit < t:
+                return None
             return t if now - self.first_arrival[t] >= self.s.deadline_s else None
         if now - self.started < self.s.startup_wait_s and not self.known <= self.live:
             return None  # lockstep start: give every agent the chance to show up
-        waiting = [v for v in self.live if v not in self.latest or self.latest[v] < t]
+        waiting = [
+            v
+            for v in self.live
+            if (v not in self.latest or self.latest[v] < t) and not self.admission.is_silent(v)
+        ]
         if not waiting:
             self.waiting_since = None
             return t
@@ -166,13 +231,26 @@ class FusionServer:
             self.waiting_since = now
         if now - self.waiting_since > self.s.stall_timeout_s:
             log.warning("solving without silent vehicles", extra={"vehicles": ",".join(sorted(waiting))})
+            self.admission.mark_silent(waiting)  # e.g. a token without an agent: wait once, not every epoch
             self.waiting_since = None
             return t
         return None
 
+    def _drop_beyond_window(self, now: float) -> None:
+        """Drop pending epochs beyond the window of the fleet's current epoch (admitted before the
+        fleet's epoch was known, e.g. from a lone first sender): they would never be solved. Their
+        messages are counted rejected (too-far-ahead), so the counters still add up."""
+        while self.pending and self.admission.beyond_window(t := max(self.pending), now, self.solved_up_to):
+            msgs = self.pending.pop(t)
+            self.first_arrival.pop(t, None)
+            self.admission.forget(t)
+            for vid in msgs:
+                self._reject(vid, "too-far-ahead", f"epoch {t} dropped from pending")
+
     def solve(self, t: GpsTime) -> SolutionMessage | None:
         msgs = self.pending.pop(t)
         self.first_arrival.pop(t, None)
+        self.admission.solved(t)
         missing = sorted(v for v in self.live if v not in msgs)
         for v in missing:
             self.counters[v]["missing"] += 1
@@ -207,6 +285,9 @@ class FusionServer:
             rejected_by_reason=dict(self.rejected_by_reason),
             live_vehicles=sorted(self.live),
             node_payloads=self.node_payloads,
+            pending_epochs=len(self.pending),
+            pending_limit=self.admission.config.pending_limit,
+            generation=self.generation,
         )
 
     def run(self) -> None:

@@ -41,4 +41,33 @@ class FusionSettings(ServiceSettings):
     resume_max_age_s: float = Field(
         default=300.0, ge=0.0, description="Resume from the log only if the crashed server wrote it lately"
     )
+    # Admission of node messages (services/fusion_server/admission.py; docs/bus.md, Admission)
+    max_ahead_s: float = Field(
+        default=30.0, gt=0.0, description="Reject epochs this far ahead of the fleet's current epoch"
+    )
+    max_pending_epochs: int = Field(
+        default=0, ge=0, description="Epochs that may wait to be solved; 0: window + history depth + margin"
+    )
+    rate_limit_per_s: float = Field(
+        default=5.0, ge=0.0, description="Node messages per vehicle per wall second"
+    )
+    rate_limit_per_epoch: float = Field(
+        default=3.0,
+        ge=0.0,
+        description="Node messages per vehicle per solved epoch (lockstep runs as fast as it solves)",
+    )
+    rate_limit_burst: float = Field(
+        default=240.0, ge=1.0, description="Per vehicle; an agent's cache replays 120 after a server restart"
+    )
+    spp_residual_max_m: float = Field(
+        default=25.0, gt=0.0, description="Median pseudorange residual at a reported SPP fix"
+    )
+    plane_tilt_max_deg: float = Field(default=30.0, gt=0.0, le=90.0, description="Plane normal vs local up")
+    plane_distance_max_m: float = Field(default=150.0, gt=0.0, description="SPP fix to the reported plane")
+    plane_policy: Literal["reject", "drop"] = Field(
+        default="reject", description="An implausible plane rejects its message, or is dropped from it"
+    )
+    reject_log_every_s: float = Field(
+        default=10.0, ge=0.0, description="At most one rejection log per vehicle and reason this often"
+    )
     log_level: str = "INFO"
