@@ -36,7 +36,11 @@ class ApiSettings(ServiceSettings):
         default=3600, ge=1, le=1_000_000, description="Track points kept per vehicle (oldest dropped)"
     )
     max_vehicles: int = Field(
-        default=1024, ge=1, le=100_000, description="Vehicles tracked at most (bounds memory and labels)"
+        default=256,
+        ge=1,
+        le=100_000,
+        description="Vehicles tracked at most (bounds memory and labels: with the default track length,"
+        " 256 x 3600 points x ~0.5 kB is about 0.5 GB at worst)",
     )
     accuracy_window: int = Field(
         default=86_400,

@@ -113,7 +113,7 @@ class FleetState:
         fleet: str,
         *,
         history_per_vehicle: int = 3600,
-        max_vehicles: int = 1024,
+        max_vehicles: int = 256,
         accuracy_window: int = 86_400,
         stale_after_s: float = 10.0,
         truth: Mapping[str, Mapping[GpsTime, Iterable[float]]] | None = None,
