@@ -203,6 +203,7 @@ class FleetState:
         """Take one fleet solution if the gate lets it through; False if it was not used (the reason
         is counted: `duplicates` for a repeated epoch, `rejected["solution", reason]` otherwise,
         `rejected["vehicle", reason]` for vehicles left out of a taken one)."""
+        self.last_verdict = None
         if sol.method not in self.accuracy and len(self.accuracy) >= MAX_METHODS:
             self.reject("solution", "too-many-methods")
             return False
