@@ -156,7 +156,8 @@ class SolutionGate:
 
     def check(self, sol: SolutionMessage, now: float, expect: GpsTime | None = None) -> Verdict:
         """Accept (possibly without some vehicles) or reject one solution received at `now`.
-        `expect`: the epoch this consumer is waiting for (never `too-far-ahead`)."""
+        `expect`: the consumer's own current epoch (a vehicle agent's): look-ahead is then bounded
+        from it, not from the last accepted epoch, so a recording gap never rejects the awaited one."""
         if sol.fleet != self.fleet:
             return self._reject("wrong-fleet")
         if self.method is not None and sol.method != self.method:
