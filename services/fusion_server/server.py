@@ -27,10 +27,10 @@ from coplane.bus import (
     session_config,
 )
 from coplane.gtime import GpsTime
-from coplane.logs import RateLimitedLog
 from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
 from coplane.recording.manifest import load_manifest
 from coplane.replay import replay_setup
+from coplane.runtime import RateLimitedLog
 from coplane.steps import epoch_time, gps_time
 
 from .admission import Admission, AdmissionConfig

@@ -1,4 +1,5 @@
-"""Process plumbing shared by the services: JSON-lines logs, clean shutdown and layered settings."""
+"""Process plumbing shared by the services: JSON-lines logs (and rate-limited ones), clean shutdown and
+layered settings."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +56,51 @@ def setup_logging(service: str, level: str = "INFO") -> logging.Logger:
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
     return logging.getLogger(f"coplane.{service}")
+
+
+# -- rate-limited logging --------------------------------------------------------------------------
+# A hostile or broken sender can make a service reject thousands of messages a second; logging each
+# would fill the disk and bury everything else. The counts belong in metrics, not in the log.
+
+
+class RateLimitedLog:
+    """At most one record per key per `every_s`, with the number suppressed since the last one."""
+
+    def __init__(
+        self,
+        logger: logging.Logger,
+        every_s: float = 10.0,
+        max_keys: int = 1024,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.logger = logger
+        self.every_s = every_s
+        self.max_keys = max_keys
+        self.clock = clock
+        self._last: OrderedDict[Hashable, tuple[float, int]] = OrderedDict()  # key -> (logged at, suppressed)
+        self.suppressed = 0  # in total, for tests and metrics
+
+    def log(self, level: int, key: Hashable, msg: str, extra: dict[str, Any] | None = None) -> bool:
+        """Log `msg` unless this key was logged less than `every_s` ago; True if it was logged."""
+        now = self.clock()
+        last = self._last.get(key)
+        if last is not None and now - last[0] < self.every_s:
+            self._last[key] = (last[0], last[1] + 1)
+            self.suppressed += 1
+            return False
+        fields = dict(extra or {})
+        if last is not None and last[1]:
+            fields["suppressed"] = last[1]
+        self.logger.log(level, msg, extra=fields)
+        self._last[key] = (now, 0)
+        self._last.move_to_end(key)
+        while len(self._last) > self.max_keys:
+            self._last.popitem(last=False)
+        return True
+
+    def warning(self, key: Hashable, msg: str, extra: dict[str, Any] | None = None) -> bool:
+        """`log` at WARNING."""
+        return self.log(logging.WARNING, key, msg, extra)
 
 
 # -- clean shutdown ------------------------------------------------------------------------------
