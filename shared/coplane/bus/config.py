@@ -22,7 +22,6 @@ from coplane.bus.codec import MAX_PAYLOAD_BYTES
 from coplane.bus.security import ROUTER, BusSecurity, current_security, vehicle_of_identity
 from coplane.errors import ConfigError
 
-
 # Zenoh's defragmentation bound (`transport/link/rx/max_message_size`, default 1 GiB): a larger
 # fragmented message is dropped while it arrives instead of being buffered whole, by the router and
 # by every session. Twice the wire limit, so nothing `decode` would accept is ever cut. Measured with

@@ -148,7 +148,7 @@ def run_fleet(
         procs.start(router_spec(port, security.secure, fleet_name))
         wait_for_port(port)
         with use_security(security.as_identity(MONITOR) if security.secure else security):
-            collector = Collector(fleet_name, o.method, connect, out=o.out)
+            collector = Collector(fleet_name, o.method, connect, out=o.out, vehicles=vehicles)
         with collector:
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
             for spec in fleet_services(
