@@ -214,9 +214,7 @@ class Admission:
         if abs(t - t.round_to(cfg.interval_s)) > cfg.grid_tolerance_s:
             return Verdict("reject", "off-grid")
         if solved_up_to is not None and not solved_up_to < t:
-            if solved_up_to - t <= cfg.interval_s + cfg.grid_tolerance_s:
-                v.silent = False  # it keeps pace, just missed this epoch: lockstep waits for it again
-            return Verdict("late")
+            return Verdict("late")  # not evidence of life for lockstep: anyone can send an old epoch
         prior = self.digests.get(t, {}).get(vid)
         if prior is not None:
             return Verdict("duplicate") if prior == digest else Verdict("reject", "conflict")
@@ -253,6 +251,8 @@ class Admission:
         if v.latest is None or v.latest_seq is None:
             return True  # first message, or reset (liveliness lost, silent): an agent restarts at 0
         k = round((t - v.latest) / self.config.interval_s)
+        if seq == 0 and k > 0:
+            return True  # a restarted agent, before its old liveliness token has expired
         ds = seq - v.latest_seq
         return 1 <= ds <= k if k > 0 else k <= ds <= -1
 

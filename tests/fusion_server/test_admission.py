@@ -480,20 +480,27 @@ def test_conflicting_message_never_displaces_the_first(bundled: Genuine) -> None
 
 
 def test_replayed_seq_is_rejected_until_the_agent_restarts(bundled: Genuine) -> None:
+    """seq must move with the epoch; an agent that restarts counts from 0 again (seen as seq 0 on a
+    later epoch, or as its liveliness token going away)."""
     s = _server(bundled)
     _feed_lockstep(s, bundled, range(10))
     m = bundled.epochs[10]["u1"]
+    t = gps_time(m.epoch)
     assert m.seq == 10
-    _put(s, _at(m, gps_time(m.epoch) + 1.0, seq=5), 0.2)  # an old seq on a new epoch
-    _put(s, _at(m, gps_time(m.epoch) + 1.0, seq=10_000), 0.2)  # a seq jump past the epochs
+    _put(s, _at(m, t + 1.0, seq=5), 0.2)  # an old seq on a new epoch
+    _put(s, _at(m, t + 1.0, seq=10_000), 0.2)  # a seq jump past the epochs
     assert s.rejected_by_reason == {"replay": 2}
     _put(s, m, 0.2)
-    assert s.pending[gps_time(m.epoch)]["u1"] == m
-    # the agent restarts (its token goes away and comes back) and counts from 0 again
+    assert s.pending[t]["u1"] == m
+    _put(s, _at(m, t + 1.0, seq=0), 0.3)  # restarted before its old token expired
+    _put(s, _at(m, t + 2.0, seq=1), 0.3)
+    _put(s, _at(m, t + 3.0, seq=1), 0.3)  # the same seq on the next epoch: a replay
+    assert s.rejected_by_reason == {"replay": 3} and {t + 1.0, t + 2.0} <= set(s.pending)
+    # the token goes away and comes back: whatever seq it starts from is taken
     s.handle_alive(s.keys.alive("agent", "u1"), False)
     s.handle_alive(s.keys.alive("agent", "u1"), True)
-    _put(s, _at(m, gps_time(m.epoch) + 1.0, seq=0), 0.3)
-    assert s.rejected_by_reason == {"replay": 2}
+    _put(s, _at(m, t + 4.0, seq=7), 0.4)
+    assert s.rejected_by_reason == {"replay": 3} and t + 4.0 in s.pending
     _invariant(s)
 
 
