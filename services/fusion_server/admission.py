@@ -58,11 +58,9 @@ PLANE_TILT_DEG = 30.0
 # so the bound is loose (4x the genuine maximum); it catches planes that would pull the vehicle
 # far off (the 1e4 m offset of issue 13) and bounds what a plausible-looking forged plane can do.
 PLANE_DISTANCE_M = 150.0
-# Lowest radius a plane near the surface can have as |d| (d = -n.p for p on the plane): the
-# smallest Earth radius minus the lowest height, times cos of the largest tilt.
-_MIN_PLANE_D_M = (WGS84_A * (1.0 - 1.0 / 298.257223563) + SPP_HEIGHT_M[0]) * math.cos(
-    math.radians(PLANE_TILT_DEG)
-)
+# A plane near the surface has |d| (d = -n.p for p on the plane) between the smallest Earth radius
+# plus the lowest height, times cos of the largest tilt, and the largest radius plus the highest.
+_MIN_RADIUS_M = WGS84_A * (1.0 - 1.0 / 298.257223563) + SPP_HEIGHT_M[0]
 _MAX_PLANE_D_M = WGS84_A + SPP_HEIGHT_M[1]
 HISTORY_DEPTH = 120  # node messages an agent's publication cache replays to a restarted server
 
@@ -359,7 +357,7 @@ def plane_problem(msg: NodeMessage, max_tilt_deg: float, max_distance_m: float) 
     pl = msg.plane
     if pl is None or pl.status == "unavailable" or pl.normal is None or pl.d_antenna_m is None:
         return None
-    if not _MIN_PLANE_D_M <= abs(pl.d_antenna_m) <= _MAX_PLANE_D_M:
+    if not _MIN_RADIUS_M * math.cos(math.radians(max_tilt_deg)) <= abs(pl.d_antenna_m) <= _MAX_PLANE_D_M:
         return f"plane offset {pl.d_antenna_m:.0f} m does not put it near the Earth's surface"
     refs = [
         (what, p) for what, p in (("SPP fix", msg.spp.position_ecef_m), ("centroid", pl.centroid_ecef_m)) if p

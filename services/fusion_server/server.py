@@ -213,6 +213,9 @@ class FusionServer:
             return None
         t = min(self.pending)
         if self.s.pace == "realtime":
+            starting = self.solved_up_to is None and now - self.started < self.s.startup_wait_s
+            if starting and not self.known <= set(self.latest):
+                return None  # start: a lone first sender is not the fleet (it could be a week ahead)
             limit = self.admission.solve_limit(now, self.solved_up_to)
             if limit is not None and limit < t:
                 return None

@@ -263,6 +263,27 @@ def test_future_epoch_cannot_freeze_the_realtime_pace(bundled: Genuine) -> None:
     assert all(c["late"] == 0 for c in s.counters.values())
 
 
+def test_lone_first_sender_cannot_set_the_realtime_epoch(bundled: Genuine) -> None:
+    """At start nobody has a reference: a message a week ahead sent before the fleet speaks is
+    admitted (alone), but not solved; once the fleet speaks it is dropped and the fleet's epochs
+    are solved, none late."""
+    s = _server(bundled, pace="realtime")
+    s.started = 0.0
+    m = bundled.epochs[0]["u4"]
+    _put(s, _at(m, gps_time(m.epoch) + WEEK_S), 0.0)
+    assert not _solve_ready(s, 1.0)
+    solved = []
+    for k in range(20):
+        for vid in ("u1", "u2", "u3"):
+            _put(s, bundled.epochs[k][vid], 2.0 + k)
+        for j in range(10):
+            solved += _solve_ready(s, 2.0 + k + 0.1 * j)
+    assert [sol.epoch for sol in solved] == [b.epoch for b in bundled.solutions[:20]]
+    assert s.rejected_by_reason == {"too-far-ahead": 1}
+    assert all(c["late"] == 0 for c in s.counters.values())
+    _invariant(s)
+
+
 def test_future_epoch_cannot_remove_a_vehicle_in_lockstep(bundled: Genuine) -> None:
     s = _server(bundled)
     m = bundled.epochs[2]["u2"]
