@@ -213,9 +213,8 @@ class FusionServer:
             return None
         t = min(self.pending)
         if self.s.pace == "realtime":
-            starting = self.solved_up_to is None and now - self.started < self.s.startup_wait_s
-            if starting and not self.known <= set(self.latest):
-                return None  # start: a lone first sender is not the fleet (it could be a week ahead)
+            if self._realtime_start_wait(now):
+                return None
             limit = self.admission.solve_limit(now, self.solved_up_to)
             if limit is not None and limit < t:
                 return None
@@ -238,6 +237,18 @@ class FusionServer:
             self.waiting_since = None
             return t
         return None
+
+    def _realtime_start_wait(self, now: float) -> bool:
+        """Realtime start (nothing solved, no resume): wait until every vehicle of the recording has
+        been admitted, or `startup_wait_s`, so a lone first sender (it could be a week ahead) is not
+        taken for the fleet. A fast replay with a vehicle that never speaks stops waiting once two
+        vehicles have spoken and half the pending bound is used, before genuine epochs are refused."""
+        if self.solved_up_to is not None or now - self.started >= self.s.startup_wait_s:
+            return False
+        spoke = set(self.latest)
+        if self.known <= spoke:
+            return False
+        return not (len(spoke) >= 2 and len(self.pending) >= self.admission.config.pending_limit // 2)
 
     def _drop_beyond_window(self, now: float) -> None:
         """Drop pending epochs beyond the window of the fleet's current epoch (admitted before the

@@ -284,6 +284,22 @@ def test_lone_first_sender_cannot_set_the_realtime_epoch(bundled: Genuine) -> No
     _invariant(s)
 
 
+def test_realtime_start_wait_never_fills_pending(bundled: Genuine) -> None:
+    """A fast realtime replay (50 epochs a wall second) with a vehicle that never speaks: the start
+    wait ends before the pending bound could refuse a genuine epoch."""
+    s = _server(bundled, pace="realtime", deadline_s=0.01)
+    s.started = 0.0
+    solved = []
+    for k in range(200):
+        now = 0.02 * k
+        for vid in ("u1", "u2", "u3"):
+            _put(s, bundled.epochs[k][vid], now)
+        solved += _solve_ready(s, now + 0.015)
+    solved += _solve_ready(s, 100.0)
+    assert len(solved) == 200 and sum(s.rejected_by_reason.values()) == 0
+    assert all(c["late"] == 0 for c in s.counters.values())
+
+
 def test_future_epoch_cannot_remove_a_vehicle_in_lockstep(bundled: Genuine) -> None:
     s = _server(bundled)
     m = bundled.epochs[2]["u2"]
