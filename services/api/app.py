@@ -32,7 +32,7 @@ from coplane.recording.reader import open_recording
 from coplane.replay import fleet_id
 
 from .bus_client import Bus, Ingest, ZenohBus
-from .history import open_history
+from .history import check_history, open_history
 from .hub import StreamHub
 from .models import GeoJsonFeatureCollection, Problem, StreamEvent
 from .routers import accuracy, dashboard, health, metrics, planes, stream, vehicles
@@ -157,6 +157,8 @@ def create_app(
             started=clock(),
         )
     fleet = state.fleet
+    if bus is None:
+        check_history(settings, fleet)  # a corrupt log fails here, named, not in the lifespan
     hub = StreamHub(settings.stream_max_clients, settings.stream_queue)
     ingest = Ingest(state, hub, settings.max_pending, clock)
     the_bus: Bus = bus if bus is not None else ZenohBus(fleet, settings.connect, settings.lease_ms)

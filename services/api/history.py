@@ -87,3 +87,11 @@ def open_history(settings: ApiSettings, state: FleetState) -> ApiHistory | None:
         extra={"log": str(path), "solutions": n, "seconds": round(time.perf_counter() - t0, 3)},
     )
     return h
+
+
+def check_history(settings: ApiSettings, fleet: str) -> None:
+    """Fail now, named (`StoreError`), when the log the settings name is corrupt or foreign: before
+    uvicorn starts, so the user gets one line and exit code 2 instead of a lifespan traceback."""
+    path = log_path(settings.db, "api", fleet, connect=settings.connect)
+    if path is not None and path.is_file():
+        SolutionLog(path, writer=False).close()

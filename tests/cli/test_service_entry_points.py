@@ -33,3 +33,17 @@ def test_a_missing_recording_is_named(tmp_path: Path) -> None:
     )
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and "fleet.toml" in r.stderr
+
+
+def test_the_api_names_a_corrupt_log_before_serving(tmp_path: Path) -> None:
+    db = tmp_path / "api.sqlite"
+    db.write_bytes(b"not a database " * 100)
+    r = subprocess.run(
+        [sys.executable, "-m", "coplane.api", "--recording", str(RECORDING), "--db", str(db), "--port", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert f"{db}: not a usable SQLite log" in r.stderr
