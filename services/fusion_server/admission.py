@@ -87,6 +87,12 @@ class AdmissionConfig:
     plane_policy: Literal["reject", "drop"] = "reject"
 
     @property
+    def max_behind_s(self) -> float:
+        """How far behind the fleet's current epoch an epoch may be: what an agent's cache replays
+        to a restarted server (`HISTORY_DEPTH` epochs), plus the window's margin again."""
+        return self.max_ahead_s + HISTORY_DEPTH * self.interval_s
+
+    @property
     def pending_limit(self) -> int:
         """Epochs that may wait: the window ahead, plus what a restarted server's history replay
         brings at once (`HISTORY_DEPTH` epochs behind), plus a margin."""
@@ -161,15 +167,16 @@ class Admission:
         }
 
     def reference(
-        self, now: float, solved_up_to: GpsTime | None, exclude: str | None = None
+        self, now: float, solved_up_to: GpsTime | None, exclude: str | None = None, upper: bool = False
     ) -> GpsTime | None:
         """The fleet's current epoch: the lower median of the active vehicles' latest epochs (one
-        hostile vehicle cannot move it), never below the last solved epoch; None if no vehicle
-        (other than `exclude`) is active."""
+        vehicle far ahead cannot raise it; `upper`: the upper median, which one vehicle far behind
+        cannot lower), never below the last solved epoch; None if no vehicle (other than
+        `exclude`) is active."""
         lat = sorted(t for vid, t in self.active(now).items() if vid != exclude)
         if not lat:
             return None
-        med = lat[(len(lat) - 1) // 2]
+        med = lat[len(lat) // 2] if upper else lat[(len(lat) - 1) // 2]
         return med if solved_up_to is None or solved_up_to < med else solved_up_to
 
     def solve_limit(self, now: float, solved_up_to: GpsTime | None) -> GpsTime | None:
@@ -181,11 +188,27 @@ class Admission:
             return ref
         return solved_up_to + self.config.max_ahead_s if solved_up_to is not None else None
 
-    def beyond_window(self, t: GpsTime, now: float, solved_up_to: GpsTime | None) -> bool:
-        """Whether a pending epoch lies beyond the window of the fleet's current epoch (the server
-        drops such epochs once the fleet's epoch is known: they would never be solved)."""
-        ref = self.reference(now, solved_up_to)
-        return ref is not None and t - ref > self.config.max_ahead_s + self.config.grid_tolerance_s
+    def outside_window(self, t: GpsTime, now: float, solved_up_to: GpsTime | None) -> str | None:
+        """Whether a pending epoch lies outside the window of the fleet's current epoch, and on
+        which side (the server drops such epochs, admitted before the fleet's epoch was known:
+        they would never be solved, or solved as a stray epoch long before the fleet's).
+
+        Ahead: of the lower median, once an epoch was solved (the reference is then never below
+        it, so a vehicle far behind cannot pull it down) or with three active vehicles. Behind (of
+        the upper median): only before the first solve, with three active vehicles; afterwards an
+        epoch behind is late or between the last solved epoch and the fleet's (a resume's replay).
+        Two vehicles that disagree at the start cannot be told apart: nothing is dropped."""
+        tol = self.config.grid_tolerance_s
+        n = len(self.active(now))
+        if solved_up_to is not None or n >= 3:
+            ref = self.reference(now, solved_up_to)
+            if ref is not None and t - ref > self.config.max_ahead_s + tol:
+                return "too-far-ahead"
+        if solved_up_to is None and n >= 3:
+            ref = self.reference(now, None, upper=True)
+            if ref is not None and ref - t > self.config.max_behind_s + tol:
+                return "too-far-behind"
+        return None
 
     # -- one message ---------------------------------------------------------------------------
     def check(
@@ -216,7 +239,9 @@ class Admission:
         prior = self.digests.get(t, {}).get(vid)
         if prior is not None:
             return Verdict("duplicate") if prior == digest else Verdict("reject", "conflict")
-        ref = self.reference(now, solved_up_to, exclude=vid)
+        # ahead of the others' current epoch: only once an epoch was solved (before, one vehicle
+        # far behind could make a genuine epoch look ahead; `outside_window` cleans up the start)
+        ref = self.reference(now, solved_up_to, exclude=vid) if solved_up_to is not None else None
         if ref is not None and t - ref > cfg.max_ahead_s + cfg.grid_tolerance_s:
             return Verdict(
                 "reject", "too-far-ahead", detail=f"epoch {t} is {t - ref:.0f} s after the fleet's {ref}"

@@ -208,13 +208,11 @@ class FusionServer:
         Realtime never solves an epoch ahead of the fleet's current epoch (`Admission.solve_limit`):
         a message ahead of the fleet waits for it instead of making the fleet's epochs late. Lockstep
         waits for each silent live vehicle once (`stall_timeout_s`), then not again until it sends."""
-        self._drop_beyond_window(now)
-        if not self.pending:
+        self._drop_outside_window(now)
+        if not self.pending or self._start_wait(now):
             return None
         t = min(self.pending)
         if self.s.pace == "realtime":
-            if self._realtime_start_wait(now):
-                return None
             limit = self.admission.solve_limit(now, self.solved_up_to)
             if limit is not None and limit < t:
                 return None
@@ -238,11 +236,12 @@ class FusionServer:
             return t
         return None
 
-    def _realtime_start_wait(self, now: float) -> bool:
-        """Realtime start (nothing solved, no resume): wait until every vehicle of the recording has
-        been admitted, or `startup_wait_s`, so a lone first sender (it could be a week ahead) is not
-        taken for the fleet. A fast replay with a vehicle that never speaks stops waiting once two
-        vehicles have spoken and half the pending bound is used, before genuine epochs are refused."""
+    def _start_wait(self, now: float) -> bool:
+        """Start (nothing solved, no resume): wait until every vehicle of the recording has been
+        admitted, or `startup_wait_s`, so a lone first sender (its epoch could be a week ahead or
+        behind) is not taken for the fleet. A fast realtime replay with a vehicle that never speaks
+        stops waiting once two vehicles have spoken and half the pending bound is used, before
+        genuine epochs are refused."""
         if self.solved_up_to is not None or now - self.started >= self.s.startup_wait_s:
             return False
         spoke = set(self.latest)
@@ -250,16 +249,23 @@ class FusionServer:
             return False
         return not (len(spoke) >= 2 and len(self.pending) >= self.admission.config.pending_limit // 2)
 
-    def _drop_beyond_window(self, now: float) -> None:
-        """Drop pending epochs beyond the window of the fleet's current epoch (admitted before the
-        fleet's epoch was known, e.g. from a lone first sender): they would never be solved. Their
-        messages are counted rejected (too-far-ahead), so the counters still add up."""
-        while self.pending and self.admission.beyond_window(t := max(self.pending), now, self.solved_up_to):
+    def _drop_outside_window(self, now: float) -> None:
+        """Drop pending epochs outside the window of the fleet's current epoch (admitted before the
+        fleet's epoch was known, e.g. from a lone first sender): they would never be solved, or be
+        solved as a stray epoch far from the fleet's. Their messages are counted rejected
+        (too-far-ahead / too-far-behind), so the counters still add up."""
+        while self.pending:
+            side = None
+            for t in (max(self.pending), min(self.pending)):
+                if (side := self.admission.outside_window(t, now, self.solved_up_to)) is not None:
+                    break
+            if side is None:
+                return
             msgs = self.pending.pop(t)
             self.first_arrival.pop(t, None)
             self.admission.forget(t)
             for vid in msgs:
-                self._reject(vid, "too-far-ahead", f"epoch {t} dropped from pending")
+                self._reject(vid, side, f"epoch {t} dropped from pending")
 
     def solve(self, t: GpsTime) -> SolutionMessage | None:
         msgs = self.pending.pop(t)

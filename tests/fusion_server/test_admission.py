@@ -284,6 +284,29 @@ def test_lone_first_sender_cannot_set_the_realtime_epoch(bundled: Genuine) -> No
     _invariant(s)
 
 
+@pytest.mark.parametrize("pace", ["lockstep", "realtime"])
+def test_lone_first_sender_cannot_set_a_stray_epoch(bundled: Genuine, pace: str) -> None:
+    """Before the fleet speaks, a message a week before and one a week after its first epoch are
+    admitted (nobody to compare with) but never solved: dropped once the fleet speaks."""
+    s = _server(bundled, pace=pace)
+    s.started = 0.0
+    m = bundled.epochs[0]["u4"]
+    _put(s, _at(m, gps_time(m.epoch) + (-WEEK_S), seq=100), 0.0)
+    _put(s, _at(m, gps_time(m.epoch) + WEEK_S, seq=200), 0.0)
+    assert len(s.pending) == 2 and not _solve_ready(s, 1.0)
+    solved = []
+    for k in range(20):
+        for vid in ("u1", "u2", "u3"):
+            _put(s, bundled.epochs[k][vid], 2.0 + k)
+        for j in range(10):
+            solved += _solve_ready(s, 2.0 + k + 0.1 * j)
+    if pace == "lockstep":
+        solved += _solve_ready(s, 100.0)  # u4 is live but silent: one stall, then no more
+    assert [sol.epoch for sol in solved] == [b.epoch for b in bundled.solutions[:20]]
+    assert s.rejected_by_reason == {"too-far-ahead": 1, "too-far-behind": 1}
+    _invariant(s)
+
+
 def test_realtime_start_wait_never_fills_pending(bundled: Genuine) -> None:
     """A fast realtime replay (50 epochs a wall second) with a vehicle that never speaks: the start
     wait ends before the pending bound could refuse a genuine epoch."""
@@ -364,7 +387,11 @@ def test_window_follows_the_fleet_not_one_vehicle(bundled: Genuine) -> None:
         a.admitted(vid, t0, 0, bytes([i]) * 16, 0.0)
     a.admitted("u4", t0 + 25.0, 0, b"x" * 16, 0.0)  # inside the window
     assert a.reference(0.0, None) == t0 and a.solve_limit(0.0, None) == t0
-    assert a.beyond_window(t0 + 31.0, 0.0, None) and not a.beyond_window(t0 + 30.0, 0.0, None)
+    assert a.outside_window(t0 + 31.0, 0.0, None) == "too-far-ahead"
+    assert a.outside_window(t0 + 30.0, 0.0, None) is None
+    assert a.config.max_behind_s == 30.0 + HISTORY_DEPTH  # a restarted server's history replay
+    assert a.outside_window(t0 + (-150.0), 0.0, None) is None
+    assert a.outside_window(t0 + (-151.0), 0.0, None) == "too-far-behind"
     assert a.reference(0.0, t0 + 2.0) == t0 + 2.0  # never below the last solved epoch
     # silent vehicles do not count: after silent_after_s only a newcomer is left, alone
     assert a.reference(10.0, None) is None
