@@ -135,6 +135,7 @@ class VehicleState:
 
     bucket: TokenBucket
     latest: GpsTime | None = None  # latest admitted epoch
+    first: GpsTime | None = None  # earliest admitted epoch (the start: where this vehicle began)
     latest_seq: int | None = None  # its seq
     last_admit_s: float | None = None  # when a message was last admitted
     silent: bool = False  # lockstep stopped waiting for it; cleared by its next admitted message
@@ -208,7 +209,18 @@ class Admission:
             ref = self.reference(now, None, upper=True)
             if ref is not None and ref - t > self.config.max_behind_s + tol:
                 return "too-far-behind"
+            start = self.fleet_start(now)
+            if start is not None and start - t > self.config.max_ahead_s + tol:
+                return "too-far-behind"  # before where the fleet began: a stray first epoch
         return None
+
+    def fleet_start(self, now: float) -> GpsTime | None:
+        """Where the fleet began: the lower median of the active vehicles' earliest admitted
+        epochs (a history replay after a restart included), so one vehicle's stray old epoch is
+        not solved first."""
+        active = self.active(now)
+        firsts = sorted(v.first for vid, v in self.vehicles.items() if v.first is not None and vid in active)
+        return firsts[(len(firsts) - 1) // 2] if firsts else None
 
     # -- one message ---------------------------------------------------------------------------
     def check(
@@ -238,7 +250,10 @@ class Admission:
             return Verdict("late")  # not evidence of life for lockstep: anyone can send an old epoch
         prior = self.digests.get(t, {}).get(vid)
         if prior is not None:
-            return Verdict("duplicate") if prior == digest else Verdict("reject", "conflict")
+            if prior != digest:
+                return Verdict("reject", "conflict")
+            v.last_admit_s = now  # a lockstep agent waiting for its solution is still active
+            return Verdict("duplicate")
         # ahead of the others' current epoch: only once an epoch was solved (before, one vehicle
         # far behind could make a genuine epoch look ahead; `outside_window` cleans up the start)
         ref = self.reference(now, solved_up_to, exclude=vid) if solved_up_to is not None else None
@@ -285,6 +300,8 @@ class Admission:
         self.digests.setdefault(t, {})[vid] = digest
         if v.latest is None or v.latest < t:
             v.latest, v.latest_seq = t, seq
+        if v.first is None or t < v.first:
+            v.first = t
         v.last_admit_s = now
         v.silent = False
 
@@ -300,7 +317,7 @@ class Admission:
         """The vehicle's liveliness token went away: its agent may restart with seq 0."""
         v = self.vehicles.get(vid)
         if v is not None:
-            v.latest = v.latest_seq = v.last_admit_s = None
+            v.latest = v.latest_seq = v.last_admit_s = v.first = None
             v.silent = False
 
     def forget(self, t: GpsTime) -> None:

@@ -286,14 +286,15 @@ def test_lone_first_sender_cannot_set_the_realtime_epoch(bundled: Genuine) -> No
 
 @pytest.mark.parametrize("pace", ["lockstep", "realtime"])
 def test_lone_first_sender_cannot_set_a_stray_epoch(bundled: Genuine, pace: str) -> None:
-    """Before the fleet speaks, a message a week before and one a week after its first epoch are
-    admitted (nobody to compare with) but never solved: dropped once the fleet speaks."""
+    """Before the fleet speaks, messages a week and a minute before and a week after its first
+    epoch are admitted (nobody to compare with) but never solved: dropped once the fleet speaks."""
     s = _server(bundled, pace=pace)
     s.started = 0.0
     m = bundled.epochs[0]["u4"]
     _put(s, _at(m, gps_time(m.epoch) + (-WEEK_S), seq=100), 0.0)
     _put(s, _at(m, gps_time(m.epoch) + WEEK_S, seq=200), 0.0)
-    assert len(s.pending) == 2 and not _solve_ready(s, 1.0)
+    _put(s, _at(m, gps_time(m.epoch) + (-60.0), seq=150), 0.0)  # a minute before the fleet's start
+    assert len(s.pending) == 3 and not _solve_ready(s, 1.0)
     solved = []
     for k in range(20):
         for vid in ("u1", "u2", "u3"):
@@ -303,7 +304,7 @@ def test_lone_first_sender_cannot_set_a_stray_epoch(bundled: Genuine, pace: str)
     if pace == "lockstep":
         solved += _solve_ready(s, 100.0)  # u4 is live but silent: one stall, then no more
     assert [sol.epoch for sol in solved] == [b.epoch for b in bundled.solutions[:20]]
-    assert s.rejected_by_reason == {"too-far-ahead": 1, "too-far-behind": 1}
+    assert s.rejected_by_reason == {"too-far-ahead": 1, "too-far-behind": 2}
     _invariant(s)
 
 
@@ -390,8 +391,9 @@ def test_window_follows_the_fleet_not_one_vehicle(bundled: Genuine) -> None:
     assert a.outside_window(t0 + 31.0, 0.0, None) == "too-far-ahead"
     assert a.outside_window(t0 + 30.0, 0.0, None) is None
     assert a.config.max_behind_s == 30.0 + HISTORY_DEPTH  # a restarted server's history replay
-    assert a.outside_window(t0 + (-150.0), 0.0, None) is None
-    assert a.outside_window(t0 + (-151.0), 0.0, None) == "too-far-behind"
+    assert a.outside_window(t0 + (-30.0), 0.0, None) is None  # before the first solve: where
+    assert a.outside_window(t0 + (-31.0), 0.0, None) == "too-far-behind"  # the fleet began
+    assert a.outside_window(t0 + (-31.0), 0.0, t0 + (-40.0)) is None  # a resume's replay
     assert a.reference(0.0, t0 + 2.0) == t0 + 2.0  # never below the last solved epoch
     # silent vehicles do not count: after silent_after_s only a newcomer is left, alone
     assert a.reference(10.0, None) is None
