@@ -21,12 +21,10 @@ import pytest
 
 from coplane.bus import encode
 from coplane.evaluate.runner import run_method
-from coplane.fusion_server.admission import (
+from coplane.fusion_server.admission import HISTORY_DEPTH, Admission, AdmissionConfig
+from coplane.fusion_server.plausibility import (
     GENUINE_MAX,
-    HISTORY_DEPTH,
     SPP_HEIGHT_M,
-    Admission,
-    AdmissionConfig,
     plane_distance_m,
     plane_problem,
     plane_tilt_deg,
