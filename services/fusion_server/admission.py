@@ -25,6 +25,7 @@ from coplane.messages import NodeMessage, PlaneReport
 from .plausibility import PLANE_DISTANCE_M, PLANE_TILT_DEG, SPP_RESIDUAL_M, plane_problem, spp_problem
 
 HISTORY_DEPTH = 120  # node messages an agent's publication cache replays to a restarted server
+MAX_PACE = 100.0  # epoch seconds per wall second a fleet may advance (realtime `speed`; consumers alike)
 
 
 Outcome = Literal["admit", "late", "duplicate", "reject"]
@@ -100,7 +101,8 @@ class VehicleState:
     latest: GpsTime | None = None  # latest admitted epoch
     first: GpsTime | None = None  # earliest admitted epoch (the start: where this vehicle began)
     latest_seq: int | None = None  # its seq
-    last_admit_s: float | None = None  # when a message was last admitted
+    last_admit_s: float | None = None  # when a message was last admitted (or re-sent)
+    seen_s: float | None = None  # the same, but kept when it goes offline (how long the fleet is quiet)
     silent: bool = False  # lockstep stopped waiting for it; cleared by its next admitted message
 
 
@@ -215,15 +217,12 @@ class Admission:
         if prior is not None:
             if prior != digest:
                 return Verdict("reject", "conflict")
-            v.last_admit_s = now  # a lockstep agent waiting for its solution is still active
+            v.last_admit_s = v.seen_s = now  # a lockstep agent waiting for its solution is still active
             return Verdict("duplicate")
         # ahead of the others' current epoch: only once an epoch was solved (before, one vehicle
         # far behind could make a genuine epoch look ahead; `outside_window` cleans up the start)
-        ref = self.reference(now, solved_up_to, exclude=vid) if solved_up_to is not None else None
-        if ref is not None and t - ref > cfg.max_ahead_s + cfg.grid_tolerance_s:
-            return Verdict(
-                "reject", "too-far-ahead", detail=f"epoch {t} is {t - ref:.0f} s after the fleet's {ref}"
-            )
+        if solved_up_to is not None and (why := self._too_far_ahead(vid, t, now, solved_up_to)):
+            return Verdict("reject", "too-far-ahead", detail=why)
         if v.last_admit_s is not None and now - v.last_admit_s > cfg.silent_after_s:
             v.latest_seq = None  # silent that long: its agent may have restarted (seq from 0)
         if not self._seq_consistent(v, msg.seq, t):
@@ -245,6 +244,25 @@ class Admission:
             )
         return Verdict("admit", message=msg)
 
+    def _too_far_ahead(self, vid: str, t: GpsTime, now: float, solved_up_to: GpsTime) -> str | None:
+        """Why `t` is too far ahead of the other vehicles' current epoch, or None. A vehicle alone
+        (the others quiet or gone) is bounded by the last solved epoch plus what the fleet could
+        have advanced since the others were last heard (`MAX_PACE`), so it can rejoin after a gap
+        but cannot jump a week while the fleet pauses; with no other vehicle ever heard (a
+        single-vehicle fleet, a resume) it is its own reference."""
+        tol = self.config.grid_tolerance_s
+        ref = self.reference(now, solved_up_to, exclude=vid)
+        if ref is not None:
+            limit = self.config.max_ahead_s
+        else:
+            heard = [v.seen_s for other, v in self.vehicles.items() if other != vid and v.seen_s is not None]
+            if not heard:
+                return None
+            ref, limit = solved_up_to, self.config.max_ahead_s + MAX_PACE * max(0.0, now - max(heard))
+        if t - ref > limit + tol:
+            return f"epoch {t} is {t - ref:.0f} s after the fleet's {ref} (at most {limit:.0f} s)"
+        return None
+
     def _seq_consistent(self, v: VehicleState, seq: int, t: GpsTime) -> bool:
         """A genuine agent counts one seq per epoch it processes (a realtime agent skips epochs
         without counting), so seq and epoch move together: a later epoch has a greater seq, by at
@@ -265,7 +283,7 @@ class Admission:
             v.latest, v.latest_seq = t, seq
         if v.first is None or t < v.first:
             v.first = t
-        v.last_admit_s = now
+        v.last_admit_s = v.seen_s = now
         v.silent = False
 
     # -- server events -------------------------------------------------------------------------

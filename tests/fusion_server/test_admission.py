@@ -405,7 +405,18 @@ def test_window_follows_the_fleet_not_one_vehicle(bundled: Genuine) -> None:
         pending_epochs=0,
         epoch_pending=False,
     )
-    assert v.outcome == "admit"  # rejoining after ten minutes
+    assert v.outcome == "admit"  # rejoining after ten minutes (the others quiet for 10 s)
+    # ...but a vehicle alone while the fleet pauses cannot jump a week (nor 200 s after 1 s)
+    kw: dict[str, Any] = {"solved_up_to": t0, "pending_epochs": 0, "epoch_pending": False}
+    week = a.check(_at(lone, t0 + WEEK_S, seq=601), t0 + WEEK_S, b"w" * 16, 10.0, **kw)
+    assert (week.outcome, week.reason) == ("reject", "too-far-ahead")
+    b = Admission(AdmissionConfig(interval_s=1.0))
+    b.admitted("u2", t0, 0, b"2" * 16, 0.0)
+    b.offline("u2")  # gone, but heard a second ago
+    soon = b.check(_at(lone, t0 + 200.0, seq=200), t0 + 200.0, b"s" * 16, 1.0, **kw)
+    assert (soon.outcome, soon.reason) == ("reject", "too-far-ahead")
+    alone = Admission(AdmissionConfig(interval_s=1.0))  # nobody else ever heard: a 1-vehicle fleet
+    assert alone.check(_at(lone, t0 + WEEK_S, seq=1), t0 + WEEK_S, b"1" * 16, 0.0, **kw).outcome == "admit"
 
 
 def test_resumed_server_admits_the_history_replay(bundled: Genuine) -> None:
