@@ -5,4 +5,12 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 .venv/bin/ruff check shared services tests bench
 .venv/bin/mypy shared/coplane services
+# OpenBLAS picks its kernels by CPU, and their last-bit differences can flip a fault-exclusion
+# decision in a deep canyon: on the bundled recording `mci` u1 is 0.75 m H-RMSE with the Haswell
+# (AVX2) kernels and 0.62 m with those OpenBLAS picks on an AVX-512 AMD EPYC. The ordering tests
+# have 2 cm margins, so the suite pins the AVX2 kernels wherever the CPU has AVX2 and gives the
+# same numbers on every x86 machine; the sensitivity itself is noted in docs/fgo.md (issue 12).
+if [[ -z "${OPENBLAS_CORETYPE:-}" ]] && grep -qw avx2 /proc/cpuinfo 2>/dev/null; then
+    export OPENBLAS_CORETYPE=Haswell
+fi
 .venv/bin/python -m pytest -q "$@"
