@@ -377,13 +377,15 @@ class AttackContext:
     last: NodeMessage | None = None
     last_payload: bytes | None = None
 
-    def base(self, a: NodeAttack, near: GpsTime | None = None) -> NodeMessage:
+    def base(self, a: NodeAttack, near: GpsTime | None = None, fix: bool = False) -> NodeMessage:
         """A genuine message to mutate: the attacker's own, or another vehicle's re-labelled; the
         one nearest `near` if given (its satellites then match that epoch), else any."""
         vids = sorted(self.genuine.messages)
         others = [v for v in vids if v != self.attacker]
         src = self.attacker if a.source == 0 or not others else others[(a.source - 1) % len(others)]
         pool = self.genuine.messages[src]
+        if fix:  # only messages with an SPP fix (a message without one has nothing to displace)
+            pool = [m for m in pool if m.spp.position_ecef_m is not None] or pool
         if near is not None:
             m = min(pool, key=lambda m: abs(gps_time(m.epoch) - near))
         else:
@@ -439,13 +441,13 @@ def build_node(a: NodeAttack, ctx: AttackContext) -> bytes:
         msg = ctx.at(ctx.base(a, near=t), t)
     elif kind == "displaced-fix":
         t = ctx.newest + a.ahead * dt
-        msg = displaced(ctx.at(ctx.base(a, near=t), t), a.shift_m, a.bearing)
+        msg = displaced(ctx.at(ctx.base(a, near=t, fix=True), t), a.shift_m, a.bearing)
     elif kind == "absurd-plane":
         # just after the genuine vehicles' last epoch: an otherwise plausible message is admitted
         # there without its plane, and solved with the compromised vehicle alone, so its solution
         # shows whether the plane was used (and no genuine vehicle is touched)
         t = ctx.end + a.ahead * dt
-        msg = absurd_plane(ctx.at(ctx.base(a, near=ctx.end), t), a)
+        msg = absurd_plane(ctx.at(ctx.base(a, near=ctx.end, fix=True), t), a)
     else:
         raise ValueError(f"unknown node attack {a.kind!r}")
     payload = encode(msg)
@@ -763,6 +765,7 @@ def run_attack(
     by_kind: bool = False,
     early_specs: Sequence[NodeAttack] = (),
     forge_vehicles: Collection[str] | None = None,
+    max_ahead_s: float = 25.0,
     label: str = "",
     timeout_s: float = 120.0,
 ) -> AttackRun:
@@ -804,6 +807,8 @@ def run_attack(
                 send_node(att, a, ctx, log)
         _wait(lambda: col.epochs >= 1, timeout_s, "the first solution")
         ctx.newest = newest_solved(col) or first
+        if by_kind and early_specs:  # the early ones are not any kind's: account for them first
+            _settle(watch, attacker, len(early_specs), 0)
         if token:
             att.declare_token(KeySpace(hf.fleet).alive("agent", attacker))
         groups = _groups(node_specs, solution_specs, by_kind)
@@ -816,6 +821,13 @@ def run_attack(
         t0 = time.monotonic()
         try:
             for kind, items in groups:
+                if by_kind and kind == "absurd-plane":  # once its epochs are within the window
+                    near = ctx.end + (-max_ahead_s)
+
+                    def near_end(n: GpsTime = near) -> bool:
+                        return (newest_solved(col) or first) >= n
+
+                    _wait(near_end, timeout_s, "the fleet near its last epoch", fail=False)
                 before = _snapshot(watch, attacker)
                 n_diag, node_before = len(watch.diags), log.node_sent.total() - log.node_over_transport
                 for i in range(0, len(items), per_round):
@@ -916,6 +928,8 @@ def _groups(
             items += [*node_specs[i : i + 1], *solution_specs[i : i + 1]]
         return [("all", items)]
     kinds = list(dict.fromkeys(a.kind for a in node_specs))
+    if "absurd-plane" in kinds:  # last: its epochs are just after the genuine end (see build_node)
+        kinds = [k for k in kinds if k != "absurd-plane"] + ["absurd-plane"]
     out = []
     for j, k in enumerate(kinds):
         nodes = [a for a in node_specs if a.kind == k]
