@@ -42,6 +42,17 @@ ORDER = [
 ]
 
 
+def demote(markdown: str) -> str:
+    """A section's headings one level down (its `#` title becomes a `##` of this page); lines
+    inside fenced code blocks are left alone."""
+    out, fenced = [], False
+    for line in markdown.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        out.append("#" + line if not fenced and line.startswith("#") else line)
+    return "\n".join(out)
+
+
 def assemble() -> str:
     parts = [
         "# Reliability",
@@ -54,7 +65,7 @@ def assemble() -> str:
     for name, script, what in ORDER:
         path = SECTIONS / f"{name}.md"
         if path.exists():
-            parts += [path.read_text().rstrip(), ""]
+            parts += [demote(path.read_text().rstrip()), ""]
         else:
             parts += [f"## {name}", "", f"Not measured yet ({what}): `bench/{script}`.", ""]
     return "\n".join(parts)
