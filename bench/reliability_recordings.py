@@ -62,7 +62,7 @@ def main() -> int:
             )
     n_ok = sum(r.ok for r in runs)
     text = [
-        "## Corrupted recordings",
+        "# Corrupted recordings",
         "",
         "Regenerate: `.venv/bin/python bench/reliability_recordings.py` "
         f"(run {dt.date.today().isoformat()}; {len(DEFECTS)} defects x {len(COMMANDS)} commands).",
