@@ -80,6 +80,25 @@ def test_vehicle_jump_unknown_and_cap_drop_only_that_vehicle() -> None:
     assert v.dropped == (("v2", "too-many-vehicles"), ("v3", "too-many-vehicles"))
 
 
+def test_a_message_that_continues_no_tracked_vehicle_never_takes_the_epoch() -> None:
+    """Found by the live hostile run (docs/reliability/hostile-input.md): an empty forgery, or one
+    whose tracked vehicles all jumped beside a never-seen one, used to become the newest epoch, so
+    the genuine solution of that epoch was a "repeat" and lockstep agents stalled."""
+    g = SolutionGate(FLEET, vehicles=["a", "b", "u4"])
+    assert g.check(sol(0, ("a", ecef_at(0, 0)), ("b", ecef_at(50, 0))), 0.0).accepted
+    empty = sol(1).model_copy(update={"vehicles": []})
+    assert g.check(empty, 0.5).reason == "empty"
+    jumped = sol(1, ("a", ecef_at(20_000, 0)), ("b", ecef_at(20_050, 0)), ("u4", ecef_at(10, 0)))
+    assert g.check(jumped, 0.6).reason == "no-continuing-vehicle"
+    genuine = g.check(sol(1, ("a", ecef_at(10, 0)), ("b", ecef_at(60, 0))), 1.0)
+    assert genuine.accepted and g.run is not None and g.run.epoch == T0 + 1.0
+    # a new vehicle beside a tracked one is taken (a vehicle joining the fleet)
+    v = g.check(sol(2, ("a", ecef_at(20, 0)), ("u4", ecef_at(10, 0))), 2.0)
+    assert v.solution is not None and [x.vehicle_id for x in v.solution.vehicles] == ["a", "u4"]
+    # the first solution of a run may be empty (nothing to continue yet)
+    assert SolutionGate(FLEET).check(empty, 0.0).accepted
+
+
 def test_new_generation_only_after_the_current_one_went_quiet() -> None:
     g = SolutionGate(FLEET, restart_quiet_s=3.0)
     for k in range(3):

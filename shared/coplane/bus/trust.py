@@ -34,7 +34,11 @@ One vehicle dropped (counted as `vehicle-unknown`, `vehicle-jump`, `too-many-veh
     from a poor fix, and lockstep agents must still receive the epoch, so only that vehicle goes;
   - a new vehicle once `max_vehicles` are remembered (bounded memory without a known set).
   If no vehicle of a non-empty message is left, the message is rejected (`no-trusted-vehicle`)
-  without moving the epoch, so the genuine solution of that epoch is still taken.
+  without moving the epoch, so the genuine solution of that epoch is still taken. Likewise, once
+  the run follows some vehicles, a message that continues none of them is rejected without moving
+  the epoch: `empty` (no vehicle at all) or `no-continuing-vehicle` (only vehicles never seen in
+  this run). The genuine server's solutions carry the fleet's tracked vehicles (its estimators
+  carry a vehicle through outages), so only a forgery, or the first solution of a run, lacks them.
 
 Generations: every solution names its server run (`SolutionMessage.generation`; the same after a
 resume from the log, so a crash is not a new run). Only a different generation lets a consumer
@@ -212,6 +216,11 @@ class SolutionGate:
                 dropped.append((vs.vehicle_id, reason))
         if sol.vehicles and not keep:
             return self._reject("no-trusted-vehicle")
+        if not fresh and positions and not any(vs.vehicle_id in positions for vs in keep):
+            # the run follows some vehicles and this message continues none of them (it is empty,
+            # or carries only vehicles never seen): taking it would make it the newest epoch and
+            # the genuine solution of that epoch a "repeat" (a lockstep agent would stall on it)
+            return self._reject("empty" if not sol.vehicles else "no-continuing-vehicle")
         if fresh:
             self.run = _Run(sol.generation, t, now, now)
             self.held = None
