@@ -32,8 +32,20 @@ from coplane.fleet import (
 )
 
 
+@dataclass
+class LiveFleet:
+    """A fleet started by `live_fleet`: its processes, the test's collector, where it listens."""
+
+    procs: FleetProcesses
+    collector: Collector
+    connect: str
+    specs: list
+    fleet: str
+    security: BusSecurity  # the fleet's (insecure, or the certificates folder)
+
+
 @contextmanager
-def running_fleet(
+def live_fleet(
     recording: Path,
     method: str,
     pace: str = "lockstep",
@@ -42,10 +54,12 @@ def running_fleet(
     extra_fusion_args: Sequence[str] = (),
     start_delay_s: float = 5.0,
     secure: bool = True,
-) -> Iterator[tuple[FleetProcesses, Collector, str, list]]:
-    """Router, fusion server and one agent per vehicle as processes; yields (procs, collector, connect, specs).
-
-    `secure`: mutual TLS and access control (see the module docstring); False: plain TCP."""
+    agents: Sequence[str] | None = None,
+) -> Iterator[LiveFleet]:
+    """Router, fusion server and one agent per vehicle in `agents` (default: every vehicle of the
+    recording; certificates are made for all of them) as processes. `secure`: mutual TLS and access
+    control (see the module docstring); False: plain TCP. The collector is the read-only monitor and
+    knows the recording's vehicles, as `coplane fleet`'s does."""
     fleet, vehicles = fleet_of(recording)
     port = free_port()
     connect = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
@@ -63,20 +77,37 @@ def running_fleet(
     try:
         procs.start(router_spec(port, secure, fleet))
         wait_for_port(port)
-        collector = Collector(fleet, method, connect)
+        collector = Collector(fleet, method, connect, vehicles=vehicles)
         start = time.time() + start_delay_s if pace == "realtime" else None
+        running = list(agents) if agents is not None else vehicles
         specs = fleet_services(
-            recording, method, pace, speed, connect, vehicles, api=False, start_unix_s=start
+            recording, method, pace, speed, connect, running, api=False, start_unix_s=start
         )
         specs[0].args += list(extra_fusion_args)
         for spec in specs:
             procs.start(spec)
-        yield procs, collector, connect, specs
+        yield LiveFleet(procs, collector, connect, specs, fleet, security)
     finally:
         if collector is not None:
             collector.close()
         procs.stop_all()
         stack.close()
+
+
+@contextmanager
+def running_fleet(
+    recording: Path,
+    method: str,
+    pace: str = "lockstep",
+    speed: float = 1.0,
+    log_dir: Path | None = None,
+    extra_fusion_args: Sequence[str] = (),
+    start_delay_s: float = 5.0,
+    secure: bool = True,
+) -> Iterator[tuple[FleetProcesses, Collector, str, list]]:
+    """`live_fleet` with every agent; yields (procs, collector, connect, specs)."""
+    with live_fleet(recording, method, pace, speed, log_dir, extra_fusion_args, start_delay_s, secure) as lf:
+        yield lf.procs, lf.collector, lf.connect, lf.specs
 
 
 def wait_until(cond: Callable[[], bool], timeout: float, what: str) -> None:

@@ -49,7 +49,7 @@ import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Collection, Iterator, Sequence
-from contextlib import ExitStack, contextmanager
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,24 +72,19 @@ from coplane.bus import (
     decode,
     encode,
     session_config,
-    use_security,
 )
-from coplane.bus.certs import init_certs
 from coplane.bus.codec import MAX_PAYLOAD_BYTES
 from coplane.evaluate.runner import run_method
 from coplane.fleet import (
     Collector,
     FleetProcesses,
     fleet_of,
-    fleet_services,
-    free_port,
-    router_spec,
-    wait_for_port,
 )
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, PlaneReport, SolutionMessage, SppReport
 from coplane.recording.reader import open_recording
 from coplane.steps import epoch_time, gps_time
+from support.e2e_fleet import live_fleet
 
 NODE_KINDS = (
     "future",
@@ -536,40 +531,13 @@ def hostile_fleet(
     start_delay_s: float = 8.0,
     extra_fusion_args: Sequence[str] = (),
 ) -> Iterator[HostileFleet]:
-    """Router, fusion server and one agent per vehicle except `attacker` (its agent is not run: the
-    attacker holds its certificate); the test's collector is the read-only monitor."""
-    fleet, vehicles = fleet_of(recording)
+    """`live_fleet` without `attacker`'s agent (the attacker holds its certificate)."""
+    _, vehicles = fleet_of(recording)
     genuine = [v for v in vehicles if v != attacker]
-    port = free_port()
-    connect = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
-    stack = ExitStack()
-    security = BusSecurity(insecure=True)
-    if secure:
-        certs = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="coplane-certs-")))
-        init_certs(certs, vehicles)
-        security = BusSecurity(certs=certs)
-        stack.enter_context(use_security(security.as_identity(MONITOR)))
-    else:
-        stack.enter_context(use_security(security))
-    procs = FleetProcesses(log_dir=log_dir, security=security)
-    collector = None
-    try:
-        procs.start(router_spec(port, secure, fleet))
-        wait_for_port(port)
-        collector = Collector(fleet, method, connect, vehicles=vehicles)  # as `coplane fleet` does
-        start = time.time() + start_delay_s if pace == "realtime" else None
-        specs = fleet_services(
-            recording, method, pace, speed, connect, genuine, api=False, start_unix_s=start
-        )
-        specs[0].args += list(extra_fusion_args)
-        for spec in specs:
-            procs.start(spec)
-        yield HostileFleet(procs, collector, connect, fleet, genuine, attacker, security)
-    finally:
-        if collector is not None:
-            collector.close()
-        procs.stop_all()
-        stack.close()
+    with live_fleet(
+        recording, method, pace, speed, log_dir, extra_fusion_args, start_delay_s, secure, agents=genuine
+    ) as lf:
+        yield HostileFleet(lf.procs, lf.collector, lf.connect, lf.fleet, genuine, attacker, lf.security)
 
 
 class Attacker:
