@@ -16,6 +16,7 @@ import argparse
 import datetime as dt
 import os
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 from coplane.evaluate.real_data import (
@@ -27,6 +28,7 @@ from coplane.evaluate.real_data import (
     trajectory_table,
     truth_of,
 )
+from coplane.methods import MethodSpec, get_method
 from coplane.recording.reader import open_recording
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,6 +63,45 @@ def _mode(dgnss: bool) -> str:
     return "DGNSS (the recording's base)" if dgnss else "standalone"
 
 
+def set_sections(
+    methods: list[str],
+    jobs: int | None,
+    level: str = "###",
+    resolve: Callable[[str], MethodSpec] = get_method,
+    rtklib: bool = True,
+) -> list[str]:
+    """One titled table per real set and mode: errors at the surveyed point for the static sets,
+    divergence indicators for the moving drive. bench/tune_real_data.py reuses it for variants."""
+    parts: list[str] = []
+    for folder, what, modes in STATIC:
+        rec = open_recording(REAL / folder)
+        for dgnss in modes:
+            sol = solve_receiver(
+                rec, methods, dgnss=dgnss, jobs=jobs, keep_going=True, resolve=resolve, rtklib=rtklib
+            )
+            rows = static_accuracy(sol, truth_of(rec, sol.vehicle))
+            parts.append(f"{level} `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs.\n")
+            parts.append(static_table(rows))
+            if n := notes(sol):
+                parts.append(n + "\n")
+    for folder, what, modes in MOVING:
+        rec = open_recording(REAL / folder)
+        for dgnss in modes:
+            sol = solve_receiver(
+                rec, methods, dgnss=dgnss, jobs=jobs, keep_going=True, resolve=resolve, rtklib=rtklib
+            )
+            parts.append(
+                f"{level} `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs. Divergence "
+                "indicators instead of errors: the largest 3-D step between adjacent epochs, the largest "
+                "distance of the height from the trajectory's median height, and the median horizontal "
+                "distance to RTKLIB's position on the epochs both solve (agreement, not accuracy).\n"
+            )
+            parts.append(trajectory_table(trajectory_checks(sol)))
+            if n := notes(sol):
+                parts.append(n + "\n")
+    return parts
+
+
 def section(methods: list[str], jobs: int | None) -> str:
     parts = [
         "## Real data\n",
@@ -75,28 +116,7 @@ def section(methods: list[str], jobs: int | None) -> str:
         "urban set: `non-cp` availability >= 99 %, no vertical error above 15 m, and its common "
         "H median no worse than RTKLIB's (tests/evaluate/test_real_data_regression.py).\n",
     ]
-    for folder, what, modes in STATIC:
-        rec = open_recording(REAL / folder)
-        for dgnss in modes:
-            sol = solve_receiver(rec, methods, dgnss=dgnss, jobs=jobs, keep_going=True)
-            rows = static_accuracy(sol, truth_of(rec, sol.vehicle))
-            parts.append(f"### `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs.\n")
-            parts.append(static_table(rows))
-            if n := notes(sol):
-                parts.append(n + "\n")
-    for folder, what, modes in MOVING:
-        rec = open_recording(REAL / folder)
-        for dgnss in modes:
-            sol = solve_receiver(rec, methods, dgnss=dgnss, jobs=jobs, keep_going=True)
-            parts.append(
-                f"### `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs. Divergence "
-                "indicators instead of errors: the largest 3-D step between adjacent epochs, the largest "
-                "distance of the height from the trajectory's median height, and the median horizontal "
-                "distance to RTKLIB's position on the epochs both solve (agreement, not accuracy).\n"
-            )
-            parts.append(trajectory_table(trajectory_checks(sol)))
-            if n := notes(sol):
-                parts.append(n + "\n")
+    parts += set_sections(methods, jobs)
     return "\n".join(parts)
 
 

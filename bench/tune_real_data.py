@@ -17,20 +17,10 @@ import dataclasses
 import datetime as dt
 from pathlib import Path
 
-from real_data_regression import MOVING, REAL, STATIC, _mode
+from real_data_regression import set_sections
 from tune_fgo import VARIANTS
 
-import coplane.evaluate.real_data as real_data
-from coplane.evaluate.real_data import (
-    solve_receiver,
-    static_accuracy,
-    static_table,
-    trajectory_checks,
-    trajectory_table,
-    truth_of,
-)
 from coplane.methods import MethodSpec, get_method
-from coplane.recording.reader import open_recording
 
 BASE = "non-cp"  # one receiver per set: the single-vehicle factor graph
 SEP = "@"  # "non-cp@pr-sigma-x2": the method with a tune_fgo variant applied
@@ -55,8 +45,6 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="also write the tables here")
     args = ap.parse_args()
     names = [f"{BASE}{SEP}{v}" if v != "default" else BASE for v in args.variants.split(",")]
-    real_data.get_method = variant_method  # type: ignore[assignment]  # solve_receiver resolves names
-    real_data.rtklib_unavailable = lambda: "not rerun here (docs/results.md)"  # type: ignore[assignment]
     parts = [
         "# Tuning: the real-data check\n",
         f"Output of `.venv/bin/python bench/tune_real_data.py --out docs/tuning-real.md` ({dt.date.today()}): "
@@ -66,20 +54,8 @@ def main() -> None:
         "empty (docs/results.md has them); the moving drive has no truth, so its columns are the "
         "divergence indicators of docs/results.md (largest 3-D step, largest height excursion).\n",
     ]
-    for folder, what, modes in STATIC:
-        rec = open_recording(REAL / folder)
-        for dgnss in modes:
-            sol = solve_receiver(rec, names, dgnss=dgnss, keep_going=True)
-            parts.append(f"## `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs.\n")
-            parts.append(static_table(static_accuracy(sol, truth_of(rec, sol.vehicle))))
-            print("\n".join(parts[-2:]), flush=True)
-    for folder, what, modes in MOVING:
-        rec = open_recording(REAL / folder)
-        for dgnss in modes:
-            sol = solve_receiver(rec, names, dgnss=dgnss, keep_going=True)
-            parts.append(f"## `{folder}`: {_mode(sol.dgnss)}\n\n{what}; {sol.n_epochs} epochs.\n")
-            parts.append(trajectory_table(trajectory_checks(sol)))
-            print("\n".join(parts[-2:]), flush=True)
+    parts += set_sections(names, 1, level="##", resolve=variant_method, rtklib=False)
+    print("\n".join(parts), flush=True)
     if args.out is not None:
         args.out.write_text("\n".join(parts) + "\n")
 

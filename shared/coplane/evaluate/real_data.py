@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +31,7 @@ from coplane.evaluate.rtklib_row import RTKLIB_METHOD, process_recording, rtklib
 from coplane.evaluate.runner import lockstep_schedule, run_method
 from coplane.geo import ecef_to_geodetic
 from coplane.gtime import GpsTime
-from coplane.methods import get_method
+from coplane.methods import MethodSpec, get_method
 from coplane.recording.reader import Recording
 from coplane.typing import Vec
 
@@ -61,12 +61,16 @@ def solve_receiver(
     dgnss: bool | None = None,
     jobs: int | None = 1,
     keep_going: bool = False,
+    resolve: Callable[[str], MethodSpec] = get_method,
+    rtklib: bool = True,
 ) -> Solutions:
     """Run `methods` and RTKLIB on one receiver of `rec` in the same mode (DGNSS when None and the
     recording has a base, as `coplane eval`).
 
     With `keep_going` a method that raises is recorded in `failures` (the benchmark reports it and
-    goes on); otherwise the error propagates, which is what tests want.
+    goes on); otherwise the error propagates, which is what tests want. `resolve`: how a method name
+    becomes a spec (bench/tune_real_data.py passes variants of the registry's); `rtklib=False`: no
+    RTKLIB run (its row is then absent, not failed).
     """
     vid = vehicle or rec.manifest.vehicles[0].id
     use_dgnss = rec.manifest.base is not None if dgnss is None else bool(dgnss)
@@ -80,7 +84,7 @@ def solve_receiver(
     for name in methods:
         t0 = time.perf_counter()
         try:
-            run = run_method(rec, get_method(name), dgnss=use_dgnss, vehicles=[vid], jobs=jobs)
+            run = run_method(rec, resolve(name), dgnss=use_dgnss, vehicles=[vid], jobs=jobs)
         except (CoplaneError, ValueError, RuntimeError) as exc:  # pydantic's ValidationError is a ValueError
             if not keep_going:
                 raise
@@ -88,6 +92,8 @@ def solve_receiver(
             continue
         out.wall_time_s[name] = time.perf_counter() - t0
         out.positions[name] = dict(run.positions.get(vid, {}))
+    if not rtklib:
+        return out
     reason = rtklib_unavailable()
     if reason is not None:
         out.failures[RTKLIB_METHOD] = reason
