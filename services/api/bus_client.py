@@ -33,6 +33,7 @@ from coplane.bus import (
     session_config,
 )
 from coplane.messages import DiagnosticsMessage, SolutionMessage
+from coplane.runtime import RateLimitedLog
 
 from .hub import StreamHub
 from .state import FleetState
@@ -58,6 +59,7 @@ class Ingest:
         self.pending = 0
         self.dropped = 0
         self._lock = threading.Lock()
+        self.warn = RateLimitedLog(log)  # a flood of bad or forged payloads must not flood the log
 
     def bind(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
@@ -89,8 +91,12 @@ class Ingest:
     def _rejected(self, source: str, exc: BadMessage) -> None:
         self.state.reject(source, exc.kind)
         n = self.state.rejected[source, exc.kind]
-        if n in (1, 10, 100, 1000) or n % 10_000 == 0:  # a flood of bad payloads must not flood logs
-            log.warning("rejected bus payload", extra={"source": source, "reason": str(exc), "count": n})
+        self.warn.log(
+            logging.WARNING,
+            (source, exc.kind),
+            "rejected bus payload",
+            {"source": source, "reason": str(exc), "count": n},
+        )
 
     def solution(self, payload: bytes) -> None:
         try:
@@ -107,11 +113,12 @@ class Ingest:
         v = self.state.last_verdict
         if v is not None and v.reason is not None and v.reason != "repeat":
             n = self.state.rejected["solution", v.reason]
-            if n in (1, 10, 100, 1000) or n % 10_000 == 0:  # forged floods must not flood the log
-                log.warning(
-                    "untrusted solution ignored",
-                    extra={"reason": v.reason, "seq": sol.seq, "generation": sol.generation, "count": n},
-                )
+            self.warn.log(
+                logging.WARNING,
+                ("untrusted", v.reason),
+                "untrusted solution ignored",
+                {"reason": v.reason, "seq": sol.seq, "generation": sol.generation, "count": n},
+            )
 
     def diagnostics(self, payload: bytes) -> None:
         try:

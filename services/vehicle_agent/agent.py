@@ -34,6 +34,7 @@ from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
+from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
 
 from .settings import AgentSettings
@@ -65,6 +66,7 @@ class VehicleAgent:
         self.published = 0
         self.ingested = 0
         self.bad_solutions = 0
+        self.warn = RateLimitedLog(log)  # forged or bad floods must not flood the log
 
     def node(self) -> BusNode:
         """This agent's place on the bus: its node key out, the fleet solution in, its token."""
@@ -92,10 +94,12 @@ class VehicleAgent:
             sol = decode(SolutionMessage, ev.data)
         except BadMessage as exc:
             self.bad_solutions += 1
-            if self.bad_solutions in (1, 10, 100, 1000) or self.bad_solutions % 10_000 == 0:
-                log.warning(
-                    "rejected solution payload", extra={"reason": str(exc), "count": self.bad_solutions}
-                )
+            self.warn.log(
+                logging.WARNING,
+                ("payload", exc.kind),
+                "rejected solution payload",
+                {"reason": str(exc), "count": self.bad_solutions},
+            )
             return None
         return self._take(self.gate.check(sol, time.time(), expect).solution, sol)
 
@@ -104,15 +108,12 @@ class VehicleAgent:
         if taken is None:
             reason = self.gate.last_reason or "untrusted"
             n = self.gate.counts[reason]
-            if reason not in ("repeat", "wrong-fleet") and (n in (1, 10, 100, 1000) or n % 10_000 == 0):
-                log.warning(
+            if reason not in ("repeat", "wrong-fleet"):
+                self.warn.log(
+                    logging.WARNING,
+                    ("untrusted", reason),
                     "untrusted solution ignored",
-                    extra={
-                        "reason": reason,
-                        "seq": offered.seq,
-                        "generation": offered.generation,
-                        "count": n,
-                    },
+                    {"reason": reason, "seq": offered.seq, "generation": offered.generation, "count": n},
                 )
             return None
         self.step.ingest(taken)
