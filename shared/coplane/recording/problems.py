@@ -1,7 +1,8 @@
 """Counting and reporting bad input without crashing (docs/recording-format.md, input problems).
 
 Every reader takes a `Problems` collector. A problem names the file, the line (1-based, when one
-applies) and a short reason; `kind` is a stable slug for metrics (e.g. "malformed-line").
+applies) or, in binary files (UBX, RTCM 3), the byte offset, and a short reason; `kind` is a
+stable slug for metrics (e.g. "malformed-line").
 """
 
 from __future__ import annotations
@@ -22,9 +23,12 @@ class Problem:
     line: int | None
     kind: str
     reason: str
+    offset: int | None = None  # byte offset in a binary file (UBX, RTCM 3)
 
     def __str__(self) -> str:
         where = f"{self.path}:{self.line}" if self.line is not None else self.path
+        if self.offset is not None:
+            where = f"{self.path}:byte {self.offset}"
         return f"{where}: {self.reason} [{self.kind}]"
 
 
@@ -36,8 +40,10 @@ class Problems:
     items: list[Problem] = field(default_factory=list)
     counts: Counter[str] = field(default_factory=Counter)
 
-    def add(self, path: str | Path, line: int | None, kind: str, reason: str) -> None:
-        p = Problem(str(path), line, kind, reason)
+    def add(
+        self, path: str | Path, line: int | None, kind: str, reason: str, *, offset: int | None = None
+    ) -> None:
+        p = Problem(str(path), line, kind, reason, offset)
         self.counts[kind] += 1
         if len(self.items) < self.keep:
             self.items.append(p)

@@ -6,6 +6,11 @@ can report "N input problems" in one place. Grouping follows the spec: receiver 
 their exact time tags but are grouped by the nearest multiple of `interval_s` (a receiver with
 two epochs rounding to one nominal time keeps the first); uwb and truth rows match the nominal
 epoch nearest to their tag within 0.1 x interval_s.
+
+Observation files are read by their extension: `.ubx` (u-blox RXM-RAWX, recording/ubx.py),
+`.rtcm3` (RTCM 3 MSM4/MSM7, recording/rtcm3.py), anything else RINEX. Navigation files ending
+`.rtcm3` give their 1019/1042 ephemerides. An RTCM 3 obs file's epochs carry no week: it is
+taken from the file's own ephemeris messages, else from the recording's navigation data.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from coplane.recording.model import Manifest, NavData, ObsEpoch, ObsHeader, Trut
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_nav import read_nav_files
 from coplane.recording.rinex_obs import SignalCodes, read_obs
+from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
+from coplane.recording.ubx import read_ubx
 
 MATCH_FRACTION = 0.1  # uwb/truth rows match an epoch within this fraction of the interval
 
@@ -63,7 +70,12 @@ class Recording:
     def nav(self) -> NavData:
         """The broadcast ephemerides; a recording whose nav files hold none cannot be solved."""
         if self._nav is None:
-            nav = read_nav_files(self.manifest.nav_files, self.problems)
+            nav = NavData()
+            for p in self.manifest.nav_files:  # in manifest order: the first file's record wins
+                if p.suffix.lower() == ".rtcm3":
+                    nav.merge(read_rtcm3_nav(p, self.problems))
+                else:
+                    nav.merge(read_nav_files([p], self.problems))
             if not nav.ephemerides:
                 files = ", ".join(str(p) for p in self.manifest.nav_files)
                 raise RecordingError(
@@ -76,9 +88,24 @@ class Recording:
     # ---- observations
     def _load_obs(self, key: str, path: Path) -> tuple[ObsHeader, list[ObsEpoch]]:
         if key not in self._obs:
-            header, epochs = read_obs(path, self.problems, self._signals)
+            suffix = path.suffix.lower()
+            if suffix == ".ubx":
+                header, epochs = read_ubx(path, self.problems, self._signals)
+            elif suffix == ".rtcm3":
+                header, epochs = read_rtcm3(path, self.problems, self._signals, reference=self._reference())
+            else:
+                header, epochs = read_obs(path, self.problems, self._signals)
             self._obs[key] = (header, self._dedupe(path, epochs))
         return self._obs[key]
+
+    def _reference(self) -> GpsTime | None:
+        """An instant near the recording (its first toe) to place RTCM 3 epochs' weeks; None if the
+        navigation data cannot be read (the RTCM file's own ephemerides or the date then decide)."""
+        try:
+            toes = [ephs[0].toe for ephs in self.nav.ephemerides.values() if ephs]
+        except RecordingError:
+            return None
+        return min(toes) if toes else None
 
     def _dedupe(self, path: Path, epochs: list[ObsEpoch]) -> list[ObsEpoch]:
         """Keep the first of several epochs that round to one nominal time (reported)."""
