@@ -1,4 +1,4 @@
-"""Solution files other tools open: RTKLIB .pos (RTKPLOT, rtklib-py, ...)."""
+"""Solution files other tools open: RTKLIB .pos (RTKPLOT, rtklib-py, ...) and TUM trajectories (evo)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,18 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from coplane import __version__
-from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
+
+if TYPE_CHECKING:
+    from coplane.evaluate.runner import MethodRun
+    from coplane.recording.reader import Recording
 
 # RTKLIB solution quality flags
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
@@ -61,3 +66,75 @@ def write_pos(
         )
     path.write_text("\n".join(lines) + "\n")
     return len(recs)
+
+
+# --------------------------------------------------------------------------------------------
+# TUM trajectories: "timestamp x y z qx qy qz qw", what evo reads (`evo_traj tum`, `evo_ape tum`)
+
+TUM_HEADER = "# timestamp x y z qx qy qz qw"
+
+
+def tum_origin(rec: Recording) -> Vec | None:
+    """The ENU origin every TUM file of a recording shares: its base station, else the first truth
+    point of its first vehicle with truth, else None (then files are ECEF)."""
+    if rec.manifest.base is not None:
+        return np.asarray(rec.manifest.base.position_ecef_m, dtype=float)
+    for v in rec.manifest.vehicles:
+        truth = rec.truth(v.id)
+        if truth:
+            return np.asarray(truth[0].ecef_m, dtype=float)
+    return None
+
+
+def _tum_lines(points: Iterable[tuple[GpsTime, Vec]], origin_ecef: Vec | None) -> list[str]:
+    lines = [
+        TUM_HEADER + (" (ENU metres about the origin below)" if origin_ecef is not None else " (ECEF metres)")
+    ]
+    if origin_ecef is not None:
+        lines.append("# origin_ecef_m " + " ".join(f"{c:.4f}" for c in np.asarray(origin_ecef, dtype=float)))
+    for t, p in sorted(points, key=lambda tp: tp[0]):
+        xyz = np.asarray(p, dtype=float)
+        if not np.all(np.isfinite(xyz)):
+            continue
+        if origin_ecef is not None:
+            xyz = ecef_to_enu(xyz, origin_ecef)
+        lines.append(f"{t.seconds:.6f} {xyz[0]:.4f} {xyz[1]:.4f} {xyz[2]:.4f} 0 0 0 1")
+    return lines
+
+
+def write_tum_file(path: Path, points: Iterable[tuple[GpsTime, Vec]], origin_ecef: Vec | None = None) -> int:
+    """One trajectory as TUM: timestamp = GPS seconds since 1980-01-06 (week * 604800 + tow),
+    position in ENU about `origin_ecef` (ECEF when None), identity orientation (GNSS gives none)."""
+    lines = _tum_lines(points, origin_ecef)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return sum(1 for x in lines if not x.startswith("#"))
+
+
+def write_tum(run: MethodRun, out_dir: Path, origin_ecef: Vec | None = None) -> list[Path]:
+    """solutions/<method>/<vehicle>.tum for every vehicle of a run.
+
+    Why ENU about one fixed origin (`tum_origin`: the base station or the first truth point) and
+    not about each vehicle's first solution: evo compares files point by point, so every method's
+    file and the truth (`write_truth_tum`) must share one frame, and a first solution differs
+    between methods. ENU keeps evo's xy plots horizontal; without an origin the files are ECEF,
+    which evo reads just as well (float64) but plots tilted.
+    """
+    paths = []
+    for vid in sorted(run.positions):
+        path = Path(out_dir) / "solutions" / run.label / f"{vid}.tum"
+        write_tum_file(path, run.positions[vid].items(), origin_ecef)
+        paths.append(path)
+    return paths
+
+
+def write_truth_tum(rec: Recording, out_dir: Path, origin_ecef: Vec | None = None) -> list[Path]:
+    """truth/<vehicle>.tum in the same frame, the reference for `evo_ape tum truth/u1.tum ...`."""
+    paths = []
+    for v in rec.manifest.vehicles:
+        truth = rec.truth(v.id)
+        if truth:
+            path = Path(out_dir) / "truth" / f"{v.id}.tum"
+            write_tum_file(path, [(p.time, np.asarray(p.ecef_m)) for p in truth], origin_ecef)
+            paths.append(path)
+    return paths
