@@ -82,6 +82,10 @@ def test_converted_recording_layout_and_read_back(sources: dict[str, Path], tmp_
     doc = tomllib.loads((tmp_path / fmt / "fleet.toml").read_text())
     assert [v["obs"] for v in doc["vehicles"]] == [f"vehicles/{v}.{fmt}" for v in ("u1", "u2")]
     assert doc["base"]["obs"].endswith(".rtcm3") and doc["uwb"]["file"] == "uwb.csv"
+    # navigation from the receiver formats themselves: SFRBX (GPS LNAV, BeiDou D1/D2, GPS iono),
+    # or RTCM 1019/1042 plus a header-only RINEX file for the Klobuchar coefficients
+    nav = {"ubx": ["nav/ephemerides.ubx"], "rtcm3": ["nav/ephemerides.rtcm3", "nav/iono.rnx"]}
+    assert doc["nav"]["files"] == nav[fmt]
     assert all((tmp_path / fmt / v["truth"]).is_file() for v in doc["vehicles"])
     assert res.problems == 0 and not res.skipped
     for d in res.differences:

@@ -6,7 +6,10 @@ with 1019/1042 first), the base becomes base/<name>.rtcm3 (a reference station s
 uwb.csv and truth/ are copied, and a fleet.toml points at them. Navigation:
 * RTCM 3: nav/ephemerides.rtcm3 (1019/1042 only) first, then nav/iono.rnx, a RINEX header with
   the Klobuchar coefficients only, because RTCM 3 has no ionosphere message;
-* UBX: the original RINEX navigation files, copied.
+* UBX: nav/ephemerides.ubx, the GPS ephemerides as RXM-SFRBX LNAV subframes 1-3 and the GPS
+  Klobuchar coefficients as subframe 4 page 18 (recording/sfrbx.py); BeiDou D1/D2 has no SFRBX
+  encoder here, so the original RINEX files follow it for BeiDou. Each vehicle's .ubx also
+  starts with the GPS SFRBX subframes, as a receiver log would.
 After writing, the result is read back and compared with the source, epoch by epoch and
 satellite by satellite, so the cost of the format is measured, not assumed.
 """
@@ -31,6 +34,7 @@ from coplane.recording.rtcm3 import (
     RATE_LSB_MPS,
     write_rtcm3,
 )
+from coplane.recording.sfrbx import write_sfrbx_nav
 from coplane.recording.ubx import write_ubx
 from coplane.recording.writer import write_nav
 
@@ -71,6 +75,7 @@ class ConvertResult:
     resolution: str
     differences: list[ObsDifference] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     problems: int = 0
 
 
@@ -117,13 +122,22 @@ def _copy(src: Path, root: Path, out: Path) -> Path:
 def _nav_files(rec: Recording, fmt: str, out: Path, result: ConvertResult) -> tuple[Path, ...]:
     m = rec.manifest
     nav = rec.nav
-    iono = out / "nav" / "iono.rnx"
-    write_nav(iono, NavData(iono=dict(nav.iono)))
     if fmt == "rtcm3":
+        iono = out / "nav" / "iono.rnx"
+        write_nav(iono, NavData(iono=dict(nav.iono)))
         rep = write_rtcm3(out / "nav" / "ephemerides.rtcm3", [], nav)
         result.skipped += [f"nav: {s}" for s in rep.skipped]
         return (out / "nav" / "ephemerides.rtcm3", iono)
-    return tuple(_copy(p, m.root, out) for p in m.nav_files)  # SFRBX: see recording/sfrbx.py
+    path = out / "nav" / "ephemerides.ubx"
+    not_written = write_sfrbx_nav(path, nav)
+    if not not_written:
+        return (path,)
+    # BeiDou D1/D2 has no SFRBX encoder here: the original RINEX files follow for it (their GPS
+    # records duplicate the SFRBX ones, which come first and win)
+    result.notes.append(
+        f"{len(not_written)} ephemeris record(s) not in RXM-SFRBX (BeiDou): kept the RINEX nav"
+    )
+    return (path, *(_copy(p, m.root, out) for p in m.nav_files))
 
 
 def convert_recording(source: str | Path, fmt: Format, out: str | Path) -> ConvertResult:
@@ -143,7 +157,7 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path) -> Conve
         path = out / "vehicles" / f"{v.id}.{fmt}"
         epochs = rec.vehicle_epochs(v.id)
         if fmt == "ubx":
-            write_ubx(path, epochs)
+            write_ubx(path, epochs, nav=rec.nav)
         else:
             rep = write_rtcm3(path, epochs, rec.nav, station=station)
             result.skipped += [f"{v.id}: {s}" for s in rep.skipped]

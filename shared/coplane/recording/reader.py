@@ -9,7 +9,8 @@ epoch nearest to their tag within 0.1 x interval_s.
 
 Observation files are read by their extension: `.ubx` (u-blox RXM-RAWX, recording/ubx.py),
 `.rtcm3` (RTCM 3 MSM4/MSM7, recording/rtcm3.py), anything else RINEX. Navigation files ending
-`.rtcm3` give their 1019/1042 ephemerides. An RTCM 3 obs file's epochs carry no week: it is
+`.rtcm3` give their 1019/1042 ephemerides, `.ubx` their RXM-SFRBX GPS LNAV subframes
+(recording/sfrbx.py); files are merged in manifest order, the first record of a toe winning. An RTCM 3 obs file's epochs carry no week: it is
 taken from the file's own ephemeris messages, else from the recording's navigation data.
 """
 
@@ -27,6 +28,7 @@ from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_nav import read_nav_files
 from coplane.recording.rinex_obs import SignalCodes, read_obs
 from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
+from coplane.recording.sfrbx import read_sfrbx_nav
 from coplane.recording.ubx import read_ubx
 
 MATCH_FRACTION = 0.1  # uwb/truth rows match an epoch within this fraction of the interval
@@ -74,6 +76,8 @@ class Recording:
             for p in self.manifest.nav_files:  # in manifest order: the first file's record wins
                 if p.suffix.lower() == ".rtcm3":
                     nav.merge(read_rtcm3_nav(p, self.problems))
+                elif p.suffix.lower() == ".ubx":
+                    nav.merge(read_sfrbx_nav(p, self.problems))
                 else:
                     nav.merge(read_nav_files([p], self.problems))
             if not nav.ephemerides:

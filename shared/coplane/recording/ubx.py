@@ -31,7 +31,7 @@ from pyubx2 import GET, UBXMessage, UBXReader
 
 from coplane.gtime import GpsTime
 from coplane.recording.frames import Frame, ubx_frames
-from coplane.recording.model import ObsEpoch, ObsHeader, SatObservation
+from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import (
     DEFAULT_SIGNALS,
@@ -149,13 +149,22 @@ def write_ubx(
     path: str | Path,
     epochs: Iterable[ObsEpoch],
     signals: Mapping[str, SignalCodes] | None = None,
+    nav: NavData | None = None,
 ) -> Path:
-    """Write one RXM-RAWX per epoch (GPS and BeiDou, the selected signal of each)."""
+    """Write one RXM-RAWX per epoch (GPS and BeiDou, the selected signal of each), after the
+    ephemerides of `nav` as RXM-SFRBX subframes when given (as a receiver logs them)."""
     sig = dict(DEFAULT_SIGNALS if signals is None else signals)
     lock = _Lock()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as f:
+        if nav is not None:
+            from coplane.recording.sfrbx import ephemeris_messages
+
+            for ephs in nav.ephemerides.values():
+                for e in ephs:
+                    if e.system in ("G", "C"):
+                        f.write(b"".join(m.serialize() for m in ephemeris_messages(e, nav.iono.get("C"))))
         for ep in epochs:
             f.write(rawx_message(ep, sig, lock).serialize())
     return path
