@@ -106,3 +106,15 @@ def test_ten_bit_week_resolved_against_reference(tmp_path: Path) -> None:
     assert now.ephemerides["G05"][0].toe == e.toe
     old = read_sfrbx_nav(tmp_path / "w.ubx", Problems(), reference=GpsTime(e.week - 1000, 0.0))
     assert old.ephemerides["G05"][0].toe == GpsTime(e.toe.week - 1024, e.toe.tow)
+
+
+def test_garbled_nav_file_counts_damage_and_keeps_the_rest(tmp_path: Path) -> None:
+    nav = _nav()
+    write_sfrbx_nav(tmp_path / "n.ubx", nav)
+    data = bytearray((tmp_path / "n.ubx").read_bytes())
+    data[40:44] = b"\x00\xff\x00\xff"  # inside the first frame (page 18): its checksum fails
+    (tmp_path / "n.ubx").write_bytes(bytes(data))
+    p = Problems()
+    back = read_sfrbx_nav(tmp_path / "n.ubx", p, reference=GpsTime(2320, 0.0))
+    assert p.counts == {"garbled-frame": 1} and p.items[0].offset == 0
+    assert "G" not in back.iono and set(back.ephemerides) == set(nav.ephemerides)

@@ -274,7 +274,18 @@ def read_sfrbx_nav(
             data = path.read_bytes()
         except OSError as exc:
             raise RecordingError(f"{path}: cannot read UBX file ({exc.strerror or exc})") from exc
-        frames = [x for x in ubx_frames(data) if isinstance(x, Frame)]  # damage: read_ubx reports it
+        frames = []
+        for item in ubx_frames(data):
+            if isinstance(item, Frame):
+                frames.append(item)
+            elif not item.ascii:
+                problems.add(
+                    path,
+                    None,
+                    "garbled-frame",
+                    f"{item.length} byte(s) skipped: {item.reason}",
+                    offset=item.offset,
+                )
     ref = reference or today()
     nav = NavData()
     bds_reader = _BdsCollector(path, problems, nav)
