@@ -30,6 +30,7 @@ LAYERS: dict[str, int] = {
     "sim": 4,
     # estimation
     "estimation": 5,
+    "roadmap": 5,  # the road-surface map: core (geo, gtime, errors, typing, ids) and plane/ only
     "fgo": 6,
     "baselines": 6,
     "methods": 7,

@@ -1,0 +1,140 @@
+"""The in-memory road-surface map: tiles by key, passes applied, planes served (docs/roadmap.md).
+
+Pure: no I/O. `coplane.store.roadmap_db` persists it; a `RoadMap` is plain data (dicts, dataclasses,
+numpy arrays), so it pickles to worker processes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from coplane.plane.fit import antenna_offset
+from coplane.plane.history import project_to_road
+from coplane.roadmap.config import RoadMapConfig
+from coplane.roadmap.grid import TileKey, tile_of_ecef
+from coplane.roadmap.tile import ChangeEvent, PassEvidence, TilePlane
+from coplane.typing import Vec
+
+
+@dataclass(frozen=True, eq=False)
+class MapPlane:
+    """A tile's road plane at a vehicle, in the convention of `coplane.plane.fit`: unit upward
+    `normal`, n . p + d_road = 0 on the road, d_antenna = d_road - antenna height. `sigma_m` is the
+    road height's 1-sigma at the vehicle (with roughness: the factor's sigma), `offset_sigma_m` the
+    plane's own height sigma at the tile centre, `tilt_sigma_rad` its least-determined slope."""
+
+    key: TileKey
+    normal: Vec
+    d_road: float
+    d_antenna: float
+    sigma_m: float
+    offset_sigma_m: float
+    tilt_sigma_rad: float
+    n_passes: int
+    version: int
+
+
+class RoadMap:
+    """Tiles by key; `apply` adds passes, `plane_at` serves a vehicle the plane under it."""
+
+    def __init__(
+        self, config: RoadMapConfig | None = None, tiles: dict[TileKey, TilePlane] | None = None
+    ) -> None:
+        self.config = config or RoadMapConfig()
+        self.tiles: dict[TileKey, TilePlane] = dict(tiles) if tiles else {}
+        self.dirty: set[TileKey] = set()
+        # plane of each tile as of (tile object, version): see _plane
+        self._planes: dict[TileKey, tuple[TilePlane, tuple[int, Vec, float, float, float]]] = {}
+
+    def get(self, key: TileKey) -> TilePlane | None:
+        return self.tiles.get(key)
+
+    def apply(self, passes: Iterable[PassEvidence]) -> list[ChangeEvent]:
+        """Add passes in (time, vehicle, tile) order, creating tiles as needed (h0 from the first
+        pass's mean height); returns the changes they caused. Touched tiles become dirty."""
+        ordered = sorted(passes, key=_order)
+        changes: list[ChangeEvent] = []
+        for p in ordered:
+            key = p.key
+            assert key is not None  # _order checked
+            tile = self.tiles.get(key)
+            if tile is None:
+                if p.h_ref_m is None:
+                    raise ValueError(f"pass of {p.vehicle_id} for new tile {key}: h_ref_m is needed for h0")
+                u = np.asarray(p.points_enu, dtype=float)[:, 2]
+                tile = self.tiles[key] = TilePlane(key, float(p.h_ref_m + float(u.mean())))
+            upd = tile.add_pass(p, self.config)
+            self.dirty.add(key)
+            if upd.change is not None:
+                changes.append(upd.change)
+        return changes
+
+    def take_dirty(self) -> list[TilePlane]:
+        """Tiles changed since the last call, by key (what a database write needs), then clean."""
+        out = [self.tiles[k] for k in sorted(self.dirty) if k in self.tiles]
+        self.dirty = set()
+        return out
+
+    def tile_at(self, ecef: ArrayLike) -> TilePlane | None:
+        """The tile holding an ECEF position (a road point: project an antenna first)."""
+        return self.tiles.get(tile_of_ecef(ecef, self.config.tile_size_m))
+
+    def plane_at(self, antenna_ecef: ArrayLike, antenna_height_m: float) -> MapPlane | None:
+        """The plane of the tile under an antenna, if the tile is usable and its height sigma at the
+        vehicle is at most `max_use_sigma_m`; None otherwise."""
+        cfg = self.config
+        road = project_to_road(antenna_ecef, antenna_height_m)
+        tile = self.tile_at(road)
+        if tile is None or not tile.usable(cfg):
+            return None
+        sigma = tile.sigma_at_ecef(road, cfg)
+        if not sigma <= cfg.max_use_sigma_m:
+            return None
+        version, normal, d_road, offset_sigma, tilt_sigma = self._plane(tile)
+        return MapPlane(
+            key=tile.key,
+            normal=normal,
+            d_road=d_road,
+            d_antenna=antenna_offset(d_road, antenna_height_m),
+            sigma_m=sigma,
+            offset_sigma_m=offset_sigma,
+            tilt_sigma_rad=tilt_sigma,
+            n_passes=tile.n_passes,
+            version=version,
+        )
+
+    def stats(self) -> dict[str, int]:
+        """Counts for a summary line: tiles, usable tiles, accepted and rejected passes, changes."""
+        tiles = self.tiles.values()
+        return {
+            "tiles": len(self.tiles),
+            "usable_tiles": sum(t.usable(self.config) for t in tiles),
+            "passes": sum(t.n_passes for t in tiles),
+            "outlier_passes": sum(t.outlier_passes for t in tiles),
+            "changes": sum(t.changes for t in tiles),
+        }
+
+    def _plane(self, tile: TilePlane) -> tuple[int, Vec, float, float, float]:
+        """ECEF plane, offset sigma and tilt sigma of a tile, cached by version: a fleet asks for
+        the same few tiles every epoch, and the ECEF conversion costs more than the solve."""
+        hit = self._planes.get(tile.key)
+        if hit is not None and hit[0] is tile and hit[1][0] == tile.version:
+            return hit[1]
+        normal, d_road = tile.plane_ecef(self.config)
+        normal.flags.writeable = False
+        _, cov = tile.estimate(self.config)
+        slope_var = float(np.linalg.eigvalsh(cov[1:, 1:])[-1])
+        out = (tile.version, normal, d_road, math.sqrt(float(cov[0, 0])), math.atan(math.sqrt(slope_var)))
+        self._planes[tile.key] = (tile, out)
+        return out
+
+
+def _order(p: PassEvidence) -> tuple[float, str, TileKey]:
+    if p.key is None:
+        raise ValueError(f"pass of {p.vehicle_id} at {p.time_s}: no tile key")
+    return (p.time_s, p.vehicle_id, p.key)
