@@ -1,0 +1,242 @@
+"""The road-surface map on disk: bit-exact round trip, atomic batches, kill -9, foreign files, copying."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coplane.roadmap import ChangeEvent, PassEvidence, RoadMap, RoadMapConfig, TileKey, TilePlane, tile_centre
+from coplane.store import SolutionLog, StoreError
+from coplane.store.roadmap_db import SCHEMA_VERSION, RoadMapDb
+
+CFG = RoadMapConfig()
+BASE = TileKey(267_600, 43_000)  # Munich-ish at 20 m
+
+
+def synthetic_passes(seed: int, n_tiles: int = 6, t0: float = 1.4e9) -> list[PassEvidence]:
+    """Passes over a few tiles with arbitrary floats; tile 0's road rises 0.8 m after 5 passes
+    (a change) and tile 1 gets an outlier pass (a rejected pass with a z)."""
+    rng = np.random.default_rng(seed)
+    passes = []
+    for i in range(n_tiles):
+        key = TileKey(BASE.row + i // 3, BASE.col + i % 3)
+        for k in range(8 + i):
+            step = 0.8 if (i == 0 and k >= 5) else 0.0  # tile 0 changes
+            bad = 4.0 if (i == 1 and k == 6) else 0.0  # tile 1 gets an outlier pass
+            e = rng.uniform(-10, 10, 12)
+            n = np.full(12, rng.choice([-1.75, 1.75]))
+            u = 500.0 + 0.02 * e + step + bad + rng.normal(0, 0.1) + rng.normal(0, 0.02, 12)
+            sig = rng.uniform(0.05, 0.3, 12)
+            passes.append(
+                PassEvidence(f"v{k % 3}", t0 + 30.0 * k + i, np.column_stack([e, n, u]), sig, key, 0.0)
+            )
+    return passes
+
+
+def synthetic_map(seed: int = 4) -> tuple[RoadMap, list[ChangeEvent]]:
+    m = RoadMap(CFG)
+    changes = m.apply(synthetic_passes(seed))
+    return m, changes
+
+
+def same_tile(a: TilePlane, b: TilePlane) -> None:
+    """Every field bit for bit (nan z compared as nan)."""
+    for f in dataclasses.fields(TilePlane):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.tobytes() == y.tobytes(), f.name
+        elif f.name == "recent":
+            assert len(x) == len(y)
+            for p, q in zip(x, y, strict=True):
+                for g in dataclasses.fields(p):
+                    u, v = getattr(p, g.name), getattr(q, g.name)
+                    if isinstance(u, np.ndarray):
+                        assert u.tobytes() == v.tobytes(), g.name
+                    elif isinstance(u, float) and math.isnan(u):
+                        assert math.isnan(v)
+                    else:
+                        assert u == v and type(u) is type(v), g.name
+        else:
+            assert x == y and type(x) is type(y), f.name
+
+
+def test_round_trip_is_bit_exact(tmp_path: Path) -> None:
+    m, changes = synthetic_map()
+    assert len(changes) == 1 and any(t.outlier_passes for t in m.tiles.values())
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        assert db.write(m.take_dirty(), changes, now=1234.5) == len(m.tiles)
+    with RoadMapDb(path, readonly=True) as db:
+        loaded = db.load()
+        assert loaded.config == CFG and loaded.dirty == set()
+        assert loaded.tiles.keys() == m.tiles.keys()
+        for k in m.tiles:
+            same_tile(m.tiles[k], loaded.tiles[k])
+        (c,) = db.changes()
+        assert c == {
+            "id": 1,
+            "tile": str(changes[0].key),
+            "time_s": changes[0].time_s,
+            "old_height_m": changes[0].old_height_m,
+            "new_height_m": changes[0].new_height_m,
+            "passes_used": changes[0].passes_used,
+            "recorded_unix_s": 1234.5,
+        }
+        some = [BASE, TileKey(BASE.row + 1, BASE.col + 2), TileKey(0, 0)]
+        got = db.load_keys(some)
+        assert sorted(got) == some[:2]
+        same_tile(got[BASE], m.tiles[BASE])
+        assert db.count() == len(m.tiles)
+    # the loaded map keeps learning exactly like the original (CUSUM state and recent passes too)
+    more = synthetic_passes(seed=5, t0=1.5e9)
+    assert m.apply(more) == loaded.apply(more)
+    for k in m.tiles:
+        same_tile(m.tiles[k], loaded.tiles[k])
+
+
+def test_tiles_in_bbox_uses_the_grid(tmp_path: Path) -> None:
+    m, changes = synthetic_map()
+    with RoadMapDb(tmp_path / "m.sqlite") as db:
+        db.write(m.tiles.values(), changes)
+        lat, lon = tile_centre(BASE, CFG.tile_size_m)
+        d = 1e-5  # ~1 m around the centre of BASE only
+        inside = db.tiles_in_bbox(
+            math.degrees(lon) - d, math.degrees(lat) - d, math.degrees(lon) + d, math.degrees(lat) + d
+        )
+        assert [t.key for t in inside] == [BASE]
+        big = db.tiles_in_bbox(
+            math.degrees(lon) - 0.01,
+            math.degrees(lat) - 0.01,
+            math.degrees(lon) + 0.01,
+            math.degrees(lat) + 0.01,
+        )
+        assert [t.key for t in big] == sorted(m.tiles)
+
+
+def test_a_batch_is_atomic(tmp_path: Path) -> None:
+    m, _ = synthetic_map()
+    path = tmp_path / "m.sqlite"
+    with RoadMapDb(path) as db:
+        tiles = list(m.tiles.values())
+        db.write(tiles[:2])
+        bad = ChangeEvent(BASE, 1.0, None, 2.0, 3)  # type: ignore[arg-type]  # NOT NULL fails mid-batch
+        with pytest.raises(sqlite3.IntegrityError):
+            db.write(tiles[2:], [bad])
+        assert db.count() == 2 and db.changes() == []
+        db.write(tiles[2:])
+        assert db.count() == len(tiles)
+
+
+WRITER = textwrap.dedent(
+    """
+    import sys, dataclasses
+    from coplane.roadmap import RoadMapConfig, TileKey, TilePlane, ChangeEvent
+    from coplane.store.roadmap_db import RoadMapDb
+    db = RoadMapDb(sys.argv[1])
+    tiles = [TilePlane(TileKey(100, c), 500.0) for c in range(200)]
+    v = 0
+    while True:
+        v += 1
+        batch = [dataclasses.replace(t, version=v, n_passes=v) for t in tiles]
+        db.write(batch, [ChangeEvent(TileKey(100, 0), float(v), 0.0, 1.0, v)])
+        if v == 3:
+            print("writing", flush=True)
+    """
+)
+
+
+def test_kill_9_mid_write_leaves_a_consistent_map(tmp_path: Path) -> None:
+    path = tmp_path / "m.sqlite"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "writing"
+        time.sleep(0.4)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=10)
+    assert proc.returncode == -signal.SIGKILL
+    with RoadMapDb(path) as db:  # opens: schema, application id and quick_check pass
+        m = db.load()
+        versions = {t.version for t in m.tiles.values()}
+        assert len(m.tiles) == 200 and len(versions) == 1  # never half a batch
+        (v,) = versions
+        assert v >= 3 and [c["passes_used"] for c in db.changes(limit=1)] == [v]
+        assert len(db.changes(limit=10**6)) == v  # one change row per committed batch
+
+
+def test_foreign_corrupt_and_newer_files_are_errors_naming_the_file(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"this is not a database, just some bytes" * 200)
+    with pytest.raises(StoreError, match=r"junk\.sqlite"):
+        RoadMapDb(junk)
+    log = tmp_path / "log.sqlite"
+    SolutionLog(log).close()
+    with pytest.raises(
+        StoreError, match=r"log.sqlite: not a coplane map \(SQLite application id 0x63706c6e\)"
+    ):
+        RoadMapDb(log)
+    newer = tmp_path / "newer.sqlite"
+    RoadMapDb(newer).close()
+    con = sqlite3.connect(newer)
+    con.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    con.close()
+    with pytest.raises(StoreError, match=rf"newer\.sqlite: map schema version {SCHEMA_VERSION + 1}"):
+        RoadMapDb(newer, readonly=True)
+    with pytest.raises(StoreError, match=r"missing\.sqlite: no such map file"):
+        RoadMapDb(tmp_path / "missing.sqlite", readonly=True)
+    empty = tmp_path / "empty.sqlite"
+    empty.touch()
+    with pytest.raises(StoreError, match=r"empty\.sqlite: empty file"):
+        RoadMapDb(empty, readonly=True)
+    with RoadMapDb(tmp_path / "ro.sqlite") as db:
+        pass
+    with RoadMapDb(tmp_path / "ro.sqlite", readonly=True) as db, pytest.raises(StoreError, match="read-only"):
+        db.write([])
+
+
+def test_the_stored_tile_size_wins(tmp_path: Path) -> None:
+    path = tmp_path / "m.sqlite"
+    cfg = dataclasses.replace(CFG, tile_size_m=25.0, min_passes=3)
+    RoadMapDb(path, cfg).close()
+    with RoadMapDb.open(path) as db:
+        assert db.config == cfg and db.load().config == cfg
+    other = dataclasses.replace(cfg, outlier_z=4.0)  # same tiles, other thresholds: allowed
+    with RoadMapDb(path, other) as db:
+        assert db.config == other
+    with pytest.raises(
+        StoreError, match=r"m.sqlite: the map's tiles are 25 m, the configuration asks for 20 m"
+    ):
+        RoadMapDb(path, CFG)
+
+
+def test_a_closed_map_is_one_file_that_can_be_copied(tmp_path: Path) -> None:
+    m, changes = synthetic_map()
+    path = tmp_path / "a" / "m.sqlite"
+    db = RoadMapDb(path)
+    reader = RoadMapDb(path, readonly=True)  # another process may read while one writes
+    db.write(m.tiles.values(), changes)
+    assert reader.count() == len(m.tiles)
+    reader.close()
+    db.close()
+    wal = path.with_name(path.name + "-wal")
+    assert not wal.exists() or wal.stat().st_size == 0
+    copy = tmp_path / "b" / "copy.sqlite"
+    copy.parent.mkdir()
+    shutil.copy(path, copy)  # the main file only
+    with RoadMapDb(copy, readonly=True) as db2:
+        loaded = db2.load()
+        assert len(db2.changes()) == 1
+    for k in m.tiles:
+        same_tile(m.tiles[k], loaded.tiles[k])
