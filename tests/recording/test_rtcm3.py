@@ -11,6 +11,7 @@ import pytest
 from pyrtcm import RTCMReader
 
 from coplane.gtime import GpsTime, bdt_to_gpst
+from coplane.recording.broadcast import nearest_week, resolve_week
 from coplane.recording.model import Ephemeris, NavData, ObsEpoch, SatObservation
 from coplane.recording.problems import Problems
 from coplane.recording.rinex_nav import read_nav
@@ -20,17 +21,13 @@ from coplane.recording.rtcm3 import (
     CNR_LSB_DBHZ,
     FREQ_HZ,
     PSEUDORANGE_LSB_M,
-    decode_ephemeris,
-    ephemeris_frame,
-    ephemeris_lsb,
     lock_indicator,
     msm_frames,
-    nearest_week,
     read_rtcm3,
     read_rtcm3_nav,
-    resolve_week,
     write_rtcm3,
 )
+from coplane.recording.rtcm3_ephemeris import decode_ephemeris, ephemeris_frame, ephemeris_lsb
 from coplane.recording.rtcm_encode import FieldRangeError, build_frame
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "coplane" / "data" / "recordings" / "default"

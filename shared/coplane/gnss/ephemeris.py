@@ -28,6 +28,7 @@ import numpy as np
 
 from coplane.gnss.constants import MU_BDS, MU_GPS, OMEGA_E_BDS, OMEGA_E_GPS, C, is_bds_geo
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime, gpst_to_bdt
+from coplane.recording.broadcast import URA_TABLE_M  # RTKLIB quantises the variance by it
 from coplane.recording.model import Ephemeris, NavData
 
 # RTKLIB MAXDTOE / MAXDTOE_CMP (s). RTKLIB's seleph accepts |t - toe| <= MAXDTOE + 1 s; we do too.
@@ -43,12 +44,6 @@ _ORBIT_CONSTANTS: dict[str, tuple[float, float]] = {
 # BeiDou GEO: the orbit is given in a frame tilted by -5 deg about X (BDS-SIS-ICD 5.2.4.12).
 _SIN_M5 = math.sin(math.radians(-5.0))
 _COS_M5 = math.cos(math.radians(-5.0))
-
-# URA table (IS-GPS-200 20.3.3.3.1.1), metres. RTKLIB maps a broadcast accuracy in metres to the
-# first index whose value is >= it, and uses that value squared as the ephemeris variance.
-URA_TABLE_M: tuple[float, ...] = (
-    2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0,
-)  # fmt: skip
 
 _KEPLER_TOL = 1e-13  # RTKLIB RTOL_KEPLER
 _KEPLER_MAX_ITER = 30

@@ -36,11 +36,14 @@ Time (docs/recording-format.md, "UBX and RTCM 3 obs files"):
   first 1042 (13-bit BDT week: unambiguous until 2163), else the first 1019 resolved against
   today's date, else today's date. 1019's 10-bit week is resolved to the 1024-week cycle nearest
   the reference (RTKLIB's rule in real time), so a log is read right for +-512 weeks (9.8 years).
+
+MSM reading and writing stay one file: each field's scaling is written once and used both ways,
+and the round-trip tests check the pair. Ephemeris messages live in rtcm3_ephemeris.py, the URA
+table and week rules shared with UBX in broadcast.py.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -49,12 +52,11 @@ from typing import Any
 
 from pyrtcm import RTCMReader
 from pyrtcm.rtcmtables import BEIDOU_SIG_MAP, GPS_SIG_MAP
-from pyrtcm.rtcmtypes_core import RTCM_DATA_FIELDS
 
-from coplane.gnss.ephemeris import URA_TABLE_M
-from coplane.gtime import SECONDS_PER_WEEK, GpsTime, bdt_to_gpst, gpst_to_bdt
+from coplane.gtime import GpsTime, bdt_to_gpst, gpst_to_bdt
+from coplane.recording.broadcast import nearest_week, resolve_week, today
 from coplane.recording.frames import Frame, rtcm_frames
-from coplane.recording.model import Ephemeris, NavData, ObsEpoch, ObsHeader, SatObservation
+from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import (
     DEFAULT_SIGNALS,
@@ -65,6 +67,7 @@ from coplane.recording.rinex_obs import (
     SNR_MIN_DBHZ,
     SignalCodes,
 )
+from coplane.recording.rtcm3_ephemeris import EPHEMERIS, decode_ephemeris, ephemeris_frame, field_lsb
 from coplane.recording.rtcm_encode import FieldRangeError, build_frame
 
 C_LIGHT = 299_792_458.0
@@ -72,14 +75,12 @@ LIGHT_MS = C_LIGHT * 1e-3  # metres per millisecond of light travel
 FREQ_HZ = {"G": 1575.42e6, "C": 1561.098e6}  # L1 C/A, B1I: the only carriers written
 MSM7 = {"G": "1077", "C": "1127"}
 MSM4 = {"G": "1074", "C": "1124"}
-EPHEMERIS = {"G": "1019", "C": "1042"}
 _SIG_MAPS = {"G": GPS_SIG_MAP, "C": BEIDOU_SIG_MAP}
 _SYSTEM_OF = {"107": "G", "112": "C"}
 _P2_10, _P2_29, _P2_24, _P2_31 = 2.0**-10, 2.0**-29, 2.0**-24, 2.0**-31
 PSEUDORANGE_LSB_M = _P2_29 * LIGHT_MS  # 0.558 mm
 RATE_LSB_MPS = 1e-4
 CNR_LSB_DBHZ = 2.0**-4
-MAX_TOW_JUMP_S = SECONDS_PER_WEEK / 2
 _WEEK_MS = 604_800_000
 _BDT_LAG_MS = 14_000  # GPST - BDT
 
@@ -93,129 +94,6 @@ def msm_signal_id(sys: str, code: str) -> int:
         if rinex == band:
             return sid
     raise ValueError(f"no MSM signal for {sys} {code}")
-
-
-# --------------------------------------------------------------------------------------------
-# Week rollover
-
-
-def resolve_week(week_mod: int, bits: int, reference_week: int) -> int:
-    """The full week whose low `bits` bits are `week_mod`, nearest to `reference_week`."""
-    cycle = 1 << bits
-    base = reference_week - (reference_week % cycle) + week_mod
-    return min((base - cycle, base, base + cycle), key=lambda w: abs(w - reference_week))
-
-
-def nearest_week(tow_s: float, reference: GpsTime) -> GpsTime:
-    """The instant with this time of week nearest to `reference` (within half a week)."""
-    t = GpsTime(reference.week, tow_s)
-    d = t - reference
-    if d > MAX_TOW_JUMP_S:
-        return GpsTime(reference.week - 1, tow_s)
-    if d < -MAX_TOW_JUMP_S:
-        return GpsTime(reference.week + 1, tow_s)
-    return t
-
-
-def today() -> GpsTime:
-    """Now, as GPST to within the leap seconds (only used to place 10-bit weeks)."""
-    now = _dt.datetime.now(_dt.UTC)
-    return GpsTime.from_calendar(now.year, now.month, now.day, now.hour, now.minute, now.second)
-
-
-# --------------------------------------------------------------------------------------------
-# Ephemerides: field tables from pyrtcm, semicircle fields scaled by pi here
-
-_SC = math.pi
-# model attribute -> (data field, extra factor): value = raw * LSB(pyrtcm) * factor
-_GPS_FIELDS: dict[str, tuple[str, float]] = {
-    "idot": ("DF079", _SC), "iode": ("DF071", 1.0), "af2": ("DF082", 1.0), "af1": ("DF083", 1.0),
-    "af0": ("DF084", 1.0), "iodc": ("DF085", 1.0), "crs": ("DF086", 1.0), "delta_n": ("DF087", _SC),
-    "m0": ("DF088", _SC), "cuc": ("DF089", 1.0), "e": ("DF090", 1.0), "cus": ("DF091", 1.0),
-    "sqrt_a": ("DF092", 1.0), "cic": ("DF094", 1.0), "omega0": ("DF095", _SC), "cis": ("DF096", 1.0),
-    "i0": ("DF097", _SC), "crc": ("DF098", 1.0), "omega": ("DF099", _SC), "omega_dot": ("DF100", _SC),
-    "tgd": ("DF101", 1.0),
-}  # fmt: skip
-_BDS_FIELDS: dict[str, tuple[str, float]] = {
-    "idot": ("DF491", _SC), "iode": ("DF492", 1.0), "af2": ("DF494", 1.0), "af1": ("DF495", 1.0),
-    "af0": ("DF496", 1.0), "iodc": ("DF497", 1.0), "crs": ("DF498", 1.0), "delta_n": ("DF499", _SC),
-    "m0": ("DF500", _SC), "cuc": ("DF501", 1.0), "e": ("DF502", 1.0), "cus": ("DF503", 1.0),
-    "sqrt_a": ("DF504", 1.0), "cic": ("DF506", 1.0), "omega0": ("DF507", _SC), "cis": ("DF508", 1.0),
-    "i0": ("DF509", _SC), "crc": ("DF510", 1.0), "omega": ("DF511", _SC), "omega_dot": ("DF512", _SC),
-    "tgd": ("DF513", 1e-9), "tgd2": ("DF514", 1e-9),  # 0.1 ns LSB in pyrtcm's table, in ns
-}  # fmt: skip
-
-
-def _lsb(df: str) -> float:
-    res = RTCM_DATA_FIELDS[df][2]
-    return 1.0 if res in (0, 1) else float(res)
-
-
-def ephemeris_lsb(sys: str) -> dict[str, float]:
-    """LSB of each ephemeris attribute in model units (rad, s, m, ...) as 1019/1042 carry it."""
-    table = _GPS_FIELDS if sys == "G" else _BDS_FIELDS
-    return {a: _lsb(df) * f for a, (df, f) in table.items()}
-
-
-def ura_index(sva_m: float) -> int:
-    for i, v in enumerate(URA_TABLE_M):
-        if sva_m <= v:
-            return i
-    return 15
-
-
-def _ura_value(index: int) -> float:
-    return URA_TABLE_M[index] if index < len(URA_TABLE_M) else 2.0 * URA_TABLE_M[-1]
-
-
-def ephemeris_frame(e: Ephemeris) -> bytes:
-    """1019 (GPS) or 1042 (BeiDou) for one ephemeris; FieldRangeError if a value does not fit."""
-    sys = e.system
-    if sys not in EPHEMERIS:
-        raise ValueError(f"{e.sat}: only GPS and BeiDou ephemerides have an RTCM message here")
-    table = _GPS_FIELDS if sys == "G" else _BDS_FIELDS
-    v: dict[str, int] = {df: round(getattr(e, a) / (_lsb(df) * f)) for a, (df, f) in table.items()}
-    prn = int(e.sat[1:])
-    if sys == "G":
-        v |= {
-            "DF009": prn, "DF076": e.week % 1024, "DF077": ura_index(e.sva), "DF078": 0,
-            "DF081": round(e.toc.tow / 16), "DF093": round(e.toe.tow / 16), "DF102": e.health,
-            "DF103": 0, "DF137": 0 if e.fit_hours <= 4.0 else 1,
-        }  # fmt: skip
-    else:
-        v |= {
-            "DF488": prn, "DF489": e.week, "DF490": ura_index(e.sva),
-            "DF493": round(gpst_to_bdt(e.toc)[1] / 8), "DF505": round(gpst_to_bdt(e.toe)[1] / 8),
-            "DF515": e.health,
-        }  # fmt: skip
-    return build_frame(EPHEMERIS[sys], v)
-
-
-def _adjust(t: GpsTime, ref: GpsTime) -> GpsTime:
-    """t moved by whole weeks to within half a week of ref (toc/toe around a week boundary)."""
-    return nearest_week(t.tow, ref) if abs(t - ref) > MAX_TOW_JUMP_S else t
-
-
-def decode_ephemeris(msg: Any, reference: GpsTime) -> Ephemeris:
-    """Ephemeris from a parsed 1019 / 1042 (1019's week resolved against `reference`)."""
-    sys = "G" if msg.identity == "1019" else "C"
-    table = _GPS_FIELDS if sys == "G" else _BDS_FIELDS
-    vals = {a: float(getattr(msg, df)) * f for a, (df, f) in table.items()}
-    if sys == "G":
-        sat = f"G{int(msg.DF009):02d}"
-        week = resolve_week(int(msg.DF076), 10, reference.week)
-        toe = GpsTime(week, float(msg.DF093))
-        toc = _adjust(GpsTime(week, float(msg.DF081)), toe)
-        sva, health = _ura_value(int(msg.DF077)), int(msg.DF102)
-        fit = 4.0 if int(msg.DF137) == 0 else 6.0
-    else:
-        sat = f"C{int(msg.DF488):02d}"
-        week = int(msg.DF489)
-        toe = bdt_to_gpst(week, float(msg.DF505))
-        toc = _adjust(bdt_to_gpst(week, float(msg.DF493)), toe)
-        sva, health, fit = _ura_value(int(msg.DF490)), int(msg.DF515), 0.0
-    vals["iode"], vals["iodc"] = float(round(vals["iode"])), float(round(vals["iodc"]))
-    return Ephemeris(sat=sat, toc=toc, toe=toe, week=week, sva=sva, health=health, fit_hours=fit, **vals)
 
 
 # --------------------------------------------------------------------------------------------
@@ -383,7 +261,7 @@ def write_rtcm3(
 
 def _raw(msg: Any, name: str, df: str) -> int:
     """A parsed field back in LSB units (pyrtcm scales it)."""
-    return round(float(getattr(msg, name)) / _lsb(df))
+    return round(float(getattr(msg, name)) / field_lsb(df))
 
 
 @dataclass

@@ -31,13 +31,12 @@ from typing import Any
 
 from pyubx2 import GET, UBXMessage, UBXReader
 
-from coplane.gnss.ephemeris import URA_TABLE_M
 from coplane.gtime import GpsTime
 from coplane.recording import sfrbx_bds as bds
+from coplane.recording.broadcast import URA_TABLE_M, nearest_week, resolve_week, today, ura_index
 from coplane.recording.frames import Frame, ubx_frames
 from coplane.recording.model import Ephemeris, IonoCoefficients, NavData
 from coplane.recording.problems import Problems, RecordingError
-from coplane.recording.rtcm3 import nearest_week, resolve_week, today, ura_index
 
 PREAMBLE = 0x8B
 _SC = math.pi

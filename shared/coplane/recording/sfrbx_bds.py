@@ -22,10 +22,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from coplane.gnss.ephemeris import URA_TABLE_M
 from coplane.gtime import GpsTime, bdt_to_gpst, gpst_to_bdt
+from coplane.recording.broadcast import URA_TABLE_M, nearest_week, ura_index
 from coplane.recording.model import Ephemeris, IonoCoefficients
-from coplane.recording.rtcm3 import nearest_week, ura_index
 
 PREAMBLE = 0b11100010010
 _SC = math.pi
