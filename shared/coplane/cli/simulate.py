@@ -26,6 +26,14 @@ def simulate_command(
     scenario: Annotated[
         str, typer.Option("--scenario", help=f"One of: {', '.join(sorted(SCENARIOS))}.")
     ] = DEFAULT_SCENARIO,
+    start_offset: Annotated[
+        float,
+        typer.Option(
+            "--start-offset",
+            min=0.0,
+            help="Start the drive this many seconds after the scenario's start: same roads, another sky.",
+        ),
+    ] = 0.0,
 ) -> None:
     """Simulate a fleet drive (GNSS, UWB, truth) and write it as a fleet recording."""
     from coplane.sim import run_simulation, write_recording
@@ -34,7 +42,9 @@ def simulate_command(
         raise ConfigError(f"unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
     t0 = time.perf_counter()
     try:
-        result = run_simulation(scenario, vehicles, duration, seed, progress=True)
+        result = run_simulation(
+            scenario, vehicles, duration, seed, progress=True, start_offset_s=start_offset
+        )
     except ValueError as exc:  # sim reports bad arguments (a window past the ephemerides) as ValueError
         raise ConfigError(str(exc)) from exc
     t1 = time.perf_counter()

@@ -22,6 +22,7 @@ from coplane.sim.diagnostics import Diagnostics
 from coplane.sim.epoch import EpochSimulator
 from coplane.sim.errors import component_rng
 from coplane.sim.result import SimResult
+from coplane.sim.road import RoadRaise
 from coplane.sim.scenarios import DEFAULT_SCENARIO, Scenario, get_scenario
 from coplane.sim.uwb import UwbSimulator
 from coplane.sim.world import build_world
@@ -36,10 +37,13 @@ def run_simulation(
     progress: bool = False,
     diagnostics: bool = False,
     on_epoch: Callable[[int, int], None] | None = None,
+    start_offset_s: float = 0.0,
+    road_raise: tuple[RoadRaise, ...] = (),
 ) -> SimResult:
-    """Simulate in memory. `vehicles` >= 1; `duration_s` / interval epochs."""
+    """Simulate in memory. `vehicles` >= 1; `duration_s` / interval epochs; the drive starts
+    `start_offset_s` after the scenario's start time (same roads, another sky) and `road_raise` re-surfaces road sections."""
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
-    world = build_world(sc, vehicles, duration_s, seed)
+    world = build_world(sc, vehicles, duration_s, seed, start_offset_s, road_raise)
     epochs = EpochSimulator(world, seed, broadcast_iono=diagnostics)
     n_ep, m, ids = len(world.times), world.vehicles, world.track.ids
     uwb_sim = None
@@ -93,9 +97,10 @@ def simulate(
     duration_s: float = 600.0,
     seed: int = 0,
     progress: bool = False,
+    start_offset_s: float = 0.0,
 ) -> Path:
     """Simulate a fleet and write the recording; returns its directory."""
-    result = run_simulation(scenario, vehicles, duration_s, seed, progress)
+    result = run_simulation(scenario, vehicles, duration_s, seed, progress, start_offset_s=start_offset_s)
     return write_recording(result, out_dir)
 
 

@@ -106,6 +106,61 @@ class VerticalProfile:
         return out
 
 
+@dataclass(frozen=True)
+class RoadRaise:
+    """A re-surfaced section: the road between `s_start_m` and `s_end_m` lies `dz_m` higher, with
+    cosine ramps `ramp_m` long inside the section (z and grade stay continuous, as a real overlay
+    is feathered in). The road-map benchmarks raise a section between runs to check that the map
+    notices the change and re-learns it."""
+
+    s_start_m: float
+    s_end_m: float
+    dz_m: float
+    ramp_m: float = 20.0
+
+    def __post_init__(self) -> None:
+        if not (self.s_end_m - self.s_start_m >= 2.0 * self.ramp_m > 0.0):
+            raise ValueError(f"raise {self}: the section must hold both ramps")
+
+    def weights(self, s: AnyArray) -> tuple[AnyArray, AnyArray, AnyArray]:
+        """w(s) in [0, 1] and its first and second derivatives along s."""
+        w, dw, d2w = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        k = math.pi / self.ramp_m
+        up = (s >= self.s_start_m) & (s < self.s_start_m + self.ramp_m)
+        down = (s > self.s_end_m - self.ramp_m) & (s <= self.s_end_m)
+        flat = (s >= self.s_start_m + self.ramp_m) & (s <= self.s_end_m - self.ramp_m)
+        w[flat] = 1.0
+        for m, u, sign in ((up, s - self.s_start_m, 1.0), (down, self.s_end_m - s, -1.0)):
+            w[m] = 0.5 * (1.0 - np.cos(k * u[m]))
+            dw[m] = sign * 0.5 * k * np.sin(k * u[m])
+            d2w[m] = 0.5 * k * k * np.cos(k * u[m])
+        return w, dw, d2w
+
+
+class RaisedProfile(VerticalProfile):
+    """A vertical profile with re-surfaced sections added on top (see RoadRaise)."""
+
+    def __init__(self, base: VerticalProfile, raises: tuple[RoadRaise, ...]) -> None:
+        self.__dict__.update(base.__dict__)
+        self.raises = raises
+
+    def _sum(self, s: AnyArray | float, which: int) -> AnyArray:
+        ss = np.mod(np.asarray(s, dtype=float), self.length_m)
+        out = np.zeros(ss.shape)
+        for r in self.raises:
+            out = out + r.dz_m * r.weights(ss)[which]
+        return out
+
+    def z(self, s: AnyArray | float) -> AnyArray:
+        return super().z(s) + self._sum(s, 0)
+
+    def grade(self, s: AnyArray | float) -> AnyArray:
+        return super().grade(s) + self._sum(s, 1)
+
+    def curvature(self, s: AnyArray | float) -> AnyArray:
+        return super().curvature(s) + self._sum(s, 2)
+
+
 def closing_profile(
     length_m: float, changes: tuple[GradeChange, ...], last_curve_m: float = 50.0
 ) -> VerticalProfile:

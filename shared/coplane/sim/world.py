@@ -21,7 +21,7 @@ from coplane.recording.rinex_nav import read_nav
 from coplane.sim.canyon import Canyon
 from coplane.sim.errors import ReceiverParams, component_rng
 from coplane.sim.motion import FleetTrack, simulate_motion
-from coplane.sim.road import Road, Sections, enu_to_ecef_curved
+from coplane.sim.road import RaisedProfile, Road, RoadRaise, Sections, enu_to_ecef_curved
 from coplane.sim.scenarios import Scenario
 from coplane.sim.sky import enu_rotations
 from coplane.typing import AnyArray, Mat, Vec
@@ -97,8 +97,20 @@ def _check_window(nav: NavData, sats: list[str], t0: GpsTime, t1: GpsTime) -> No
         )
 
 
-def build_world(sc: Scenario, vehicles: int, duration_s: float, seed: int) -> World:
-    """Read the navigation file, lay out the road and canyon and drive the fleet (seeded streams)."""
+def build_world(
+    sc: Scenario,
+    vehicles: int,
+    duration_s: float,
+    seed: int,
+    start_offset_s: float = 0.0,
+    road_raise: tuple[RoadRaise, ...] = (),
+) -> World:
+    """Read the navigation file, lay out the road and canyon and drive the fleet (seeded streams).
+
+    `start_offset_s` starts the drive that much after the scenario's start: the same roads under
+    another sky (satellite geometry, atmosphere), as a second day's drive would be; the road map
+    benchmarks need runs whose GNSS errors are independent. `road_raise` re-surfaces sections.
+    """
     if vehicles < 1:
         raise ValueError("at least one vehicle is needed")
     dt = sc.interval_s
@@ -111,12 +123,14 @@ def build_world(sc: Scenario, vehicles: int, duration_s: float, seed: int) -> Wo
     if problems.total:
         raise ValueError(f"navigation file {nav_path} has {problems.total} problems")
     sats = sorted(s for s in nav.ephemerides if s[0] in SIGNAL_TYPES)
-    t0 = GpsTime.from_calendar(*sc.start)
+    t0 = GpsTime.from_calendar(*sc.start) + start_offset_s
     times = [t0 + k * dt for k in range(n_ep)]
     _check_window(nav, sats, t0, times[-1])
 
     rp = sc.road
     road = Road(rp.waypoints_en, rp.corner_radius_m, rp.lanes, rp.lane_width_m, rp.grade_changes)
+    if road_raise:
+        road.profile = RaisedProfile(road.profile, road_raise)
     sections = Sections(road.length_m, rp.sections)
     canyon = Canyon(road, sections, sc.canyon, component_rng(seed, "canyon"))
     origin = (rp.origin_lat_deg, rp.origin_lon_deg, rp.origin_h_m)
