@@ -94,6 +94,21 @@ def test_every_package_has_a_layer() -> None:
     assert packages <= set(LAYERS), f"add to LAYERS: {sorted(packages - set(LAYERS))}"
 
 
+def test_every_library_package_is_installed() -> None:
+    """pyproject lists packages by hand: a folder missing there works in the editable install the
+    tests use and is absent from a wheel or the Docker image."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    lib = ROOT / "shared" / "coplane"
+    folders = {
+        "coplane." + ".".join(d.relative_to(lib).parts)
+        for d in lib.rglob("*")
+        if d.is_dir() and (d / "__init__.py").exists()
+    }
+    assert folders <= listed, f"add to [tool.setuptools] packages: {sorted(folders - listed)}"
+
+
 def test_imports_go_one_way() -> None:
     bad: list[str] = []
     for path in _sources():
