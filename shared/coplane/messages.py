@@ -124,6 +124,9 @@ class VelocityReport(_Model):
 
 
 PlaneStatusName = Literal["available", "available-after-fe", "unavailable"]
+# where a vehicle's plane came from: fitted from the fleet's or its own solved history (paper
+# Sec. III), or taken from the road-surface map (docs/roadmap.md)
+PlaneSourceName = Literal["fleet", "self", "map"]
 
 
 class PlaneReport(_Model):
@@ -142,6 +145,9 @@ class PlaneReport(_Model):
     n_points_initial: int = Field(default=0, ge=0, le=100000)
     n_points_used: int = Field(default=0, ge=0, le=100000)
     centroid_ecef_m: Ecef | None = None
+    source: PlaneSourceName | None = None  # None: a sender from before the map existed
+    map_tile: str | None = Field(default=None, max_length=32)  # the map tile, when source is "map"
+    map_passes: int | None = Field(default=None, ge=0)  # passes behind that tile's plane
 
     @model_validator(mode="after")
     def _usable(self) -> PlaneReport:
@@ -203,6 +209,8 @@ class PlaneSummary(_Model):
     offset_sigma_m: float | None = None
     n_points_initial: int = 0
     n_points_used: int = 0
+    source: PlaneSourceName | None = None
+    map_tile: str | None = Field(default=None, max_length=32)
 
 
 class VehicleState(_Model):

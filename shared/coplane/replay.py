@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from coplane.plane.config import PlaneConfig
     from coplane.recording.manifest import Manifest
     from coplane.recording.reader import Recording
+    from coplane.roadmap import RoadMap
     from coplane.steps import FusionStep, FusionStepConfig, VehicleStep, VehicleStepConfig
 
 DEFAULT_UWB_SIGMA_M = 0.3  # without a [uwb] table in the manifest
@@ -153,6 +154,7 @@ def replay_setup(
     dgnss: bool | None = None,
     plane_config: PlaneConfig | None = None,
     fleet: str | None = None,
+    road_map: RoadMap | None = None,
 ) -> ReplaySetup:
     """The replay's setup. DGNSS is used when the recording has a base (`dgnss=None`); asking for
     it without one is a ConfigError. `fleet` overrides the id derived from the recording's name."""
@@ -167,6 +169,7 @@ def replay_setup(
     vcfg = VehicleStepConfig(uwb_sigma_m=uwb_sigma, seed=seed)
     if plane_config is not None:
         vcfg.plane = plane_config
+    vcfg.road_map = road_map
     return ReplaySetup(
         fleet=fleet or fleet_id(manifest.name),
         method=spec,

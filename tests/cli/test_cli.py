@@ -82,6 +82,23 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
     } <= pngs
 
 
+def test_eval_format_tum_and_map_methods_need_a_map(tmp_path: Path) -> None:
+    """`--format tum` writes evo's files for every run and the truth; a map method without --map
+    is refused with a message that says how to make a map."""
+    from coplane.sim.generate import simulate
+
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=10, seed=5)
+    out = tmp_path / "eval"
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--format", "tum", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (out / "solutions" / "non-cp").glob("*.tum")) == ["u1.tum", "u2.tum"]
+    assert sorted(p.name for p in (out / "truth").glob("*.tum")) == ["u1.tum", "u2.tum"]
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--format", "kml", "--out", str(out)])
+    assert r.exit_code != 0 and "kml" in r.output
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "pc-map", "--out", str(out)])
+    assert r.exit_code == 2 and "--map" in r.output and "coplane map build" in r.output, r.output
+
+
 def test_eval_reports_the_recordings_input_problems(tmp_path: Path) -> None:
     """UWB rows with NaN, negative or absurd ranges are dropped by the reader and counted in eval's
     output (they used to vanish silently); the run itself goes on with the valid rows."""

@@ -572,10 +572,13 @@ def test_methods_registry() -> None:
         "pc-no-ir",
         "pc-no-ir-no-fe",
         "pc-self",
+        "pc-map",
+        "pc-self-map",
         "non-cp-ekf",
         "dd-cp",
         "gamp-cp",
     ]
+    assert [m for m, s in METHODS.items() if s.plane_map] == ["pc-map", "pc-self-map"]
     assert all(METHODS[m].factory is not None for m in ("non-cp-ekf", "dd-cp", "gamp-cp"))
     pc = get_method("pc")
     assert pc.fgo.use_ranging and pc.fgo.use_planes and pc.planes == "fleet" and pc.plane_fault_exclusion

@@ -138,7 +138,7 @@ def router_document(
                 "rx": {"max_message_size": MAX_TRANSPORT_MESSAGE_BYTES},
                 "tls": tls_section(
                     f"{certs}/ca.crt", f"{certs}/{ROUTER}.crt", f"{certs}/{ROUTER}.key", "listen"
-                )
+                ),
             }
         },
         "access_control": access_control(vehicles, fleet),

@@ -22,8 +22,10 @@ from typer.core import TyperGroup
 
 from coplane.cli.certs import certs_app
 from coplane.cli.compose import compose
+from coplane.cli.convert import convert
 from coplane.cli.eval import eval_
 from coplane.cli.fleet import fleet
+from coplane.cli.map import map_app
 from coplane.cli.render import err_console
 from coplane.cli.simulate import simulate_command
 from coplane.cli.spp import spp
@@ -94,4 +96,6 @@ app.command()(spp)
 app.command("eval")(eval_)
 app.command()(fleet)
 app.command()(compose)
+app.command()(convert)
 app.add_typer(certs_app)
+app.add_typer(map_app)

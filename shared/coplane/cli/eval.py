@@ -38,6 +38,19 @@ def eval_(
         ),
     ] = None,
     strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
+    fmt: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="Extra solution files: 'tum' (evo) writes solutions/<method>/<vehicle>.tum and truth/<vehicle>.tum.",
+        ),
+    ] = "",
+    map_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--map", help="Road-surface map (`coplane map build`) for the map methods pc-map, pc-self-map."
+        ),
+    ] = None,
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
@@ -45,6 +58,14 @@ def eval_(
     from coplane.recording.reader import open_recording
 
     rates = interruption_rates(interruption)
+    if fmt not in ("", "tum"):
+        raise typer.BadParameter(f"unknown --format {fmt!r} (expected tum)")
+    road_map = None
+    if map_file is not None:
+        from coplane.store.roadmap_db import RoadMapDb
+
+        with RoadMapDb(map_file, readonly=True) as db:
+            road_map = db.load()
     rec = open_recording(recording_or_default(recording))
     ev = evaluate(
         rec,
@@ -56,7 +77,15 @@ def eval_(
         dgnss=dgnss,
         progress=True,
         jobs=jobs,
+        road_map=road_map,
     )
+    if fmt == "tum":
+        from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum
+
+        origin = tum_origin(rec)
+        for r in ev.runs:
+            write_tum(r, out, origin)
+        write_truth_tum(rec, out, origin)
     for note in ev.notes.values():
         typer.echo(note, err=True)
     print_accuracy(ev.recording, ev.stats, ev.shown)

@@ -9,6 +9,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from coplane.methods import get_method
 from coplane.recording.reader import Recording
 
 log = logging.getLogger(__name__)
+
+if TYPE_CHECKING:
+    from coplane.roadmap import RoadMap
 
 
 @dataclass
@@ -53,6 +57,7 @@ def evaluate(
     dgnss: bool | None = None,
     progress: bool = False,
     jobs: int | None = None,
+    road_map: RoadMap | None = None,
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
     specs = [None if m == RTKLIB_METHOD else get_method(m) for m in methods]  # validate names first
@@ -75,7 +80,14 @@ def evaluate(
             if rate > 0 and not spec.uses_ranging:
                 continue
             run = run_method(
-                rec, spec, interruption=rate, seed=seed, dgnss=dgnss, progress=progress, jobs=jobs
+                rec,
+                spec,
+                interruption=rate,
+                seed=seed,
+                dgnss=dgnss,
+                progress=progress,
+                jobs=jobs,
+                road_map=road_map,
             )
             ev.runs.append(run)
             ev.stats[run.label] = run_stats(run, rec)

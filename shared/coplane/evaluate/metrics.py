@@ -7,7 +7,7 @@ an estimator that drops hard epochs must not look better for it.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -106,6 +106,21 @@ def pooled_stats(errors: Vec) -> PooledStats:
         h_max_m=float(h.max()),
         v_max_m=float(np.abs(v).max()),
     )
+
+
+def fleet_errors(
+    positions: Mapping[str, Mapping[GpsTime, Vec]],
+    truth: Mapping[str, Mapping[GpsTime, Vec]],
+    keep: Callable[[str, GpsTime], bool] | None = None,
+) -> Vec:
+    """N x 3 ENU errors of every vehicle's solved epochs pooled (only those `keep(vehicle, t)`
+    accepts): the fleet's accuracy as one number, or on a subset such as the epochs on mapped
+    roads."""
+    rows: list[Vec] = []
+    for vid, by_t in truth.items():
+        times, e = enu_errors(positions.get(vid, {}), by_t)
+        rows += [row for t, row in zip(times, e, strict=True) if keep is None or keep(vid, t)]
+    return np.array(rows).reshape(-1, 3)
 
 
 def accuracy_by_environment(

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -137,3 +139,36 @@ def plot_plane_map(
     fig.savefig(p, dpi=110)
     plt.close(fig)
     return p
+
+
+def plot_map_tiles(features: dict[str, Any], out_path: Path, title: str = "Road-surface map") -> Path:
+    """The map's tiles (a GeoJSON FeatureCollection from `roadmap.tiles_geojson`) coloured by the
+    1-sigma of their road height, so a user sees where the map is sharp and where it is thin."""
+    from matplotlib.collections import PolyCollection
+
+    polys, sigmas = [], []
+    for f in features.get("features", []):
+        ring = f["geometry"]["coordinates"][0]
+        s = f["properties"].get("sigma_m")
+        if s is None:
+            continue
+        polys.append([(float(x), float(y)) for x, y in ring])
+        sigmas.append(float(s))
+    fig, ax = plt.subplots(figsize=(8, 6))
+    if polys:
+        lat0 = float(np.mean([p[0][1] for p in polys]))
+        ax.set_aspect(1.0 / math.cos(math.radians(lat0)))  # metres look square
+        coll = PolyCollection(polys, array=np.array(sigmas), cmap="viridis_r", edgecolors="none")
+        coll.set_clim(0.0, max(0.05, float(np.percentile(sigmas, 95))))
+        ax.add_collection(coll)
+        ax.autoscale_view()
+        fig.colorbar(coll, ax=ax, label="road height 1-sigma (m)")
+    ax.set_xlabel("longitude (deg)")
+    ax.set_ylabel("latitude (deg)")
+    ax.set_title(f"{title}: {len(polys)} tiles")
+    ax.ticklabel_format(useOffset=False)
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return out_path

@@ -11,7 +11,7 @@ import time as _time
 from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
@@ -29,6 +29,9 @@ from coplane.replay import BaseCorrections, replay_setup, uwb_for_vehicle, vehic
 from coplane.steps import VehicleStep, gps_time
 from coplane.typing import AnyArray as Vec
 
+if TYPE_CHECKING:
+    from coplane.roadmap import RoadMap
+
 
 @dataclass
 class MethodRun:
@@ -41,6 +44,7 @@ class MethodRun:
     planes: dict[str, dict[GpsTime, PlaneReport]] = field(default_factory=lambda: defaultdict(dict))
     plane_used: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
     ranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
+    gnss_fix: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
     solve_times_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     n_epochs: int = 0
@@ -71,6 +75,7 @@ def run_method(
     on_solution: Any = None,
     plane_config: PlaneConfig | None = None,
     jobs: int | None = None,
+    road_map: RoadMap | None = None,
 ) -> MethodRun:
     """Run one method over the recording. DGNSS is used when the recording has a base (default).
 
@@ -81,8 +86,19 @@ def run_method(
     if jobs is not None and jobs < 1:
         raise ConfigError(f"jobs must be >= 1, got {jobs}")
     setup = replay_setup(
-        rec.manifest, method, seed=seed, interruption=interruption, dgnss=dgnss, plane_config=plane_config
+        rec.manifest,
+        method,
+        seed=seed,
+        interruption=interruption,
+        dgnss=dgnss,
+        plane_config=plane_config,
+        road_map=road_map,
     )
+    if setup.method.plane_map and road_map is None:
+        raise ConfigError(
+            f"method {setup.method.name!r} takes its planes from a road-surface map: give one"
+            " (--map MAP; `coplane map build` makes it)"
+        )
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
     steps = {vid: setup.vehicle_step(rec, vid) for vid in ids}
     fusion = setup.fusion_step()
@@ -167,3 +183,4 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
             run.covariances[v.vehicle_id][t] = np.array(v.covariance_m2).reshape(3, 3)
         run.plane_used[v.vehicle_id][t] = v.plane_used
         run.ranges_used[v.vehicle_id][t] = v.n_ranges
+        run.gnss_fix[v.vehicle_id][t] = v.has_gnss_fix

@@ -41,6 +41,9 @@ class MethodSpec:
     fgo: FgoConfig | None = None
     # the estimator of a method that is not this factor graph (None: the factor graph on `fgo`)
     factory: Callable[[], Estimator] | None = None
+    # the vehicle step takes its plane from the road-surface map where the map's tile is good
+    # enough, and fits one from `planes` history elsewhere (docs/roadmap.md)
+    plane_map: bool = False
 
     def __post_init__(self) -> None:
         if (self.fgo is None) == (self.factory is None):
@@ -100,7 +103,13 @@ ROBUST_FGO: dict[str, object] = {
 
 
 def _fgo(
-    name: str, description: str, planes: PlaneSource, fault_exclusion: bool, *, ranging: bool
+    name: str,
+    description: str,
+    planes: PlaneSource,
+    fault_exclusion: bool,
+    *,
+    ranging: bool,
+    plane_map: bool = False,
 ) -> MethodSpec:
     cfg = FgoConfig(
         use_ranging=ranging,
@@ -108,7 +117,7 @@ def _fgo(
         use_velocity=True,
         **ROBUST_FGO,  # type: ignore[arg-type]
     )
-    return MethodSpec(name, description, planes, fault_exclusion, ranging, fgo=cfg)
+    return MethodSpec(name, description, planes, fault_exclusion, ranging, fgo=cfg, plane_map=plane_map)
 
 
 def _baseline(name: str, description: str, factory: Callable[[], Estimator], *, ranging: bool) -> MethodSpec:
@@ -160,6 +169,24 @@ METHODS: dict[str, MethodSpec] = {
             "self",
             True,
             ranging=False,
+        ),
+        _fgo(
+            "pc-map",
+            "pc with planes from the road-surface map where its tile is good enough (--map), fitted"
+            " from the fleet's history elsewhere.",
+            "fleet",
+            True,
+            ranging=True,
+            plane_map=True,
+        ),
+        _fgo(
+            "pc-self-map",
+            "A vehicle alone with planes from the road-surface map (--map), fitted from its own"
+            " history elsewhere.",
+            "self",
+            True,
+            ranging=False,
+            plane_map=True,
         ),
         # Table I comparison methods that are not this factor graph (docs/methods.md)
         _baseline(

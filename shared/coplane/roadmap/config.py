@@ -67,9 +67,13 @@ class RoadMapConfig:
     """A tile gives a vehicle a plane only after this many accepted passes: one pass is one
     vehicle's error, which the map could then feed back to that same error."""
 
-    max_use_sigma_m: float = 0.5
-    """... and only where the road height's 1-sigma at the vehicle is at or below this: a vague map
-    plane helps less than the fleet's own fitted plane."""
+    max_use_sigma_m: float = 1.5
+    """... and only where the road height's 1-sigma at the vehicle is at or below this. The graph
+    weights a map plane by its sigma, so even a metre-level map plane adds height information to a
+    vehicle whose own vertical error is metre-level; beyond 1.5 m it adds little. Chosen on the
+    training seeds of bench/roadmap_acceptance.py (build 111, use 112: 0.5 / 0.75 / 1.0 / 1.5 / 3.0
+    gave pc-map V 1.01 / 0.80 / 0.56 / 0.54 / 0.54 m against pc's 1.03 m, map planes on 16 / 603 /
+    1024 / 1120 / 1125 of 1200 vehicle-epochs); docs/roadmap-results.md reports other seeds."""
 
     def __post_init__(self) -> None:
         positive = (

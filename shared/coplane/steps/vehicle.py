@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from coplane.gtime import GpsTime
 from coplane.messages import (
     NodeMessage,
     PlaneReport,
+    PlaneSourceName,
     RangeReport,
     SatelliteReport,
     SolutionMessage,
@@ -38,8 +40,19 @@ from coplane.plane.detect import construct_plane, offset_sigma_m
 from coplane.plane.history import PositionHistory
 from coplane.plane.uncertainty import plane_uncertainty
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
-from coplane.steps.wire import cov9, epoch_time, gps_time, plane_report, stable_seed, tuple3
+from coplane.steps.wire import (
+    cov9,
+    epoch_time,
+    gps_time,
+    map_plane_report,
+    plane_report,
+    stable_seed,
+    tuple3,
+)
 from coplane.typing import AnyArray as Vec
+
+if TYPE_CHECKING:
+    from coplane.roadmap import RoadMap
 
 
 @dataclass
@@ -48,6 +61,10 @@ class VehicleStepConfig:
     plane: PlaneConfig = field(default_factory=PlaneConfig)
     uwb_sigma_m: float = 0.3
     seed: int = 0
+    road_map: RoadMap | None = None
+    """The road-surface map a `plane_map` method takes its planes from (read here, never written:
+    the map learns from the fusion server's solutions, docs/roadmap.md). The vehicle agent fills
+    a map of the tiles around it from the bus; `coplane eval --map` passes a loaded one."""
 
 
 class VehicleStep:
@@ -73,6 +90,7 @@ class VehicleStep:
             pc = replace(pc, fault_exclusion=False)
         self.plane_config = pc
         self.history = PositionHistory(pc)
+        self.road_map = self.config.road_map
         self.seq = 0
         self.first_epoch: GpsTime | None = None
         self._last_fused: tuple[GpsTime, Vec] | None = None
@@ -265,6 +283,11 @@ class VehicleStep:
     def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
         if centre is None:
             return PlaneReport(status="unavailable", reason="no position to centre the fitting region")
+        if self.method.plane_map and self.road_map is not None:
+            mapped = self.road_map.plane_at(centre, self.antenna_height_m)
+            if mapped is not None:
+                return map_plane_report(mapped)
+        source: PlaneSourceName = "self" if self.method.planes == "self" else "fleet"
         rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
         only = {self.vehicle_id} if self.method.planes == "self" else None
         sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only)
@@ -273,8 +296,8 @@ class VehicleStep:
         if cfg.sigma_model == "covariance" and plane.available:
             # the plane's covariance propagated to where this vehicle is (the fitting centre)
             u = plane_uncertainty(plane, sample.sigmas_up_m, sample.vehicle_ids, sample.times_s, cfg)
-            return plane_report(plane, u.offset_sigma_m, u.sigma_at(centre), u.tilt_sigma_rad)
-        return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids))
+            return plane_report(plane, u.offset_sigma_m, u.sigma_at(centre), u.tilt_sigma_rad, source)
+        return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids), source=source)
 
 
 def _sigma_up(v: VehicleState) -> float:

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import math
 import zlib
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from coplane.estimation.limits import MAX_PLANE_SIGMA_M
 from coplane.gtime import GpsTime
-from coplane.messages import EpochTime, PlaneReport, PlaneSummary
+from coplane.messages import EpochTime, PlaneReport, PlaneSourceName, PlaneSummary
 from coplane.plane.detect import PlaneStatus, RoadPlane
 from coplane.typing import AnyArray
 
@@ -24,6 +25,9 @@ STATUS_NAME = {
     PlaneStatus.AVAILABLE_AFTER_FE: "available-after-fe",
     PlaneStatus.UNAVAILABLE: "unavailable",
 }
+
+if TYPE_CHECKING:
+    from coplane.roadmap import MapPlane
 
 
 def epoch_time(t: GpsTime) -> EpochTime:
@@ -53,6 +57,7 @@ def plane_report(
     offset_sigma: float = 0.0,
     sigma_m: float | None = None,
     tilt_sigma_rad: float | None = None,
+    source: PlaneSourceName | None = None,
 ) -> PlaneReport:
     """The wire form of a plane.
 
@@ -67,6 +72,7 @@ def plane_report(
             n_points_initial=p.n_points_initial,
             n_points_used=p.n_points_used,
             residual_max_m=p.residual_max_m if math.isfinite(p.residual_max_m) else None,
+            source=source,
         )
     return PlaneReport(
         status=STATUS_NAME[p.status],  # type: ignore[arg-type]
@@ -84,6 +90,27 @@ def plane_report(
         n_points_initial=p.n_points_initial,
         n_points_used=p.n_points_used,
         centroid_ecef_m=tuple3(p.centroid),
+        source=source,
+    )
+
+
+def map_plane_report(p: MapPlane) -> PlaneReport:
+    """The wire form of a road-surface map's plane at the vehicle (docs/roadmap.md).
+
+    It is a plane like a fitted one (normal, offsets, the factor's sigma at the vehicle), so the
+    fusion step and every estimator use it unchanged; `source` and the tile say where it came from.
+    """
+    return PlaneReport(
+        status="available",
+        normal=tuple3(p.normal),
+        d_antenna_m=float(p.d_antenna),
+        d_road_m=float(p.d_road),
+        sigma_m=min(float(p.sigma_m), MAX_PLANE_SIGMA_M),
+        offset_sigma_m=min(float(p.offset_sigma_m), MAX_OFFSET_SIGMA_M),
+        tilt_sigma_rad=min(float(p.tilt_sigma_rad), math.pi),
+        source="map",
+        map_tile=str(p.key),
+        map_passes=int(p.n_passes),
     )
 
 
@@ -99,4 +126,6 @@ def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
         offset_sigma_m=p.offset_sigma_m,
         n_points_initial=p.n_points_initial,
         n_points_used=p.n_points_used,
+        source=p.source,
+        map_tile=p.map_tile,
     )
