@@ -48,6 +48,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "adaptive-sigma": {"fde_max_sigma_scale": 5.0},
     "no-range-warmup": {"range_warmup_epochs": 0},
     "no-covariance-scale": {"covariance_scale": 1.0},
+    # the tuning round's winners together, with the covariance scale chosen again (docs/fgo.md)
+    "sv0.2-adaptive": {"sigma_v": 0.2, "fde_max_sigma_scale": 5.0},
+    "sv0.2-adaptive-cs2.5": {"sigma_v": 0.2, "fde_max_sigma_scale": 5.0, "covariance_scale": 2.5},
+    "sv0.2-adaptive-cs5": {"sigma_v": 0.2, "fde_max_sigma_scale": 5.0, "covariance_scale": 5.0},
 }
 DEFAULT_RUNS = (
     [("pc", v) for v in VARIANTS]
