@@ -4,7 +4,7 @@ a map built from one drive makes a later drive over the same roads better in hei
 Build seed 111 (600 s), use seed 112 (300 s, 45 min later: another sky, independent errors), as
 bench/roadmap_acceptance.py --training. Measured there: availability on mapped roads 0.98, pc-map
 V 0.54 against pc 1.03 m, H 1.03 against 1.11 m, pc-self-map V 0.52 against non-cp 1.29 m. On the
-report seeds (docs/roadmap-results.md) the gain from one drive is smaller (pc-map V 0.92 x pc's,
+report seeds (docs/results.md, "Road-surface map") the gain from one drive is smaller (pc-map V 0.92 x pc's,
 pc-self-map 0.73 x non-cp's): a one-drive map is about as good as that drive's heights. So the
 test asserts what both hold, with margin: the map is used almost everywhere, pc-map is no worse
 than pc in H and better in V, pc-self-map's V is at most 0.8 x non-cp's.

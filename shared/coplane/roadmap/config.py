@@ -73,7 +73,7 @@ class RoadMapConfig:
     vehicle whose own vertical error is metre-level; beyond 1.5 m it adds little. Chosen on the
     training seeds of bench/roadmap_acceptance.py (build 111, use 112: 0.5 / 0.75 / 1.0 / 1.5 / 3.0
     gave pc-map V 1.01 / 0.80 / 0.56 / 0.54 / 0.54 m against pc's 1.03 m, map planes on 16 / 603 /
-    1024 / 1120 / 1125 of 1200 vehicle-epochs); docs/roadmap-results.md reports other seeds."""
+    1024 / 1120 / 1125 of 1200 vehicle-epochs); docs/results.md ("Road-surface map") reports other seeds."""
 
     def __post_init__(self) -> None:
         positive = (
