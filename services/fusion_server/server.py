@@ -35,6 +35,7 @@ from coplane.steps import epoch_time, gps_time
 
 from .admission import Admission, AdmissionConfig
 from .durability import Durability
+from .road_map import LiveRoadMap
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
@@ -88,6 +89,8 @@ class FusionServer:
         self.reject_log = RateLimitedLog(log, settings.reject_log_every_s)
         self.generation = Durability.new_generation()  # this run; a resume keeps the logged one
         self.durable = Durability.for_server(self)  # the solution log (opened by run)
+        self.heights = {v.id: v.antenna_height_m for v in man.vehicles}
+        self.road_map: LiveRoadMap | None = None  # opened by run (settings.map)
 
     def node(self) -> BusNode:
         """The server's place on the bus: every vehicle's node key and the agents' tokens in,
@@ -285,6 +288,8 @@ class FusionServer:
             return None
         for v in msgs:
             self.counters[v]["used"] += 1
+        if self.road_map is not None:
+            self.road_map.add(sol, msgs)
         self.solved_up_to = t
         self.epochs_solved += 1
         self.last_solve_s = sol.solve_time_s
@@ -318,6 +323,8 @@ class FusionServer:
             )
             last_diag = 0.0
             self.durable.start(self)  # the solution log; resume after a crash
+            if s.map is not None:
+                self.road_map = LiveRoadMap.open(s.map, self.heights, s.map_commit_every_s)
             try:
                 while not self.stop.is_set():
                     if (event := node.get(timeout=0.02)) is not None:
@@ -328,6 +335,8 @@ class FusionServer:
                         if sol is not None:
                             self.durable.publish(self, node, self.keys.solution, sol)  # committed first
                     self.durable.tick(self, node, self.keys.solution)
+                    if self.road_map is not None:
+                        self.road_map.tick(now)
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.keys.diagnostics, encode(self.diagnostics()))
                         last_diag = now
@@ -337,3 +346,5 @@ class FusionServer:
                 node.put(self.keys.diagnostics, encode(self.diagnostics()))
                 log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
                 self.durable.close()
+                if self.road_map is not None:
+                    self.road_map.close()

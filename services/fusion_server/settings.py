@@ -38,6 +38,13 @@ class FusionSettings(ServiceSettings):
         description="Solution log (SQLite): auto = <state dir>/fusion-<fleet>-<method>-<router>.sqlite,"
         " none = off, or a path (docs/reliability/durability.md)",
     )
+    map: Path | None = Field(
+        default=None,
+        description="Road-surface map file (SQLite) this server extends from its solutions (one writer per file)",
+    )
+    map_commit_every_s: float = Field(
+        default=10.0, gt=0.0, description="Road map: commit closed passes this often"
+    )
     resume_max_age_s: float = Field(
         default=300.0, ge=0.0, description="Resume from the log only if the crashed server wrote it lately"
     )

@@ -16,6 +16,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 
 from coplane.bus import (
     BadMessage,
@@ -34,12 +35,30 @@ from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
+from coplane.roadmap import RoadMap
 from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
 
 from .settings import AgentSettings
 
 log = logging.getLogger("coplane.vehicle_agent")
+
+
+def _read_map(path: Path | None) -> RoadMap | None:
+    """The road map as it is now (a snapshot: the fusion server extends the file as the fleet
+    drives, the next run of the agent reads what it learned); None, logged, if it cannot be read."""
+    if path is None:
+        return None
+    from coplane.store.roadmap_db import RoadMapDb
+
+    try:
+        with RoadMapDb(path, readonly=True) as db:
+            road_map = db.load()
+    except Exception as exc:
+        log.error("road map not used: %s", exc, extra={"path": str(path)})
+        return None
+    log.info("road map read", extra={"path": str(path), **road_map.stats()})
+    return road_map
 
 
 class VehicleAgent:
@@ -51,7 +70,12 @@ class VehicleAgent:
         man = rec.manifest
         vid = man.vehicle(settings.vehicle_id).id
         setup = replay_setup(
-            man, settings.method, seed=settings.seed, dgnss=settings.dgnss, fleet=settings.fleet
+            man,
+            settings.method,
+            seed=settings.seed,
+            dgnss=settings.dgnss,
+            fleet=settings.fleet,
+            road_map=_read_map(settings.map),
         )
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)

@@ -28,6 +28,11 @@ class AgentSettings(ServiceSettings):
         "restarted agent rejoins at the current epoch; default: now",
     )
     seed: int = 0
+    map: Path | None = Field(
+        default=None,
+        description="Road-surface map file read at start for the map methods (pc-map, pc-self-map); "
+        "a map that cannot be read is logged and the agent fits planes as without one",
+    )
     dgnss: bool | None = Field(default=None, description="Use the base station; default: when present")
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")

@@ -55,6 +55,7 @@ def live_fleet(
     start_delay_s: float = 5.0,
     secure: bool = True,
     agents: Sequence[str] | None = None,
+    map_path: Path | None = None,
 ) -> Iterator[LiveFleet]:
     """Router, fusion server and one agent per vehicle in `agents` (default: every vehicle of the
     recording; certificates are made for all of them) as processes. `secure`: mutual TLS and access
@@ -81,7 +82,7 @@ def live_fleet(
         start = time.time() + start_delay_s if pace == "realtime" else None
         running = list(agents) if agents is not None else vehicles
         specs = fleet_services(
-            recording, method, pace, speed, connect, running, api=False, start_unix_s=start
+            recording, method, pace, speed, connect, running, api=False, start_unix_s=start, map_path=map_path
         )
         specs[0].args += list(extra_fusion_args)
         for spec in specs:

@@ -44,6 +44,14 @@ def fleet(
         ),
     ] = None,
     strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
+    map_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--map",
+            help="Road-surface map (SQLite): the agents read it at start (pc-map, pc-self-map), the fusion "
+            "server extends it with this run's solutions (created if missing).",
+        ),
+    ] = None,
 ) -> None:
     """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
 
@@ -74,6 +82,7 @@ def fleet(
         interruption=interruption / 100,
         insecure=insecure,
         certs=certs,
+        map=map_file,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

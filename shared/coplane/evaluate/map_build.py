@@ -12,14 +12,10 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from coplane.evaluate.runner import MethodRun
-from coplane.geo import up_vector
-from coplane.messages import PlaneReport
 from coplane.recording.reader import Recording
 from coplane.roadmap import ChangeEvent, MapBuilder, MapSample, RoadMap
-from coplane.typing import AnyArray as Vec
+from coplane.steps.map_evidence import map_plane_height
 
 
 @dataclass
@@ -33,28 +29,6 @@ class MapExtension:
     skipped: Counter[str] = field(default_factory=Counter)
     changes: list[ChangeEvent] = field(default_factory=list)
     tiles_touched: int = 0
-
-
-def map_plane_height(report: PlaneReport | None, used: bool, position: Vec) -> tuple[float, float] | None:
-    """(antenna ellipsoidal height the map's plane implies at `position`, its sigma), or None.
-
-    Only for an epoch whose solution used a plane from the map: its height then leans on the map.
-    The plane's signed distance n.p + d_antenna is along its normal; divided by n.up it is the
-    vertical offset of the antenna from where the plane puts it.
-    """
-    if not used or report is None or report.source != "map":
-        return None
-    if report.normal is None or report.d_antenna_m is None or report.sigma_m is None:
-        return None
-    n = np.asarray(report.normal, dtype=float)
-    cos_tilt = float(n @ up_vector(position))
-    if cos_tilt <= 0.5:  # not a road plane; the fusion server's admission rejects these anyway
-        return None
-    from coplane.geo import ecef_to_geodetic
-
-    h_fused = float(ecef_to_geodetic(position)[2])
-    dist = float(n @ position + report.d_antenna_m)
-    return h_fused - dist / cos_tilt, float(report.sigma_m) / cos_tilt
 
 
 def run_samples(run: MethodRun, rec: Recording) -> list[MapSample]:

@@ -90,10 +90,13 @@ def fleet_services(
     seed: int = 0,
     interruption: float = 0.0,
     start_unix_s: float | None = None,
+    map_path: Path | None = None,
 ) -> list[ServiceSpec]:
-    """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin."""
+    """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
+    a road-surface map the agents read at start and the fusion server (its one writer) extends."""
     rec = str(recording)
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
+    road_map = ["--map", str(map_path)] if map_path is not None else []
     out = [
         ServiceSpec(
             "fusion-server",
@@ -113,6 +116,7 @@ def fleet_services(
                 str(interruption),
                 "--deadline_s",
                 str(max(0.05, 0.5 / speed)),
+                *road_map,
             ],
             FUSION,
         )
@@ -138,6 +142,7 @@ def fleet_services(
                     "--seed",
                     str(seed),
                     *start,
+                    *road_map,
                 ],
                 vehicle_identity(vid),
             )

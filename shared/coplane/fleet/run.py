@@ -68,6 +68,7 @@ class FleetOptions:
     interruption: float = 0.0
     insecure: bool = False
     certs: Path | None = None  # the certificates folder; default: default_certs_dir()
+    map: Path | None = None  # road-surface map: the agents read it, the fusion server extends it
 
 
 def default_certs_dir() -> Path:
@@ -131,7 +132,11 @@ def run_fleet(
     o = options
     if o.pace not in PACES:
         raise ConfigError(f"--pace must be lockstep or realtime, got {o.pace!r}")
-    get_method(o.method)
+    if get_method(o.method).plane_map and o.map is None:
+        raise ConfigError(
+            f"method {o.method!r} takes its planes from a road-surface map: give one"
+            " (--map MAP; `coplane map build` makes it)"
+        )
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
@@ -163,6 +168,7 @@ def run_fleet(
                 o.seed,
                 o.interruption,
                 start,
+                map_path=o.map.resolve() if o.map is not None else None,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]

@@ -1,0 +1,97 @@
+"""The fusion server's road-surface map: every solution it makes is map evidence (docs/roadmap.md).
+
+One writer per map file (the fusion server of a run, or `coplane map build`). Solutions go through
+the builder as they are made; closed passes are applied and committed in one transaction every
+`commit_every_s` and when the server stops, so a `kill -9` loses at most the passes since the last
+commit and never corrupts the file. A map that cannot be opened (corrupt, another schema, a file
+that is no map) is logged as an error naming the file and the server runs without one; a failure
+while learning is logged and counted; neither stops the server.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Mapping
+from pathlib import Path
+
+from coplane.messages import NodeMessage, SolutionMessage
+from coplane.roadmap import MapBuilder, RoadMap
+from coplane.roadmap.tile import PassEvidence
+from coplane.steps.map_evidence import solution_samples
+from coplane.store.roadmap_db import RoadMapDb
+
+log = logging.getLogger("coplane.fusion_server.road_map")
+
+
+class LiveRoadMap:
+    """The map file this server extends, with its builder and counters."""
+
+    def __init__(
+        self, path: Path, antenna_heights: Mapping[str, float], commit_every_s: float = 10.0
+    ) -> None:
+        self.db = RoadMapDb(path)
+        self.map: RoadMap = self.db.load()
+        self.builder = MapBuilder(self.map.config)
+        self.heights = dict(antenna_heights)
+        self.commit_every_s = commit_every_s
+        self.last_commit = time.monotonic()
+        self.counts: Counter[str] = Counter()
+        log.info("road map open", extra={"path": str(path), **self.map.stats()})
+
+    @classmethod
+    def open(
+        cls, path: Path, antenna_heights: Mapping[str, float], commit_every_s: float = 10.0
+    ) -> LiveRoadMap | None:
+        """The map at `path` (created if missing), or None with the reason logged."""
+        try:
+            return cls(path, antenna_heights, commit_every_s)
+        except Exception as exc:
+            log.error("road map not used: %s", exc, extra={"path": str(path)})
+            return None
+
+    def add(self, sol: SolutionMessage, msgs: Mapping[str, NodeMessage]) -> None:
+        """One solution's vehicle-epochs into the builder (never raises)."""
+        try:
+            for s in solution_samples(sol, msgs, self.heights):
+                self.builder.add(s)
+                self.counts["samples"] += 1
+        except Exception:
+            self.counts["errors"] += 1
+            log.exception("road map: solution not added", extra={"seq": sol.seq})
+
+    def tick(self, now: float | None = None) -> None:
+        """Commit the passes closed so far, at most every `commit_every_s`."""
+        now = time.monotonic() if now is None else now
+        if now - self.last_commit >= self.commit_every_s:
+            self._commit(self.builder.passes_ready())
+            self.last_commit = now
+
+    def close(self) -> None:
+        """Close every open pass, commit, checkpoint the file."""
+        try:
+            self._commit(self.builder.flush())
+        finally:
+            self.counts.update({f"skipped:{k}": n for k, n in self.builder.skipped.items()})
+            log.info("road map closed", extra={**self.map.stats(), **dict(self.counts)})
+            self.db.close()
+
+    def _commit(self, passes: list[PassEvidence]) -> None:
+        if not passes:
+            return
+        try:
+            changes = self.map.apply(passes)
+            written = self.db.write(self.map.take_dirty(), changes)
+        except Exception:
+            self.counts["errors"] += 1
+            log.exception("road map: batch not committed", extra={"passes": len(passes)})
+            return
+        self.counts["passes_added"] += len(passes)
+        self.counts["changes_found"] += len(changes)
+        for c in changes:
+            log.warning(
+                "road map: tile changed",
+                extra={"tile": str(c.key), "old_height_m": c.old_height_m, "new_height_m": c.new_height_m},
+            )
+        log.debug("road map committed", extra={"passes": len(passes), "tiles": written})

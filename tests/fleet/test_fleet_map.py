@@ -1,0 +1,66 @@
+"""`coplane fleet --map` (issue 14): the agents read the road map at start, the fusion server
+extends it with the run's solutions, and the run over the bus equals the in-process one."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.e2e_fleet import agents_done, live_fleet, wait_until
+
+from coplane.errors import ConfigError
+from coplane.evaluate.map_build import extend_map, plane_sources
+from coplane.evaluate.runner import run_method
+from coplane.fleet import FleetOptions, run_fleet
+from coplane.recording.reader import open_recording
+from coplane.roadmap import RoadMap, RoadMapConfig
+from coplane.sim.generate import run_simulation, write_recording
+from coplane.store.roadmap_db import RoadMapDb
+
+pytestmark = pytest.mark.slow
+
+
+def test_fleet_reads_and_extends_the_map(tmp_path: Path) -> None:
+    build = open_recording(write_recording(run_simulation("urban-loop", 4, 90.0, 5), tmp_path / "b"))
+    rec_path = write_recording(
+        run_simulation("urban-loop", 4, 30.0, 6, start_offset_s=1800.0), tmp_path / "u"
+    )
+    rec = open_recording(rec_path)
+    road_map = RoadMap(RoadMapConfig())
+    extend_map(road_map, run_method(build, "pc"), build)
+    map_file = tmp_path / "map.sqlite"
+    with RoadMapDb(map_file) as db:
+        db.write(road_map.take_dirty())
+    passes_before = road_map.stats()["passes"]
+    ref = run_method(rec, "pc-map", road_map=road_map)
+    assert plane_sources(ref)["map"] > 0.5 * sum(plane_sources(ref).values())
+
+    with live_fleet(
+        rec_path,
+        "pc-map",
+        log_dir=tmp_path / "logs",
+        map_path=map_file,
+        # the agents read the map before the server commits anything of this run
+        extra_fusion_args=["--map_commit_every_s", "600"],
+    ) as lf:
+        wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
+        time.sleep(0.5)
+        bus = {v: dict(p) for v, p in lf.collector.run.positions.items()}
+        lf.procs.stop("fusion-server")  # commits the closed passes on the way out
+        wait_until(lambda: lf.procs.procs["fusion-server"].poll() is not None, 15, "the server to stop")
+        assert lf.procs.procs["fusion-server"].returncode in (0, 143)  # 143: SIGTERM, handled
+    for vid, pos in ref.positions.items():
+        assert set(pos) == set(bus[vid])
+        for t, p in pos.items():
+            assert np.array_equal(p, bus[vid][t]), (vid, t)
+    with RoadMapDb(map_file, readonly=True) as db:
+        after = db.load()
+    assert after.stats()["passes"] > passes_before  # the server learned from this run
+
+
+def test_a_map_method_without_a_map_is_a_config_error(tmp_path: Path) -> None:
+    rec_path = write_recording(run_simulation("urban-loop", 2, 5.0, 6), tmp_path / "u")
+    with pytest.raises(ConfigError, match="--map"):
+        run_fleet(FleetOptions(recording=rec_path, method="pc-self-map", api=False, insecure=True))
