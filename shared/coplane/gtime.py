@@ -82,3 +82,31 @@ def gpst_to_bdt(t: GpsTime) -> tuple[int, float]:
     """GPS time to BeiDou week and second of week."""
     b = t + BDT_MINUS_GPST_S
     return b.week - BDS_WEEK_OFFSET, b.tow
+
+
+# GPS - UTC in whole seconds from each UTC date on (IERS Bulletin C; GPS time has no leap seconds).
+# A date after the last entry keeps its offset: add the next leap second here when IERS announces it.
+_LEAP_SECONDS: tuple[tuple[_dt.datetime, int], ...] = tuple(
+    (_dt.datetime(*d), n)  # type: ignore[misc]
+    for d, n in (
+        ((1981, 7, 1), 1), ((1982, 7, 1), 2), ((1983, 7, 1), 3), ((1985, 7, 1), 4), ((1988, 1, 1), 5),
+        ((1990, 1, 1), 6), ((1991, 1, 1), 7), ((1992, 7, 1), 8), ((1993, 7, 1), 9), ((1994, 7, 1), 10),
+        ((1996, 1, 1), 11), ((1997, 7, 1), 12), ((1999, 1, 1), 13), ((2006, 1, 1), 14), ((2009, 1, 1), 15),
+        ((2012, 7, 1), 16), ((2015, 7, 1), 17), ((2017, 1, 1), 18),
+    )
+)  # fmt: skip
+
+
+def gps_minus_utc_s(t: GpsTime) -> int:
+    """Leap seconds between GPS time and UTC at `t`."""
+    gps = GPS_EPOCH + _dt.timedelta(weeks=t.week, seconds=t.tow)
+    n = 0
+    for start_utc, leap in _LEAP_SECONDS:
+        if gps - _dt.timedelta(seconds=leap) >= start_utc:
+            n = leap
+    return n
+
+
+def gpst_to_utc(t: GpsTime) -> _dt.datetime:
+    """UTC of a GPS-time instant (naive datetime, microseconds): what NMEA and most tools print."""
+    return GPS_EPOCH + _dt.timedelta(weeks=t.week, seconds=t.tow - gps_minus_utc_s(t))

@@ -30,6 +30,7 @@ from coplane.fleet import (
     router_spec,
     wait_for_port,
 )
+from coplane.messages import SolutionMessage
 
 
 @dataclass
@@ -56,6 +57,7 @@ def live_fleet(
     secure: bool = True,
     agents: Sequence[str] | None = None,
     map_path: Path | None = None,
+    listeners: Sequence[Callable[[SolutionMessage], None]] = (),
 ) -> Iterator[LiveFleet]:
     """Router, fusion server and one agent per vehicle in `agents` (default: every vehicle of the
     recording; certificates are made for all of them) as processes. `secure`: mutual TLS and access
@@ -78,7 +80,7 @@ def live_fleet(
     try:
         procs.start(router_spec(port, secure, fleet))
         wait_for_port(port)
-        collector = Collector(fleet, method, connect, vehicles=vehicles)
+        collector = Collector(fleet, method, connect, vehicles=vehicles, listeners=listeners)
         start = time.time() + start_delay_s if pace == "realtime" else None
         running = list(agents) if agents is not None else vehicles
         specs = fleet_services(

@@ -52,6 +52,14 @@ def fleet(
             "server extends it with this run's solutions (created if missing).",
         ),
     ] = None,
+    nmea_port: Annotated[
+        int | None,
+        typer.Option(
+            "--nmea-port",
+            help="NMEA 0183 GGA + RMC over TCP on 127.0.0.1: the first vehicle on this port, the next ones "
+            "on the following ports (0: any free ports; printed at start).",
+        ),
+    ] = None,
 ) -> None:
     """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
 
@@ -83,8 +91,14 @@ def fleet(
         insecure=insecure,
         certs=certs,
         map=map_file,
+        nmea_port=nmea_port,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
+
+    def show_nmea(ports: dict[str, int]) -> None:
+        err_console.print(
+            "NMEA 0183 (GGA + RMC): " + ", ".join(f"{v} tcp://127.0.0.1:{p}" for v, p in ports.items())
+        )
 
     def progress(done: int, total: int) -> None:
         if not bars:
@@ -104,7 +118,9 @@ def fleet(
     # the children get STOP_GRACE_S; this process needs a little more to reap them
     with stop_signals(grace_s=STOP_GRACE_S + 1.5, on_deadline=procs.kill_all) as stop:
         try:
-            result = run_fleet(options, progress, keep_serving if serve else None, stop, procs)
+            result = run_fleet(
+                options, progress, keep_serving if serve else None, stop, procs, on_nmea=show_nmea
+            )
         finally:
             close_bar()
     if not serve or result.interrupted:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import TracebackType
 
@@ -53,8 +53,10 @@ class Collector:
         connect: str,
         out: Path | None = None,
         vehicles: Iterable[str] | None = None,
+        listeners: Iterable[Callable[[SolutionMessage], None]] = (),
     ) -> None:
         self.keys = KeySpace(fleet)
+        self.listeners = list(listeners)  # each trusted solution, after it is recorded (NMEA output)
         self.gate = SolutionGate(fleet, method=method, vehicles=vehicles)
         self.stream: SolutionLog | None = None
         if out is not None:
@@ -97,6 +99,8 @@ class Collector:
                 self.stream.append(sol, payload)  # on disk before it counts as received
             record_solution(self.run, sol, {})
             self.epochs += 1
+        for listener in self.listeners:
+            listener(sol)
 
     def _on_diagnostics(self, payload: bytes) -> None:
         try:

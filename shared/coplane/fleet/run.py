@@ -38,6 +38,7 @@ from coplane.fleet.launcher import (
     router_spec,
     wait_for_port,
 )
+from coplane.fleet.nmea import NmeaServer
 from coplane.messages import DiagnosticsMessage
 from coplane.methods import get_method
 from coplane.recording.health import InputHealth, input_health
@@ -69,6 +70,7 @@ class FleetOptions:
     insecure: bool = False
     certs: Path | None = None  # the certificates folder; default: default_certs_dir()
     map: Path | None = None  # road-surface map: the agents read it, the fusion server extends it
+    nmea_port: int | None = None  # NMEA 0183 GGA + RMC per vehicle on this port and the next ones
 
 
 def default_certs_dir() -> Path:
@@ -110,6 +112,7 @@ class FleetResult:
     interrupted: bool = False  # stopped by `stop` before the replay ended
     input_problems: dict[str, int] = field(default_factory=dict)  # what the recording's reader found
     input_health: InputHealth | None = None  # records kept vs problems (`--strict`)
+    nmea_ports: dict[str, int] = field(default_factory=dict)  # vehicle -> NMEA TCP port (--nmea-port)
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -121,8 +124,11 @@ def run_fleet(
     serve: Callable[[FleetResult], None] | None = None,
     stop: threading.Event | None = None,
     procs: FleetProcesses | None = None,
+    on_nmea: Callable[[dict[str, int]], None] | None = None,
 ) -> FleetResult:
     """Run the replay to its end (or until `stop` is set) and return what the launcher collected.
+
+    `on_nmea`: told the NMEA ports (vehicle -> port) once they listen, before any process starts.
 
     `serve`: called with the result while the fusion server, API and router still run (they are
     stopped when it returns; `coplane fleet --serve` waits there for `stop`). Without it the
@@ -147,13 +153,26 @@ def run_fleet(
     port = o.port or free_port()
     connect = f"{'tls' if security.secure else 'tcp'}/127.0.0.1:{port}"
     procs = procs if procs is not None else FleetProcesses()
+    nmea: NmeaServer | None = None
     procs.log_dir, procs.security = o.logs, security
     log.info("fleet starting", extra={"fleet": fleet_name, "vehicles": len(vehicles), "router": connect})
     try:
         procs.start(router_spec(port, security.secure, fleet_name))
         wait_for_port(port)
+        if o.nmea_port is not None:
+            nmea = NmeaServer(vehicles, o.nmea_port, dgnss=rec.manifest.base is not None)
+            log.info("NMEA output", extra={"ports": ", ".join(f"{v}:{p}" for v, p in nmea.ports.items())})
+            if on_nmea is not None:
+                on_nmea(nmea.ports)
         with use_security(security.as_identity(MONITOR) if security.secure else security):
-            collector = Collector(fleet_name, o.method, connect, out=o.out, vehicles=vehicles)
+            collector = Collector(
+                fleet_name,
+                o.method,
+                connect,
+                out=o.out,
+                vehicles=vehicles,
+                listeners=[nmea.publish] if nmea is not None else [],
+            )
         with collector:
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
             for spec in fleet_services(
@@ -202,6 +221,7 @@ def run_fleet(
                 interrupted=stop.is_set(),
                 input_problems=dict(rec.problems.counts),
                 input_health=input_health(rec),
+                nmea_ports=dict(nmea.ports) if nmea is not None else {},
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)
@@ -211,3 +231,5 @@ def run_fleet(
             return result
     finally:
         procs.stop_all()
+        if nmea is not None:
+            nmea.close()

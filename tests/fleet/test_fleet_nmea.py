@@ -1,0 +1,71 @@
+"""NMEA 0183 output (issue 15): an NMEA client (pynmeagps' reader) on each vehicle's port receives a
+valid GGA and RMC for every vehicle and epoch, checksums correct, positions equal to the
+solution at NMEA precision."""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pynmeagps import NMEAReader
+from support.e2e_fleet import agents_done, live_fleet, wait_until
+
+from coplane.fleet import fleet_of
+from coplane.fleet.nmea import NmeaServer
+from coplane.geo import ecef_to_geodetic
+from coplane.gtime import gpst_to_utc
+from coplane.sim.generate import simulate
+
+pytestmark = pytest.mark.slow
+
+
+def _read_all(port: int, out: list) -> None:
+    """Read sentences until the server closes the connection (checksums checked, errors raise)."""
+    with socket.create_connection(("127.0.0.1", port)) as s:
+        reader = NMEAReader(s.makefile("rb"), validate=1, quitonerror=2)
+        while True:
+            raw, msg = reader.read()
+            if raw is None:
+                return
+            out.append(msg)
+
+
+def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
+    rec = simulate("urban-loop", tmp_path / "r", vehicles=3, duration_s=20, seed=4)
+    _, vehicles = fleet_of(rec)
+    server = NmeaServer(vehicles, 0, dgnss=True)
+    got: dict[str, list] = {v: [] for v in vehicles}
+    readers = [
+        threading.Thread(target=_read_all, args=(server.ports[v], got[v]), daemon=True)
+        for v in vehicles
+    ]
+    for r in readers:
+        r.start()
+    wait_until(lambda: server.counts["connections"] == len(vehicles), 10, "the NMEA clients")
+    try:
+        with live_fleet(rec, "pc", log_dir=tmp_path / "logs", secure=False, listeners=[server.publish]) as lf:
+            wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
+            time.sleep(1.0)
+            positions = {v: dict(p) for v, p in lf.collector.run.positions.items()}
+    finally:
+        server.close()  # the clients see the end of their streams
+    for r in readers:
+        r.join(10)
+    for vid in vehicles:
+        gga = [m for m in got[vid] if m.msgID == "GGA"]
+        rmc = [m for m in got[vid] if m.msgID == "RMC"]
+        sol = positions[vid]
+        assert len(gga) == len(rmc) == len(sol) >= 19, (vid, len(gga), len(rmc), len(sol))
+        for m, (t, p) in zip(gga, sorted(sol.items()), strict=True):
+            utc = gpst_to_utc(t)
+            assert m.time == utc.time()
+            lat, lon, h = ecef_to_geodetic(np.asarray(p))
+            # 7 decimals of minutes: 1/6e8 deg, about 0.2 mm
+            assert abs(m.lat - math.degrees(lat)) < 2e-9 and abs(m.lon - math.degrees(lon)) < 2e-9
+            assert abs(m.alt - h) <= 5e-4 and m.quality in (2, 6)
+        assert all(r.status in ("A", "V") and r.date == gpst_to_utc(min(sol)).date() for r in rmc)
