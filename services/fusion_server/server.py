@@ -103,12 +103,28 @@ class FusionServer:
                 # reliable too: the final diagnostics are put just before the session closes, and a
                 # dropped one leaves consumers with stale counters (it is one message a second)
                 Publication(self.keys.diagnostics, must_deliver=True),
+                # the road map's tiles, cached for agents that start later (docs/roadmap.md)
+                *(
+                    [Publication(self.keys.map_tiles, must_deliver=True, history=self.road_map.cache_size)]
+                    if self.road_map is not None
+                    else []
+                ),
             ],
             subscribe=[
                 Subscription(self.keys.all_nodes, history=True),  # agents' caches, after a restart
                 Subscription(self.keys.all_alive("agent"), liveliness=True),
             ],
         )
+
+    def _put_tiles(self, node: BusNode) -> None:
+        """Publish the road map's pending tile messages (never raises: the map is a side product)."""
+        assert self.road_map is not None
+        for msg in self.road_map.take_outbox():
+            try:
+                node.put(self.keys.map_tiles, encode(msg))
+            except Exception:
+                self.road_map.counts["publish-errors"] += 1
+                log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
 
     # -- message handling ----------------------------------------------------------------------
     def handle(self, event: BusEvent) -> None:
@@ -317,14 +333,16 @@ class FusionServer:
 
     def run(self) -> None:
         s = self.s
+        if s.map is not None:  # before the node: its tile publisher's cache is sized by the map
+            self.road_map = LiveRoadMap.open(
+                s.map, self.heights, s.map_commit_every_s, self.fleet, s.map_snapshot_every_s
+            )
         with self.node() as node:
             log.info(
                 "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}
             )
             last_diag = 0.0
             self.durable.start(self)  # the solution log; resume after a crash
-            if s.map is not None:
-                self.road_map = LiveRoadMap.open(s.map, self.heights, s.map_commit_every_s)
             try:
                 while not self.stop.is_set():
                     if (event := node.get(timeout=0.02)) is not None:
@@ -337,14 +355,16 @@ class FusionServer:
                     self.durable.tick(self, node, self.keys.solution)
                     if self.road_map is not None:
                         self.road_map.tick(now)
+                        self._put_tiles(node)
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.keys.diagnostics, encode(self.diagnostics()))
                         last_diag = now
             finally:
                 for event in node.drain():  # account for everything that arrived before the stop
                     self.handle(event)
+                if self.road_map is not None:
+                    self.road_map.close()  # the last passes: committed, then on the bus
+                    self._put_tiles(node)
                 node.put(self.keys.diagnostics, encode(self.diagnostics()))
                 log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
                 self.durable.close()
-                if self.road_map is not None:
-                    self.road_map.close()

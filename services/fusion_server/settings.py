@@ -45,6 +45,9 @@ class FusionSettings(ServiceSettings):
     map_commit_every_s: float = Field(
         default=10.0, gt=0.0, description="Road map: commit closed passes this often"
     )
+    map_snapshot_every_s: float = Field(
+        default=60.0, gt=0.0, description="Road map: publish the whole map on the bus this often"
+    )
     resume_max_age_s: float = Field(
         default=300.0, ge=0.0, description="Resume from the log only if the crashed server wrote it lately"
     )

@@ -32,12 +32,13 @@ from coplane.bus import (
 )
 from coplane.bus.trust import SolutionGate
 from coplane.gtime import GpsTime
-from coplane.messages import SolutionMessage
+from coplane.messages import MapTilesMessage, SolutionMessage
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
 from coplane.roadmap import RoadMap
 from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
+from coplane.steps.map_tiles import MapReceiver
 
 from .settings import AgentSettings
 
@@ -81,6 +82,12 @@ class VehicleAgent:
         self.keys = KeySpace(self.fleet)
         self.gate = SolutionGate(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
         self.step = setup.vehicle_step(rec, vid)
+        # the road map from the bus (map methods): the fusion server's tiles on top of --map's file
+        self.tiles: MapReceiver | None = None
+        if setup.method.plane_map:
+            self.tiles = MapReceiver(self.fleet, self.step.road_map)
+            self.step.road_map = self.tiles.map
+        self.bad_tiles = 0
         self.schedule = vehicle_schedule(rec.vehicle_epochs(vid), man.interval_s)
         # only this vehicle's file, the base and uwb.csv are read: agents start fast
         self.corrections = BaseCorrections.of(rec, setup.use_dgnss)
@@ -100,7 +107,10 @@ class VehicleAgent:
             token=self.keys.alive("agent", vid),
             # history: a restarted fusion server still receives the last 120 (docs/reliability/durability.md)
             publish=[Publication(self.keys.node(vid), must_deliver=True, history=120)],
-            subscribe=[Subscription(self.keys.solution)],
+            subscribe=[
+                Subscription(self.keys.solution),
+                *([Subscription(self.keys.map_tiles, history=True)] if self.tiles is not None else []),
+            ],
         )
 
     @property
@@ -114,6 +124,9 @@ class VehicleAgent:
         reject the one a lockstep agent waits for)."""
         if not isinstance(ev, Payload):
             return None
+        if ev.key == self.keys.map_tiles:
+            self._take_tiles(ev.data)
+            return None
         try:
             sol = decode(SolutionMessage, ev.data)
         except BadMessage as exc:
@@ -126,6 +139,34 @@ class VehicleAgent:
             )
             return None
         return self._take(self.gate.check(sol, time.time(), expect).solution, sol)
+
+    def _take_tiles(self, data: bytes) -> None:
+        """One batch of road-map tiles from the fusion server (bad ones counted, never fatal)."""
+        assert self.tiles is not None
+        try:
+            msg = decode(MapTilesMessage, data)
+        except BadMessage as exc:
+            self.bad_tiles += 1
+            self.warn.log(logging.WARNING, ("tiles", exc.kind), "rejected map tiles", {"reason": str(exc)})
+            return
+        self.tiles.take(msg)
+        rejected = {k: n for k, n in self.tiles.counts.items() if k.startswith("rejected")}
+        if rejected:
+            self.warn.log(logging.WARNING, ("tiles", "rejected"), "map tiles rejected", rejected)
+
+    def _wait_for_map(self, node: BusNode) -> None:
+        """Map methods: wait (up to `map_wait_s`) for a whole snapshot of the fusion server's map,
+        so the first epochs already use it; solutions that arrive meanwhile are ingested as usual."""
+        if self.tiles is None or self.s.map_wait_s <= 0.0:
+            return
+        deadline = time.monotonic() + self.s.map_wait_s
+        while not self.tiles.complete and not self.stop.is_set() and time.monotonic() < deadline:
+            if (ev := node.get(timeout=0.05)) is not None:
+                self._ingest_one(ev)
+        log.info(
+            "road map from the bus" if self.tiles.complete else "no whole road map from the bus yet",
+            extra={"vehicle": self.step.vehicle_id, **self.tiles.map.stats(), **dict(self.tiles.counts)},
+        )
 
     def _take(self, taken: SolutionMessage | None, offered: SolutionMessage) -> SolutionMessage | None:
         """Ingest what the gate let through; count and (rate-limited) log what it did not."""
@@ -154,6 +195,7 @@ class VehicleAgent:
             )
             if not self.schedule:
                 return 0
+            self._wait_for_map(node)
             start = s.start_unix_s if s.start_unix_s is not None else time.time()
             t0 = self.t0 or self.schedule[0][0]
             interval = self.rec.manifest.interval_s

@@ -34,6 +34,11 @@ class AgentSettings(ServiceSettings):
         "a map that cannot be read is logged and the agent fits planes as without one",
     )
     dgnss: bool | None = Field(default=None, description="Use the base station; default: when present")
+    map_wait_s: float = Field(
+        default=10.0,
+        ge=0.0,
+        description="Map methods: wait this long at start for the fusion server's whole road map on the bus",
+    )
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
     log_level: str = "INFO"

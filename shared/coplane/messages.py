@@ -277,3 +277,35 @@ class DiagnosticsMessage(_Model):
     generation: Generation | None = None
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
+
+
+class MapTileState(_Model):
+    """One road-map tile as the fusion server shares it (docs/roadmap.md): the plane's evidence in
+    information form, enough for `RoadMap.plane_at`; the change detector's state stays with the
+    writer."""
+
+    tile: str = Field(pattern=r"^r-?\d{1,9}c-?\d{1,9}$")
+    h0_m: float = Field(ge=-1000.0, le=10000.0)
+    info: list[float] = Field(min_length=6, max_length=6, description="upper triangle, row-major")
+    eta: list[float] = Field(min_length=3, max_length=3)
+    n_passes: int = Field(ge=0)
+    n_points: int = Field(ge=0)
+    outlier_passes: int = Field(default=0, ge=0)
+    changes: int = Field(default=0, ge=0)
+    version: int = Field(ge=0)
+    updated_s: float = 0.0
+
+
+class MapTilesMessage(_Model):
+    """A batch of road-map tiles from the fusion server: the whole map in `parts` messages of one
+    `snapshot` (at start and then periodically), or the tiles one commit changed (`parts` 0)."""
+
+    schema_: Literal["coplane.map_tiles/1"] = Field(default="coplane.map_tiles/1", alias="schema")
+    fleet: VehicleId
+    tile_size_m: float = Field(gt=0.0, le=1000.0)
+    snapshot: int = Field(ge=0)
+    part: int = Field(ge=0)
+    parts: int = Field(ge=0)
+    tiles: list[MapTileState] = Field(max_length=1000)
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)

@@ -47,6 +47,11 @@ def test_policy_table() -> None:
     assert not allowed("vehicle-u9", "vehicle/u9/node", "put", v)  # not one of the fleet's vehicles
     assert allowed("fusion", "solution", "put", v) and allowed("fusion", "alive/fusion/0", "token", v)
     assert not any(allowed("api", k, "put", v) for k in ("solution", "diagnostics", "vehicle/u1/node"))
+    # the road map: only the fusion server puts tiles, the fleet's agents read them
+    assert allowed("fusion", "map/tiles", "put", v) and not allowed("vehicle-u1", "map/tiles", "put", v)
+    assert allowed("vehicle-u1", "map/tiles", "subscribe", v) and not allowed(
+        "vehicle-u9", "map/tiles", "subscribe", v
+    )
 
 
 def test_every_identity_key_operation(secure_router: tuple[str, Path, Path]) -> None:

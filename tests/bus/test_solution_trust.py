@@ -156,6 +156,7 @@ def _collector(tmp_path: Path) -> Collector:
     c.lock = Lock()
     c.epochs = 0
     c.bad = 0
+    c.listeners = []
     return c
 
 

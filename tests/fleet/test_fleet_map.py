@@ -1,5 +1,6 @@
-"""`coplane fleet --map` (issue 14): the agents read the road map at start, the fusion server
-extends it with the run's solutions, and the run over the bus equals the in-process one."""
+"""`coplane fleet --map` (issue 14): the fusion server opens the road map, shares it on the bus
+(the agents are not given the file) and extends it with the run's solutions; the run over the bus
+equals the in-process one with the same map."""
 
 from __future__ import annotations
 
@@ -42,8 +43,8 @@ def test_fleet_reads_and_extends_the_map(tmp_path: Path) -> None:
         "pc-map",
         log_dir=tmp_path / "logs",
         map_path=map_file,
-        # the agents read the map before the server commits anything of this run
-        extra_fusion_args=["--map_commit_every_s", "600"],
+        # no commit (nor new snapshot) during the run: the agents use exactly the map at start
+        extra_fusion_args=["--map_commit_every_s", "600", "--map_snapshot_every_s", "600"],
     ) as lf:
         wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
         time.sleep(0.5)

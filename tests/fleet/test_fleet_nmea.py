@@ -41,8 +41,7 @@ def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
     server = NmeaServer(vehicles, 0, dgnss=True)
     got: dict[str, list] = {v: [] for v in vehicles}
     readers = [
-        threading.Thread(target=_read_all, args=(server.ports[v], got[v]), daemon=True)
-        for v in vehicles
+        threading.Thread(target=_read_all, args=(server.ports[v], got[v]), daemon=True) for v in vehicles
     ]
     for r in readers:
         r.start()

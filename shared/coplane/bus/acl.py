@@ -7,8 +7,8 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 
 | identity | sends (ingress) | receives (egress) |
 | --- | --- | --- |
-| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`) | `P/solution`; queries for its own cache; subscriber declarations on node keys |
-| `fusion` | put `P/solution`, `P/diagnostics`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches | every node put, cache reply and token; agent tokens; subscriber declarations on solution and diagnostics |
+| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe `P/map/tiles` with history queries to its cache | `P/solution`; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
+| `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`) | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
 | `router` | nothing (it is the server side of TLS only) | nothing |
@@ -41,6 +41,16 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     p = k.prefix
     nodes_adv = f"{k.all_nodes}/@adv/**"
     alive_all = f"{p}/alive/*/*"
+    tiles, tiles_adv = k.map_tiles, f"{k.map_tiles}/@adv/**"
+    # the road map: the fusion server's cached publisher, the agents' history subscribers
+    tile_reader: list[Grant] = [
+        ("ingress", ("declare_subscriber",), (tiles, tiles_adv)),
+        ("ingress", SUBSCRIBE_LIVELINESS, (tiles_adv,)),
+        ("ingress", ("query",), (tiles_adv,)),
+        ("egress", ("put",), (tiles,)),
+        ("egress", ("reply",), (tiles, tiles_adv)),
+        ("egress", ("liveliness_token",), (tiles_adv,)),
+    ]
     out: dict[str, list[Grant]] = {}
     for v in vehicles:
         own = f"{p}/vehicle/{v}/**"
@@ -54,6 +64,7 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
             ("egress", ("put",), (k.solution,)),
             ("egress", ("query",), (adv,)),
             ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv)),
+            *tile_reader,
         ]
     out[FUSION] = [
         ("ingress", ("put",), (k.solution, k.diagnostics)),
@@ -65,6 +76,12 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
         ("egress", ("reply",), (k.all_nodes, nodes_adv)),
         ("egress", ("liveliness_token",), (k.all_alive("agent"), nodes_adv)),
         ("egress", ("declare_subscriber",), (k.solution, k.diagnostics)),
+        ("ingress", ("put",), (tiles,)),
+        ("ingress", ("liveliness_token",), (tiles_adv,)),
+        ("ingress", ("declare_queryable",), (tiles_adv,)),
+        ("ingress", ("reply",), (tiles, tiles_adv)),
+        ("egress", ("query",), (tiles_adv,)),
+        ("egress", ("declare_subscriber",), (tiles, tiles_adv)),
     ]
     readers = [
         ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics)),

@@ -41,6 +41,11 @@ class KeySpace:
     def diagnostics(self) -> str:
         return f"{self.prefix}/diagnostics"
 
+    @property
+    def map_tiles(self) -> str:
+        """The road map's tiles, from the fusion server (docs/roadmap.md, on the bus)."""
+        return f"{self.prefix}/map/tiles"
+
     def alive(self, role: str, ident: str) -> str:
         return f"{self.prefix}/alive/{role}/{ident}"
 

@@ -50,7 +50,7 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
     if operation == "put":
         if vid is not None:
             return parts[:2] == ["vehicle", vid]
-        return identity == FUSION and key in ("solution", "diagnostics")
+        return identity == FUSION and key in ("solution", "diagnostics", "map/tiles")
     if operation == "token":
         if parts[0] != "alive" or len(parts) != 3:
             return False
@@ -63,6 +63,8 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
     if operation == "subscribe":
         if key.startswith("vehicle/"):
             return identity == FUSION
+        if key == "map/tiles":  # the road map's tiles, for the agents
+            return vid is not None
         if key == "solution":
             return vid is not None or identity in (API, MONITOR)
         return key == "diagnostics" and identity in (API, MONITOR)
@@ -167,10 +169,14 @@ def probe_access(
         keep.append(listeners[API].declare_subscriber(k.solution, on_put))
         keep.append(listeners[API].declare_subscriber(k.diagnostics, on_put))
         keep.append(listeners[API].liveliness().declare_subscriber(f"{k.prefix}/alive/*/*", on_token))
+        # the map tiles' legitimate listener is an agent
+        tile_listener = _open(endpoint, base.as_identity(f"vehicle-{vehicles[0]}"), wait=True)
+        listeners["tiles"] = tile_listener
+        keep.append(tile_listener.declare_subscriber(k.map_tiles, on_put))
         for identity in identities:
             session(identity)
         time.sleep(0.5)  # every session knows the listeners (a client puts only where one listens)
-        data_keys = [*(k.node(v) for v in vehicles), k.solution, k.diagnostics]
+        data_keys = [*(k.node(v) for v in vehicles), k.solution, k.diagnostics, k.map_tiles]
         # -- puts: all at once, each payload names its sender, then one settle
         for identity in identities:
             for key in data_keys:
@@ -231,7 +237,11 @@ def _probe_subscriptions(
 ) -> list[Attempt]:
     seen = _Seen()
     subs: list[Any] = []
-    publishers = {k.node(v): f"vehicle-{v}" for v in vehicles} | {k.solution: FUSION, k.diagnostics: FUSION}
+    publishers = {k.node(v): f"vehicle-{v}" for v in vehicles} | {
+        k.solution: FUSION,
+        k.diagnostics: FUSION,
+        k.map_tiles: FUSION,
+    }
     identities = list(identities)
 
     def on_sample(identity: str) -> Callable[[zenoh.Sample], None]:

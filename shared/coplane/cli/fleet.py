@@ -48,8 +48,8 @@ def fleet(
         Path | None,
         typer.Option(
             "--map",
-            help="Road-surface map (SQLite): the agents read it at start (pc-map, pc-self-map), the fusion "
-            "server extends it with this run's solutions (created if missing).",
+            help="Road-surface map (SQLite): the fusion server shares it with the agents on the bus (pc-map, "
+            "pc-self-map) and extends it with this run's solutions (created if missing).",
         ),
     ] = None,
     nmea_port: Annotated[

@@ -93,7 +93,8 @@ def fleet_services(
     map_path: Path | None = None,
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
-    a road-surface map the agents read at start and the fusion server (its one writer) extends."""
+    a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
+    agents of a map method take it from (they need no access to the file)."""
     rec = str(recording)
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
     road_map = ["--map", str(map_path)] if map_path is not None else []
@@ -142,7 +143,6 @@ def fleet_services(
                     "--seed",
                     str(seed),
                     *start,
-                    *road_map,
                 ],
                 vehicle_identity(vid),
             )

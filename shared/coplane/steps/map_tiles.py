@@ -1,0 +1,138 @@
+"""Road-map tiles on the bus: the fusion server's tiles as MapTilesMessage batches and back.
+
+The fusion server (the map's one writer) publishes the whole map as one snapshot of `parts`
+messages at start and then periodically, and the tiles of each commit between snapshots; its
+publisher keeps a cache, so an agent that starts late still receives a whole snapshot
+(docs/roadmap.md, "Tiles on the bus"). `MapReceiver` is the agents' side: every tile is checked
+before it can reach a plane (finite numbers, a symmetric information matrix that is positive
+definite with the slope prior, a sane height), a bad tile is counted by reason and the rest of the
+batch is kept, and an older version never replaces a newer one.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from coplane.messages import MapTilesMessage, MapTileState
+from coplane.roadmap import RoadMap, RoadMapConfig, TileKey, TilePlane
+
+CHUNK_TILES = 500  # tiles per message: about 150 kB of JSON, well inside the bus's size bound
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def tile_state(t: TilePlane) -> MapTileState:
+    """The shared part of a tile (its plane evidence and counters)."""
+    return MapTileState(
+        tile=str(t.key),
+        h0_m=float(t.h0_m),
+        info=[float(t.info[i, j]) for i, j in _UPPER],
+        eta=[float(x) for x in t.eta],
+        n_passes=t.n_passes,
+        n_points=t.n_points,
+        outlier_passes=t.outlier_passes,
+        changes=t.changes,
+        version=t.version,
+        updated_s=float(t.updated_s),
+    )
+
+
+def tiles_messages(
+    fleet: str, tiles: Sequence[TilePlane], config: RoadMapConfig, snapshot: int, whole: bool
+) -> list[MapTilesMessage]:
+    """`tiles` in messages of at most CHUNK_TILES; `whole`: they are the whole map (parts = count,
+    at least one message even for an empty map), else a commit's changes (parts = 0)."""
+    chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)] or [[]]
+    if not whole:
+        chunks = [c for c in chunks if c]
+    return [
+        MapTilesMessage(
+            fleet=fleet,
+            tile_size_m=config.tile_size_m,
+            snapshot=snapshot,
+            part=i,
+            parts=len(chunks) if whole else 0,
+            tiles=[tile_state(t) for t in chunk],
+        )
+        for i, chunk in enumerate(chunks)
+    ]
+
+
+def tile_of_state(s: MapTileState, config: RoadMapConfig) -> TilePlane:
+    """The tile a state describes; ValueError naming the tile and what is wrong with it."""
+    key = TileKey.parse(s.tile)
+    info = np.zeros((3, 3))
+    for (i, j), v in zip(_UPPER, s.info, strict=True):
+        info[i, j] = info[j, i] = v
+    eta = np.array(s.eta, dtype=float)
+    if not (np.isfinite(info).all() and np.isfinite(eta).all()):
+        raise ValueError(f"tile {key}: non-finite information")
+    if s.n_passes > 0:
+        p = 1.0 / config.slope_prior_sigma**2
+        try:
+            np.linalg.cholesky(info + np.diag([0.0, p, p]))
+        except np.linalg.LinAlgError:
+            raise ValueError(f"tile {key}: information matrix not positive definite") from None
+    return TilePlane(
+        key=key,
+        h0_m=s.h0_m,
+        info=info,
+        eta=eta,
+        n_passes=s.n_passes,
+        n_points=s.n_points,
+        outlier_passes=s.outlier_passes,
+        changes=s.changes,
+        version=s.version,
+        updated_s=s.updated_s,
+    )
+
+
+class MapReceiver:
+    """An agent's map from the bus: `take` each MapTilesMessage; `complete` once a whole snapshot
+    has arrived. `counts` has tiles taken, older versions ignored and rejections by reason."""
+
+    def __init__(
+        self, fleet: str, road_map: RoadMap | None = None, config: RoadMapConfig | None = None
+    ) -> None:
+        self.fleet = fleet
+        self.map = road_map if road_map is not None else RoadMap(config or RoadMapConfig())
+        self.counts: Counter[str] = Counter()
+        self._parts: dict[int, set[int]] = {}
+        self.complete = False
+
+    def take(self, msg: MapTilesMessage) -> int:
+        """Apply one batch; the number of tiles it changed. Never raises for bad tiles."""
+        if msg.fleet != self.fleet:
+            self.counts["rejected:wrong-fleet"] += 1
+            return 0
+        if msg.tile_size_m != self.map.config.tile_size_m:
+            self.counts["rejected:tile-size"] += 1
+            return 0
+        changed = self._apply(msg.tiles)
+        if msg.parts > 0 and msg.part < msg.parts:
+            seen = self._parts.setdefault(msg.snapshot, set())
+            seen.add(msg.part)
+            if len(seen) == msg.parts:
+                self.complete = True
+                self._parts.clear()
+        return changed
+
+    def _apply(self, states: Iterable[MapTileState]) -> int:
+        n = 0
+        for s in states:
+            try:
+                tile = tile_of_state(s, self.map.config)
+            except ValueError as exc:
+                reason = str(exc).split(": ", 1)[-1]
+                self.counts[f"rejected:{reason}"] += 1
+                continue
+            old = self.map.tiles.get(tile.key)
+            if old is not None and old.version >= tile.version:
+                self.counts["older"] += 1
+                continue
+            self.map.tiles[tile.key] = tile
+            self.counts["taken"] += 1
+            n += 1
+        return n
