@@ -6,10 +6,12 @@ and the store stays free of presentation (docs/api.md lists the endpoints and th
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 from collections import Counter
 
 from coplane import __version__
+from coplane.gtime import gpst_to_utc
 from coplane.messages import EpochTime, PlaneSummary
 
 from .models import (
@@ -159,6 +161,27 @@ def track_geojson(
     elif coords:
         feats.append(GeoJsonFeature(geometry=GeoJsonPoint(coordinates=coords[0]), properties=props))
     return GeoJsonFeatureCollection(features=feats)
+
+
+def track_gpx(st: FleetState, vid: str, since: float | None = None, limit: int | None = None) -> str | None:
+    """GPX 1.1 (gpxpy): one track of one segment, UTC times, ellipsoidal heights as elevation (GPX
+    has no datum field; coplane has no geoid model, so the height is said in the track's comment)."""
+    import gpxpy.gpx
+
+    pts = _points(st, vid, since, limit)
+    if pts is None:
+        return None
+    gpx = gpxpy.gpx.GPX()
+    gpx.creator = "coplane"
+    trk = gpxpy.gpx.GPXTrack(name=f"{st.fleet}/{vid}")
+    trk.comment = "elevation: WGS-84 ellipsoidal height (m)"
+    seg = gpxpy.gpx.GPXTrackSegment()
+    for p in pts:
+        when = gpst_to_utc(p.t).replace(tzinfo=dt.UTC)
+        seg.points.append(gpxpy.gpx.GPXTrackPoint(p.llh[0], p.llh[1], elevation=p.llh[2], time=when))
+    trk.segments.append(seg)
+    gpx.tracks.append(trk)
+    return gpx.to_xml(version="1.1")
 
 
 def _counts(c: Counter[str]) -> PlaneCounts:

@@ -1,4 +1,4 @@
-"""Vehicles: latest state per vehicle and its bounded track (JSON or GeoJSON)."""
+"""Vehicles: latest state per vehicle and its bounded track (JSON, GeoJSON or GPX)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ router = APIRouter(tags=["vehicles"])
 
 VehicleIdPath = Annotated[str, Path(pattern=VEHICLE_ID_PATTERN, description="Vehicle id as on the bus")]
 GEOJSON = "application/geo+json"
+GPX = "application/gpx+xml"
 
 
 def _unknown(vid: str) -> HTTPException:
@@ -76,3 +77,52 @@ async def get_track(
     if tr is None:
         raise _unknown(vehicle_id)
     return tr
+
+
+@router.get(
+    "/vehicles/{vehicle_id}/track.geojson",
+    responses={
+        200: {
+            "description": "The track as a GeoJSON FeatureCollection ([lon, lat, ellipsoidal height])",
+            "content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/GeoJsonFeatureCollection"}}},
+        },
+        **problems(404, 422),
+    },
+    response_class=Response,
+    summary="Recent positions of one vehicle as GeoJSON (for GIS tools)",
+)
+async def get_track_geojson(
+    vehicle_id: VehicleIdPath,
+    state: StateDep,
+    since: Annotated[
+        float | None, Query(allow_inf_nan=False, description="Only points after this GPS time (s)")
+    ] = None,
+    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+) -> Response:
+    fc = views.track_geojson(state, vehicle_id, since, limit)
+    if fc is None:
+        raise _unknown(vehicle_id)
+    return JSONResponse(fc.model_dump(mode="json"), media_type=GEOJSON)
+
+
+@router.get(
+    "/vehicles/{vehicle_id}/track.gpx",
+    responses={
+        200: {"description": "The track as GPX 1.1 (UTC times, ellipsoidal heights)", "content": {GPX: {}}},
+        **problems(404, 422),
+    },
+    response_class=Response,
+    summary="Recent positions of one vehicle as GPX (for GPS tools)",
+)
+async def get_track_gpx(
+    vehicle_id: VehicleIdPath,
+    state: StateDep,
+    since: Annotated[
+        float | None, Query(allow_inf_nan=False, description="Only points after this GPS time (s)")
+    ] = None,
+    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+) -> Response:
+    xml = views.track_gpx(state, vehicle_id, since, limit)
+    if xml is None:
+        raise _unknown(vehicle_id)
+    return Response(xml, media_type=GPX)
