@@ -7,6 +7,7 @@ module reads them back, so a router declares `state: StateDep` and never learns 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 from fastapi import Depends, Request
@@ -42,9 +43,15 @@ def get_dashboard_html(request: Request) -> str:
     return request.app.state.dashboard_html  # type: ignore[no-any-return]
 
 
+def get_map_path(request: Request) -> Path | None:
+    """The road map file the API serves (settings.map), or None."""
+    return request.app.state.settings.map  # type: ignore[no-any-return]
+
+
 StateDep = Annotated[FleetState, Depends(get_state)]
 HubDep = Annotated[StreamHub, Depends(get_hub)]
 BusDep = Annotated[Bus, Depends(get_bus)]
 NowDep = Annotated[float, Depends(get_now)]
 RegistryDep = Annotated[CollectorRegistry, Depends(get_registry)]
 DashboardHtmlDep = Annotated[str, Depends(get_dashboard_html)]
+MapPathDep = Annotated[Path | None, Depends(get_map_path)]

@@ -67,6 +67,10 @@ class ApiSettings(ServiceSettings):
         description="Accepted solutions log (SQLite), loaded on start: auto = <state dir>/api-<fleet>-<router>.sqlite,"
         " none = off, or a path (docs/reliability/durability.md)",
     )
+    map: Path | None = Field(
+        default=None,
+        description="Road-surface map file (SQLite, read-only) served by /map/tiles and /map/changes",
+    )
     access_log: bool = False
     log_level: str = "INFO"
 

@@ -91,3 +91,43 @@ def test_dashboard_draws_vehicles_and_follows_the_stream(tmp_path: Path) -> None
     print(
         f"\ndashboard: vehicle-colour pixels {counts}, non-white plot pixels {non_white}, last seq {seq.group(1)}"
     )
+
+
+def test_dashboard_draws_the_road_map_tiles(tmp_path: Path) -> None:
+    """With --map, the tiles of the view are drawn under the vehicles, coloured by sigma."""
+    from support.api import ecef_at
+
+    from coplane.roadmap import TilePlane, tile_of_ecef
+    from coplane.store.roadmap_db import RoadMapDb
+
+    keys = {
+        tile_of_ecef(np.array(ecef_at(e, n)), 20.0)
+        for e in range(-200, 201, 20)
+        for n in range(-200, 201, 20)
+    }
+    info = np.diag([400.0, 30.0, 30.0])  # sigma about 0.07 m: the "<= 0.2 m" colour
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write(
+            [
+                TilePlane(key=k, h0_m=50.0, info=info, eta=np.zeros(3), n_passes=5, n_points=9, version=5)
+                for k in keys
+            ]
+        )
+    fleet = SyntheticFleet(n_vehicles=4, n_epochs=40)
+    app = filled_app(fleet, epochs=40, map_path=path)
+    shot = tmp_path / "dashboard.png"
+    with serve(app) as url:
+        cmd = [
+            _chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync",
+            "--hide-scrollbars", f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={shot}",
+            "--window-size=1200,800", "--virtual-time-budget=3000", "--dump-dom", f"{url}/?events=1",
+        ]  # fmt: skip
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=90)
+    assert out.returncode == 0, out.stderr[-2000:]
+    drawn = re.search(r'data-tiles-drawn="(\d+)"', out.stdout)
+    assert drawn is not None and int(drawn.group(1)) > 0, out.stdout[:500]
+    plot = imread(shot)[90:650, :600]
+    # the "<= 0.2 m" green at 55 % over white
+    assert _pixels_near(plot, "#91c3a7", tol=0.1) > 1000

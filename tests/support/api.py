@@ -9,6 +9,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import uvicorn
@@ -160,7 +161,12 @@ class SyntheticFleet:
         )
 
 
-def filled_app(fleet: SyntheticFleet, epochs: int | None = None, bus: LocalBus | None = None):  # type: ignore[no-untyped-def]
+def filled_app(  # type: ignore[no-untyped-def]
+    fleet: SyntheticFleet,
+    epochs: int | None = None,
+    bus: LocalBus | None = None,
+    map_path: Path | None = None,
+):
     """An app whose state already holds `epochs` solutions, diagnostics and liveliness."""
     st = fleet.state(clock_now=time.time())
     now = time.time()
@@ -172,7 +178,7 @@ def filled_app(fleet: SyntheticFleet, epochs: int | None = None, bus: LocalBus |
     st.on_alive("fusion", "0", True)
     for vid in fleet.ids[:-1]:
         st.on_alive("agent", vid, True)
-    app = create_app(ApiSettings(fleet=FLEET), bus or LocalBus(), state=st)
+    app = create_app(ApiSettings(fleet=FLEET, map=map_path), bus or LocalBus(), state=st)
     ev = st.stream_event(sol, now) if sol is not None else None
     if ev is not None:
         app.state.hub.publish(ev)  # as Ingest would have: a new /stream client gets it first

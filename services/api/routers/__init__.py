@@ -10,7 +10,7 @@ from ..models import Problem
 def problems(*codes: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI entries for error responses (the app rewrites them to application/problem+json)."""
     text = {
-        404: "Unknown vehicle",
+        404: "Not found (an unknown vehicle, no road map configured)",
         422: "Invalid parameters",
         503: "Unavailable (too many clients or shutting down)",
     }

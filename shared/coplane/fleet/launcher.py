@@ -152,7 +152,7 @@ def fleet_services(
             ServiceSpec(
                 "api",
                 API_MODULE,
-                ["--recording", rec, "--connect", f'["{connect}"]', "--port", str(api_port)],
+                ["--recording", rec, "--connect", f'["{connect}"]', "--port", str(api_port), *road_map],
                 API,
             )
         )

@@ -1,0 +1,91 @@
+"""GET /map/tiles and /map/changes (issue 14): the road map file served as GeoJSON, read-only."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from support.api import FLEET, SyntheticFleet
+
+from coplane.api.app import create_app
+from coplane.api.bus_client import LocalBus
+from coplane.api.settings import ApiSettings
+from coplane.geo import geodetic_to_ecef
+from coplane.roadmap import ChangeEvent, TileKey, TilePlane, tile_of_ecef
+from coplane.store.roadmap_db import RoadMapDb
+
+LAT, LON = 22.2988, 114.1722
+
+
+def _tile(key: TileKey) -> TilePlane:
+    info = np.array([[4.0, 0.0, 0.0], [0.0, 30.0, 0.0], [0.0, 0.0, 30.0]])
+    return TilePlane(
+        key=key, h0_m=12.0, info=info, eta=np.array([0.8, 0.0, 0.0]), n_passes=4, n_points=8, version=4
+    )
+
+
+def _app(map_path: Path | None) -> TestClient:
+    fleet = SyntheticFleet(n_vehicles=1, n_epochs=1)
+    app = create_app(ApiSettings(fleet=FLEET, map=map_path), LocalBus(), state=fleet.state(clock_now=0.0))
+    return TestClient(app)
+
+
+@pytest.fixture
+def map_file(tmp_path: Path) -> tuple[Path, list[TileKey]]:
+    centre = tile_of_ecef(geodetic_to_ecef(math.radians(LAT), math.radians(LON), 10.0), 20.0)
+    keys = [TileKey(centre.row + dr, centre.col + dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)]
+    far = TileKey(centre.row + 5000, centre.col)  # about 100 km north
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write([_tile(k) for k in [*keys, far]], [ChangeEvent(keys[0], 1.4e9, 11.5, 12.0, 3)])
+    return path, keys
+
+
+def test_tiles_in_a_box_as_geojson(map_file: tuple[Path, list[TileKey]]) -> None:
+    path, keys = map_file
+    d = 0.001  # about 110 m: the 3 x 3 tiles and not the far one
+    with _app(path) as c:
+        r = c.get("/map/tiles", params={"bbox": f"{LON - d},{LAT - d},{LON + d},{LAT + d}"})
+        assert r.status_code == 200 and r.headers["content-type"].startswith("application/geo+json")
+        fc = r.json()
+        assert fc["type"] == "FeatureCollection" and len(fc["features"]) == len(keys)
+        for f in fc["features"]:
+            ring = f["geometry"]["coordinates"][0]
+            assert f["geometry"]["type"] == "Polygon" and ring[0] == ring[-1] and len(ring) == 5
+        changes = c.get("/map/changes", params={"limit": 5}).json()["changes"]
+        assert [ch["tile"] for ch in changes] == [str(keys[0])]
+
+
+@pytest.mark.parametrize(
+    ("bbox", "says"),
+    [
+        ("1,2,3", "4 numbers"),
+        ("a,b,c,d", "not numbers"),
+        ("114,22,113,23", "min must be below max"),
+        ("114,95,114.1,96", "latitudes"),
+        ("114,22,116,23", "at most 0.5"),
+        ("nan,22,114,23", "finite"),
+    ],
+)
+def test_bad_boxes_are_422_naming_the_problem(
+    map_file: tuple[Path, list[TileKey]], bbox: str, says: str
+) -> None:
+    with _app(map_file[0]) as c:
+        r = c.get("/map/tiles", params={"bbox": bbox})
+        assert r.status_code == 422 and says in r.text
+
+
+def test_no_map_is_404_and_a_broken_one_503_without_stopping_the_api(tmp_path: Path) -> None:
+    with _app(None) as c:
+        r = c.get("/map/tiles", params={"bbox": "114,22,114.1,22.1"})
+        assert r.status_code == 404 and "--map" in r.text
+    broken = tmp_path / "broken.sqlite"
+    broken.write_bytes(b"not a database at all" * 100)
+    with _app(broken) as c:
+        r = c.get("/map/tiles", params={"bbox": "114,22,114.1,22.1"})
+        assert r.status_code == 503 and "broken.sqlite" in r.text
+        assert c.get("/map/changes").status_code == 503
+        assert c.get("/healthz").status_code == 200  # the API goes on
