@@ -175,3 +175,17 @@ def test_geojson_is_strict_json_with_the_properties(road: Road) -> None:
         "outlier_passes", "changes", "version", "updated_s", "usable",
     }  # fmt: skip
     assert math.isfinite(p["slope_sigma"])
+
+
+def test_a_tile_without_a_sound_plane_never_reaches_the_graph(road: Road) -> None:
+    """plane_at gives None, counted, for a tile whose numbers do not make a plane (one that slipped
+    past the file's and the bus's checks, or was damaged in memory)."""
+    m = built(road)
+    antenna = road.antenna_ecef(3.0, 1.0, ANT)
+    plane = m.plane_at(antenna, ANT)
+    assert plane is not None
+    tile = m.tiles[plane.key]
+    m.tiles[plane.key] = dataclasses.replace(tile, info=np.zeros((3, 3)), version=tile.version + 1)
+    assert m.plane_at(antenna, ANT) is None and m.rejected["tile without a plane"] == 1
+    m.tiles[plane.key] = dataclasses.replace(tile, eta=np.array([np.nan, 0.0, 0.0]), version=tile.version + 2)
+    assert m.plane_at(antenna, ANT) is None and sum(m.rejected.values()) == 2

@@ -142,10 +142,11 @@ def test_a_batch_is_atomic(tmp_path: Path) -> None:
 WRITER = textwrap.dedent(
     """
     import sys, dataclasses
+    import numpy as np
     from coplane.roadmap import RoadMapConfig, TileKey, TilePlane, ChangeEvent
     from coplane.store.roadmap_db import RoadMapDb
     db = RoadMapDb(sys.argv[1])
-    tiles = [TilePlane(TileKey(100, c), 500.0) for c in range(200)]
+    tiles = [TilePlane(TileKey(100, c), 500.0, info=np.eye(3)) for c in range(200)]
     v = 0
     while True:
         v += 1
@@ -240,3 +241,34 @@ def test_a_closed_map_is_one_file_that_can_be_copied(tmp_path: Path) -> None:
         assert len(db2.changes()) == 1
     for k in m.tiles:
         same_tile(m.tiles[k], loaded.tiles[k])
+
+
+@pytest.mark.parametrize(
+    ("sql", "reason"),
+    [
+        ("UPDATE tiles SET h0_m = 1e6", "height out of range"),
+        ("UPDATE tiles SET i11 = -1e6", "information matrix not positive definite"),
+        ("UPDATE tiles SET eta0 = 'x'", "unreadable row"),
+        ("UPDATE tiles SET n_passes = -3", "negative count"),
+        ("UPDATE tiles SET recent = '[{\"t\": 1}]'", "unreadable row"),
+    ],
+)
+def test_damaged_rows_are_skipped_counted_and_the_rest_kept(tmp_path: Path, sql: str, reason: str) -> None:
+    """A tampered or bit-rotted row costs itself: the other tiles load bit for bit."""
+    import sqlite3
+
+    m, changes = synthetic_map()
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write(m.take_dirty(), changes)
+    con = sqlite3.connect(path)
+    con.execute(sql + " WHERE row = ? AND col = ?", (BASE.row, BASE.col))
+    con.commit()
+    con.close()
+    with RoadMapDb(path, readonly=True) as db:
+        loaded = db.load()
+        assert set(loaded.tiles) == set(m.tiles) - {BASE}
+        for k in loaded.tiles:
+            same_tile(m.tiles[k], loaded.tiles[k])
+        assert sum(n for why, n in db.rejected.items() if why.startswith(reason)) == 1, db.rejected
+        assert db.load_keys([BASE]) == {}

@@ -7,12 +7,14 @@ numpy arrays), so it pickles to worker processes.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from coplane.geo import up_vector
 from coplane.plane.fit import antenna_offset
 from coplane.plane.history import project_to_road
 from coplane.roadmap.config import RoadMapConfig
@@ -48,6 +50,7 @@ class RoadMap:
         self.config = config or RoadMapConfig()
         self.tiles: dict[TileKey, TilePlane] = dict(tiles) if tiles else {}
         self.dirty: set[TileKey] = set()
+        self.rejected: Counter[str] = Counter()  # planes plane_at refused to give, by reason
         # plane of each tile as of (tile object, version): see _plane
         self._planes: dict[TileKey, tuple[TilePlane, tuple[int, Vec, float, float, float]]] = {}
 
@@ -86,16 +89,26 @@ class RoadMap:
 
     def plane_at(self, antenna_ecef: ArrayLike, antenna_height_m: float) -> MapPlane | None:
         """The plane of the tile under an antenna, if the tile is usable and its height sigma at the
-        vehicle is at most `max_use_sigma_m`; None otherwise."""
+        vehicle is at most `max_use_sigma_m`; None otherwise. A tile whose numbers do not give a
+        sound plane (singular information, a non-unit or downward normal, a sigma that is not a
+        positive number) gives None too, counted in `rejected`: it never reaches the graph."""
         cfg = self.config
         road = project_to_road(antenna_ecef, antenna_height_m)
         tile = self.tile_at(road)
         if tile is None or not tile.usable(cfg):
             return None
-        sigma = tile.sigma_at_ecef(road, cfg)
-        if not sigma <= cfg.max_use_sigma_m:
+        try:
+            sigma = tile.sigma_at_ecef(road, cfg)
+            if not sigma <= cfg.max_use_sigma_m:
+                return None
+            version, normal, d_road, offset_sigma, tilt_sigma = self._plane(tile)
+        except (ValueError, np.linalg.LinAlgError):
+            self.rejected["tile without a plane"] += 1
             return None
-        version, normal, d_road, offset_sigma, tilt_sigma = self._plane(tile)
+        why = _plane_problem(normal, d_road, (sigma, offset_sigma, tilt_sigma), road)
+        if why is not None:
+            self.rejected[why] += 1
+            return None
         return MapPlane(
             key=tile.key,
             normal=normal,
@@ -132,6 +145,19 @@ class RoadMap:
         out = (tile.version, normal, d_road, math.sqrt(float(cov[0, 0])), math.atan(math.sqrt(slope_var)))
         self._planes[tile.key] = (tile, out)
         return out
+
+
+def _plane_problem(normal: Vec, d_road: float, sigmas: tuple[float, ...], road: ArrayLike) -> str | None:
+    """Why a tile's plane must not reach the graph, or None."""
+    if not (np.isfinite(normal).all() and math.isfinite(d_road)):
+        return "non-finite plane"
+    if abs(float(np.linalg.norm(normal)) - 1.0) > 1e-6:
+        return "normal not a unit vector"
+    if float(normal @ up_vector(np.asarray(road, dtype=float))) <= 0.5:
+        return "normal not upward"
+    if not all(math.isfinite(x) and x > 0.0 for x in sigmas):
+        return "sigma not a positive number"
+    return None
 
 
 def _order(p: PassEvidence) -> tuple[float, str, TileKey]:

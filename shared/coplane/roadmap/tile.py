@@ -118,6 +118,29 @@ class TilePlane:
     cusum_pos_n: int = 0
     cusum_neg_n: int = 0
 
+    # -- checking ------------------------------------------------------------------------------
+    def problem(self, config: RoadMapConfig) -> str | None:
+        """What makes this tile unfit to give a plane, as stored or received (a tampered file, a
+        bit flip, a forged message), or None. The map file and the bus both check with it, so a
+        bad tile is skipped and counted there and never reaches the factor graph."""
+        if not (math.isfinite(self.h0_m) and -1000.0 <= self.h0_m <= 10000.0):
+            return "height out of range"
+        if np.shape(self.info) != (3, 3) or np.shape(self.eta) != (3,):
+            return "information of the wrong shape"
+        if not (np.isfinite(self.info).all() and np.isfinite(self.eta).all()):
+            return "non-finite information"
+        if not np.array_equal(self.info, self.info.T):
+            return "information matrix not symmetric"
+        if min(self.n_passes, self.n_points, self.outlier_passes, self.changes, self.version) < 0:
+            return "negative count"
+        if self.n_passes > 0:
+            p = 1.0 / config.slope_prior_sigma**2
+            try:
+                np.linalg.cholesky(self.info + np.diag([0.0, p, p]))
+            except np.linalg.LinAlgError:
+                return "information matrix not positive definite"
+        return None
+
     # -- reading -------------------------------------------------------------------------------
     def estimate(self, config: RoadMapConfig) -> tuple[Vec, Mat]:
         """theta = (a, b, c) and its covariance: (info + prior) theta = eta, prior diag(0, 1/s^2, 1/s^2)."""

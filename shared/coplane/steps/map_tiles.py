@@ -67,15 +67,7 @@ def tile_of_state(s: MapTileState, config: RoadMapConfig) -> TilePlane:
     for (i, j), v in zip(_UPPER, s.info, strict=True):
         info[i, j] = info[j, i] = v
     eta = np.array(s.eta, dtype=float)
-    if not (np.isfinite(info).all() and np.isfinite(eta).all()):
-        raise ValueError(f"tile {key}: non-finite information")
-    if s.n_passes > 0:
-        p = 1.0 / config.slope_prior_sigma**2
-        try:
-            np.linalg.cholesky(info + np.diag([0.0, p, p]))
-        except np.linalg.LinAlgError:
-            raise ValueError(f"tile {key}: information matrix not positive definite") from None
-    return TilePlane(
+    tile = TilePlane(
         key=key,
         h0_m=s.h0_m,
         info=info,
@@ -87,6 +79,9 @@ def tile_of_state(s: MapTileState, config: RoadMapConfig) -> TilePlane:
         version=s.version,
         updated_s=s.updated_s,
     )
+    if (why := tile.problem(config)) is not None:
+        raise ValueError(f"tile {key}: {why}")
+    return tile
 
 
 class MapReceiver:

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import sqlite3
 import time
+from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -35,6 +37,8 @@ from coplane.roadmap.grid import row_col_ranges as _row_col_ranges
 from coplane.roadmap.roadmap import RoadMap
 from coplane.roadmap.tile import ChangeEvent, PassSummary, TilePlane
 from coplane.store.log import StoreError
+
+log = logging.getLogger("coplane.store.roadmap_db")
 
 APPLICATION_ID = 0x63706D70  # "cpmp": marks a file as a coplane road-surface map
 SCHEMA_VERSION = 1
@@ -163,6 +167,7 @@ class RoadMapDb:
     ) -> None:
         self.path = Path(path)
         self.readonly = readonly
+        self.rejected: Counter[str] = Counter()  # stored tiles skipped on reading, by reason
         if readonly and not self.path.is_file():
             raise StoreError(f"{self.path}: no such map file")
         if not readonly:
@@ -285,9 +290,32 @@ class RoadMapDb:
 
     # -- reading -------------------------------------------------------------------------------
     def load(self) -> RoadMap:
-        """The whole map in memory (nothing dirty)."""
+        """The whole map in memory (nothing dirty); unreadable or invalid tiles are skipped."""
         cur = self.db.execute(f"SELECT {_TILE_COLS} FROM tiles ORDER BY row, col")
-        return RoadMap(self.config, {t.key: t for t in map(_tile_of, cur)})
+        return RoadMap(self.config, {t.key: t for t in self._valid(cur)})
+
+    def _valid(self, rows: Iterable[tuple[Any, ...]]) -> list[TilePlane]:
+        """The rows that parse into a tile fit to give a plane (TilePlane.problem); every other
+        one is counted in `rejected` and logged once per reason, naming the tile and the file, so
+        a damaged row costs itself and never the map (docs/roadmap.md, "Bad map input")."""
+        out = []
+        for r in rows:
+            try:
+                tile = _tile_of(r)
+                why = tile.problem(self.config)
+            except (TypeError, ValueError, KeyError, IndexError) as exc:  # a garbled row
+                why = f"unreadable row ({type(exc).__name__})"
+            if why is None:
+                out.append(tile)
+                continue
+            if not self.rejected[why]:
+                log.warning(
+                    "road map tile skipped: %s",
+                    why,
+                    extra={"path": str(self.path), "tile": f"r{r[0]}c{r[1]}"},
+                )
+            self.rejected[why] += 1
+        return out
 
     def load_keys(self, keys: Iterable[TileKey]) -> dict[TileKey, TilePlane]:
         """The stored tiles among `keys` (missing ones are simply absent)."""
@@ -297,7 +325,8 @@ class RoadMapDb:
                 f"SELECT {_TILE_COLS} FROM tiles WHERE row = ? AND col = ?", (k.row, k.col)
             ).fetchone()
             if r is not None:
-                out[k] = _tile_of(r)
+                for tile in self._valid([r]):
+                    out[k] = tile
         return out
 
     def tiles_in_bbox(
@@ -308,7 +337,7 @@ class RoadMapDb:
         out: list[TilePlane] = []
         sql = f"SELECT {_TILE_COLS} FROM tiles WHERE row = ? AND col BETWEEN ? AND ? ORDER BY col"
         for row, c0, c1 in _row_col_ranges(min_lon, min_lat, max_lon, max_lat, self.config.tile_size_m):
-            out.extend(map(_tile_of, self.db.execute(sql, (row, c0, c1))))
+            out.extend(self._valid(self.db.execute(sql, (row, c0, c1))))
         return out
 
     def changes(self, limit: int = 100) -> list[dict[str, Any]]:
