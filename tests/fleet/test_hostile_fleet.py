@@ -136,7 +136,8 @@ def test_compromised_vehicle_realtime_no_stall(material: Material, tmp_path: Pat
         speed=2.0,
         # the agents' shared start: a realtime agent that starts after it skips the epochs already
         # past (it joins at the current one), and five processes importing GTSAM on a loaded
-        # 2-core CI runner took more than 8 s once (u1 published 19 of 20 epochs)
+        # 2-core CI runner took more than 8 s once (u1 published 19 of 20 epochs); run_attack makes
+        # the server wait for the fleet until 5 s after this start
         start_delay_s=15.0,
         per_round=50,
         round_s=0.25,
