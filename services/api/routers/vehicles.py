@@ -19,6 +19,15 @@ router = APIRouter(tags=["vehicles"])
 VehicleIdPath = Annotated[str, Path(pattern=VEHICLE_ID_PATTERN, description="Vehicle id as on the bus")]
 GEOJSON = "application/geo+json"
 GPX = "application/gpx+xml"
+# the bounds of a track request, the same for every track format
+SinceQuery = Annotated[
+    float | None,
+    Query(
+        allow_inf_nan=False,
+        description="Only points after this GPS time (seconds since the GPS epoch: week*604800+tow)",
+    ),
+]
+LimitQuery = Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")]
 
 
 def _unknown(vid: str) -> HTTPException:
@@ -58,21 +67,12 @@ async def get_vehicle(vehicle_id: VehicleIdPath, state: StateDep, now: NowDep) -
 async def get_track(
     vehicle_id: VehicleIdPath,
     state: StateDep,
-    since: Annotated[
-        float | None,
-        Query(
-            allow_inf_nan=False,
-            description="Only points after this GPS time (seconds since the GPS epoch: week*604800+tow)",
-        ),
-    ] = None,
-    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+    since: SinceQuery = None,
+    limit: LimitQuery = None,
     format: Annotated[Literal["json", "geojson"], Query(description="json or geojson")] = "json",
 ) -> Response | Track:
     if format == "geojson":
-        fc = views.track_geojson(state, vehicle_id, since, limit)
-        if fc is None:
-            raise _unknown(vehicle_id)
-        return JSONResponse(fc.model_dump(mode="json"), media_type=GEOJSON)
+        return await get_track_geojson(vehicle_id, state, since, limit)
     tr = views.track(state, vehicle_id, since, limit)
     if tr is None:
         raise _unknown(vehicle_id)
@@ -94,10 +94,8 @@ async def get_track(
 async def get_track_geojson(
     vehicle_id: VehicleIdPath,
     state: StateDep,
-    since: Annotated[
-        float | None, Query(allow_inf_nan=False, description="Only points after this GPS time (s)")
-    ] = None,
-    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+    since: SinceQuery = None,
+    limit: LimitQuery = None,
 ) -> Response:
     fc = views.track_geojson(state, vehicle_id, since, limit)
     if fc is None:
@@ -117,10 +115,8 @@ async def get_track_geojson(
 async def get_track_gpx(
     vehicle_id: VehicleIdPath,
     state: StateDep,
-    since: Annotated[
-        float | None, Query(allow_inf_nan=False, description="Only points after this GPS time (s)")
-    ] = None,
-    limit: Annotated[int | None, Query(ge=1, le=1_000_000, description="At most the last N points")] = None,
+    since: SinceQuery = None,
+    limit: LimitQuery = None,
 ) -> Response:
     xml = views.track_gpx(state, vehicle_id, since, limit)
     if xml is None:
