@@ -73,6 +73,9 @@ class LiveRoadMap:
         """One solution's vehicle-epochs into the builder (never raises)."""
         try:
             for s in solution_samples(sol, msgs, self.heights):
+                if self.map.is_mapped(s.vehicle_id, s.time_s):
+                    self.counts["already-mapped"] += 1  # a replay of what the map holds
+                    continue
                 self.builder.add(s)
                 self.counts["samples"] += 1
         except Exception:
@@ -121,7 +124,7 @@ class LiveRoadMap:
         try:
             changes = self.map.apply(passes)
             dirty = self.map.take_dirty()
-            written = self.db.write(dirty, changes)
+            written = self.db.write(dirty, changes, mapped_until=self.map.mapped_until)
             self.outbox += tiles_messages(self.fleet, dirty, self.map.config, self.snapshot, whole=False)
         except Exception:
             self.counts["errors"] += 1

@@ -272,3 +272,18 @@ def test_damaged_rows_are_skipped_counted_and_the_rest_kept(tmp_path: Path, sql:
             same_tile(m.tiles[k], loaded.tiles[k])
         assert sum(n for why, n in db.rejected.items() if why.startswith(reason)) == 1, db.rejected
         assert db.load_keys([BASE]) == {}
+
+
+def test_mapped_until_is_stored_with_the_batch(tmp_path: Path) -> None:
+    """The vehicles' newest mapped pass times travel with the tiles, in the same transaction."""
+    m, changes = synthetic_map()
+    assert set(m.mapped_until) == {"v0", "v1", "v2"}
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write(m.take_dirty(), changes, mapped_until=m.mapped_until)
+    with RoadMapDb(path, readonly=True) as db:
+        loaded = db.load()
+    assert loaded.mapped_until == m.mapped_until
+    last = m.mapped_until["v0"]
+    assert loaded.is_mapped("v0", last) and not loaded.is_mapped("v0", last + 1.0)
+    assert not loaded.is_mapped("v9", 0.0)

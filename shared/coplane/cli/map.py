@@ -63,7 +63,7 @@ def build(
                 road_map=road_map if spec.plane_map else None,
             )
             ext = extend_map(road_map, run, rec)
-            db.write(road_map.take_dirty(), ext.changes)
+            db.write(road_map.take_dirty(), ext.changes, mapped_until=road_map.mapped_until)
             skipped = ", ".join(f"{k} {v}" for k, v in sorted(ext.skipped.items())) or "0"
             table.add_row(
                 ext.recording, ext.method, str(ext.samples), skipped, str(ext.passes), str(len(ext.changes))

@@ -62,12 +62,15 @@ def extend_map(road_map: RoadMap, run: MethodRun, rec: Recording) -> MapExtensio
     """Apply one run's solutions to `road_map` (in place); what was added and what changed."""
     builder = MapBuilder(road_map.config)
     samples = run_samples(run, rec)
-    for s in samples:
+    fresh = [s for s in samples if not road_map.is_mapped(s.vehicle_id, s.time_s)]
+    for s in fresh:
         builder.add(s)
     passes = builder.flush()
     changes = road_map.apply(passes)
     ext = MapExtension(rec.manifest.name, run.label, samples=len(samples), passes=len(passes))
     ext.skipped.update(builder.skipped)
+    if len(fresh) < len(samples):  # this recording's evidence (or part of it) is in the map already
+        ext.skipped["already-mapped"] += len(samples) - len(fresh)
     ext.changes = list(changes)
     ext.tiles_touched = len({(p.key if hasattr(p, "key") else None) for p in passes})
     return ext

@@ -45,10 +45,16 @@ class RoadMap:
     """Tiles by key; `apply` adds passes, `plane_at` serves a vehicle the plane under it."""
 
     def __init__(
-        self, config: RoadMapConfig | None = None, tiles: dict[TileKey, TilePlane] | None = None
+        self,
+        config: RoadMapConfig | None = None,
+        tiles: dict[TileKey, TilePlane] | None = None,
+        mapped_until: dict[str, float] | None = None,
     ) -> None:
         self.config = config or RoadMapConfig()
         self.tiles: dict[TileKey, TilePlane] = dict(tiles) if tiles else {}
+        # per vehicle, the time of the newest pass the map has taken: evidence at or before it is
+        # the same evidence again (a recording replayed or built twice), see `is_mapped`
+        self.mapped_until: dict[str, float] = dict(mapped_until) if mapped_until else {}
         self.dirty: set[TileKey] = set()
         self.rejected: Counter[str] = Counter()  # planes plane_at refused to give, by reason
         # plane of each tile as of (tile object, version): see _plane
@@ -56,6 +62,13 @@ class RoadMap:
 
     def get(self, key: TileKey) -> TilePlane | None:
         return self.tiles.get(key)
+
+    def is_mapped(self, vehicle_id: str, time_s: float) -> bool:
+        """Whether the map already holds this vehicle's evidence from this instant: a vehicle's
+        time only moves forward, so a sample at or before its newest mapped pass is one the map has
+        seen (replaying a recording, or building a map from it twice, must not count it again)."""
+        last = self.mapped_until.get(vehicle_id)
+        return last is not None and time_s <= last
 
     def apply(self, passes: Iterable[PassEvidence]) -> list[ChangeEvent]:
         """Add passes in (time, vehicle, tile) order, creating tiles as needed (h0 from the first
@@ -73,6 +86,7 @@ class RoadMap:
                 tile = self.tiles[key] = TilePlane(key, float(p.h_ref_m + float(u.mean())))
             upd = tile.add_pass(p, self.config)
             self.dirty.add(key)
+            self.mapped_until[p.vehicle_id] = max(self.mapped_until.get(p.vehicle_id, -math.inf), p.time_s)
             if upd.change is not None:
                 changes.append(upd.change)
         return changes

@@ -259,10 +259,16 @@ class RoadMapDb:
 
     # -- writing -------------------------------------------------------------------------------
     def write(
-        self, tiles: Iterable[TilePlane], changes: Iterable[ChangeEvent] = (), *, now: float | None = None
+        self,
+        tiles: Iterable[TilePlane],
+        changes: Iterable[ChangeEvent] = (),
+        *,
+        now: float | None = None,
+        mapped_until: dict[str, float] | None = None,
     ) -> int:
-        """Store whole tiles (insert or replace) and change events in ONE transaction: after a crash
-        the file holds all of this batch or none of it. Returns the number of tiles written."""
+        """Store whole tiles (insert or replace), change events and the vehicles' mapped-until
+        times (RoadMap.mapped_until) in ONE transaction: after a crash the file holds all of this
+        batch or none of it. Returns the number of tiles written."""
         if self.readonly:
             raise StoreError(f"{self.path}: opened read-only")
         rows = [_row_of(t) for t in tiles]
@@ -282,6 +288,11 @@ class RoadMapDb:
                 " VALUES (?, ?, ?, ?, ?, ?, ?)",
                 events,
             )
+            if mapped_until is not None:
+                db.execute(
+                    "INSERT OR REPLACE INTO meta (key, value) VALUES ('mapped_until', ?)",
+                    (json.dumps({str(k): float(v) for k, v in sorted(mapped_until.items())}),),
+                )
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
@@ -292,7 +303,27 @@ class RoadMapDb:
     def load(self) -> RoadMap:
         """The whole map in memory (nothing dirty); unreadable or invalid tiles are skipped."""
         cur = self.db.execute(f"SELECT {_TILE_COLS} FROM tiles ORDER BY row, col")
-        return RoadMap(self.config, {t.key: t for t in self._valid(cur)})
+        return RoadMap(self.config, {t.key: t for t in self._valid(cur)}, self._mapped_until())
+
+    def _mapped_until(self) -> dict[str, float]:
+        """The vehicles' mapped-until times (absent in a map no pass was written to; a damaged
+        entry is dropped and counted: at worst that vehicle's old evidence could count again)."""
+        row = self.db.execute("SELECT value FROM meta WHERE key = 'mapped_until'").fetchone()
+        if row is None:
+            return {}
+        try:
+            raw = json.loads(row[0])
+            items = raw.items() if isinstance(raw, dict) else ()
+        except (TypeError, ValueError):
+            self.rejected["unreadable mapped_until"] += 1
+            return {}
+        out = {}
+        for k, v in items:
+            if isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v):
+                out[k] = float(v)
+            else:
+                self.rejected["bad mapped_until entry"] += 1
+        return out
 
     def _valid(self, rows: Iterable[tuple[Any, ...]]) -> list[TilePlane]:
         """The rows that parse into a tile fit to give a plane (TilePlane.problem); every other

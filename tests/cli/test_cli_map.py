@@ -1,0 +1,40 @@
+"""`coplane map build | show` as a user runs them, and a map used by `coplane eval --map`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from coplane.cli import app
+from coplane.sim.generate import simulate
+from coplane.store.roadmap_db import RoadMapDb
+
+runner = CliRunner()
+
+
+def test_build_twice_show_and_use(tmp_path: Path) -> None:
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=60, seed=12)
+    out = tmp_path / "map.sqlite"
+    r = runner.invoke(app, ["map", "build", str(rec), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    with RoadMapDb(out, readonly=True) as db:
+        first = db.load()
+    assert first.stats()["passes"] > 0 and set(first.mapped_until) == {"u1", "u2"}
+    # the same recording again is the same evidence: nothing is added, and the output says why
+    r = runner.invoke(app, ["map", "build", str(rec), "--out", str(out)])
+    assert r.exit_code == 0 and "already-mapped" in r.output, r.output
+    with RoadMapDb(out, readonly=True) as db:
+        again = db.load()
+    assert again.stats() == first.stats()
+    r = runner.invoke(app, ["map", "show", str(out), "--out", str(tmp_path / "show")])
+    assert r.exit_code == 0, r.output
+    fc = json.loads((tmp_path / "show" / "tiles.geojson").read_text())
+    assert fc["type"] == "FeatureCollection" and len(fc["features"]) == first.stats()["tiles"]
+    assert (tmp_path / "show" / "tiles.png").stat().st_size > 1000
+    r = runner.invoke(
+        app, ["eval", str(rec), "--methods", "pc-self-map", "--map", str(out), "--out", str(tmp_path / "ev")]
+    )
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "ev" / "accuracy.md").exists()
