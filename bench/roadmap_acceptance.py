@@ -64,6 +64,7 @@ SEEDS = {
 }
 USE_OFFSET_S = 45 * 60.0  # the evaluation run is 45 minutes after the build run
 RAISE = RoadRaise(s_start_m=400.0, s_end_m=700.0, dz_m=0.5)
+CHANGE_OFFSET_S = 3600.0  # the raised-road runs start an hour after the first sharpening run
 
 
 def simulate(out: Path, seed: int, duration_s: float, offset_s: float = 0.0, raises: tuple = ()) -> Recording:
@@ -310,14 +311,16 @@ def experiment_change(work: Path, seeds: dict, road_map: RoadMap, lines: list[st
     lines += [
         f"### 3. Change: the road between s = {RAISE.s_start_m:.0f} and {RAISE.s_end_m:.0f} m raised by {RAISE.dz_m} m",
         "",
-        "The map of experiment 2 is extended by runs over the raised road, one after another. Affected tiles: those where the run's true road points lie more than 0.25 m above the old road. Per run: the errors of `pc` and `pc-map` on the affected tiles (before the run is added to the map), then how many affected tiles the map has flagged as changed so far and the RMS of their height error at the true road points (after the run is added).",
+        "The map of experiment 2 is extended by runs over the raised road, one after another, starting an hour after the first sharpening run (a vehicle's evidence counts once, in time order). Affected tiles: those where the run's true road points lie more than 0.25 m above the old road. Per run: the errors of `pc` and `pc-map` on the affected tiles (before the run is added to the map), then how many affected tiles the map has flagged as changed so far and the RMS of their height error at the true road points (after the run is added).",
         "",
         "| run | pc V RMSE there (m) | pc-map V RMSE there (m) | pc-map H RMSE there / pc H (m) | affected tiles flagged | RMS tile error (m) |",
         "|---|---|---|---|---|---|",
     ]
     changes_before = {k: t.changes for k, t in road_map.tiles.items()}
     for k, seed in enumerate(seeds["change"]):
-        rec = simulate(work / f"change-{seed}", seed, 300.0, offset_s=600.0 * k + 300.0, raises=(RAISE,))
+        # after every sharpening run: a vehicle's evidence counts once, in time order (mapped_until)
+        offset = CHANGE_OFFSET_S + 600.0 * k
+        rec = simulate(work / f"change-{seed}-{offset:.0f}", seed, 300.0, offset_s=offset, raises=(RAISE,))
         points = truth_points([rec], cfg.tile_size_m)
         affected = {key for key, pts in points.items() if key in base and rise_at(base[key], pts) > 0.25}
 

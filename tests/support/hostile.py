@@ -759,13 +759,12 @@ def run_attack(
             log_dir,
             start_delay_s,
             # its own solution log: never a resume from another run's (same fleet, a reused port);
-            # the server waits for the fleet at least until the agents' shared start (realtime), so
+            # realtime: the server waits for the fleet at least until the agents' shared start, so
             # the attacker's early messages are never solved alone before the genuine ones come
             extra_fusion_args=[
                 "--db",
                 str(Path(db) / "fusion.sqlite"),
-                "--startup_wait_s",
-                str(max(10.0, start_delay_s + 5.0)),
+                *(["--startup_wait_s", str(max(10.0, start_delay_s + 5.0))] if pace == "realtime" else []),
             ],
         ) as hf,
         contextlib.closing(Watch(hf)) as watch,
