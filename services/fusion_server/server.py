@@ -32,6 +32,7 @@ from coplane.recording.manifest import load_manifest
 from coplane.replay import replay_setup
 from coplane.runtime import RateLimitedLog
 from coplane.steps import epoch_time, gps_time
+from coplane.store import map_path
 
 from .admission import Admission, AdmissionConfig
 from .durability import Durability
@@ -333,9 +334,10 @@ class FusionServer:
 
     def run(self) -> None:
         s = self.s
-        if s.map is not None:  # before the node: its tile publisher's cache is sized by the map
+        path = map_path(s.map, self.fleet)
+        if path is not None:  # before the node: its tile publisher's cache is sized by the map
             self.road_map = LiveRoadMap.open(
-                s.map, self.heights, s.map_commit_every_s, self.fleet, s.map_snapshot_every_s
+                path, self.heights, s.map_commit_every_s, self.fleet, s.map_snapshot_every_s
             )
         with self.node() as node:
             log.info(

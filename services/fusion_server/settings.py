@@ -38,9 +38,10 @@ class FusionSettings(ServiceSettings):
         description="Solution log (SQLite): auto = <state dir>/fusion-<fleet>-<method>-<router>.sqlite,"
         " none = off, or a path (docs/reliability/durability.md)",
     )
-    map: Path | None = Field(
-        default=None,
-        description="Road-surface map file (SQLite) this server extends from its solutions (one writer per file)",
+    map: str = Field(
+        default="auto",
+        description="Road-surface map (SQLite) this server extends from its solutions and shares on the bus:"
+        " auto = <state dir>/map-<fleet>.sqlite, none = off, or a path (one writer per file)",
     )
     map_commit_every_s: float = Field(
         default=10.0, gt=0.0, description="Road map: commit closed passes this often"

@@ -82,6 +82,9 @@ def test_no_map_is_404_and_a_broken_one_503_without_stopping_the_api(tmp_path: P
     with _app(None) as c:
         r = c.get("/map/tiles", params={"bbox": "114,22,114.1,22.1"})
         assert r.status_code == 404 and "--map" in r.text
+    with _app(tmp_path / "not-yet.sqlite") as c:  # the fusion server has not created it yet
+        r = c.get("/map/tiles", params={"bbox": "114,22,114.1,22.1"})
+        assert r.status_code == 404 and "does not exist yet" in r.text
     broken = tmp_path / "broken.sqlite"
     broken.write_bytes(b"not a database at all" * 100)
     with _app(broken) as c:

@@ -61,7 +61,9 @@ def test_fleet_reads_and_extends_the_map(tmp_path: Path) -> None:
     assert after.stats()["passes"] > passes_before  # the server learned from this run
 
 
-def test_a_map_method_without_a_map_is_a_config_error(tmp_path: Path) -> None:
+def test_a_map_method_with_the_map_turned_off_is_a_config_error(tmp_path: Path) -> None:
     rec_path = write_recording(run_simulation("urban-loop", 2, 5.0, 6), tmp_path / "u")
     with pytest.raises(ConfigError, match="--map"):
-        run_fleet(FleetOptions(recording=rec_path, method="pc-self-map", api=False, insecure=True))
+        run_fleet(
+            FleetOptions(recording=rec_path, method="pc-self-map", api=False, insecure=True, map=Path("none"))
+        )

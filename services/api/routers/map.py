@@ -53,6 +53,8 @@ def parse_bbox(text: str) -> tuple[float, float, float, float]:
 def _read(path: Path | None, what: Any) -> Any:
     if path is None:
         raise HTTPException(404, "no road map configured: start the API with --map FILE (COPLANE_API_MAP)")
+    if not path.exists():
+        raise HTTPException(404, f"road map {path} does not exist yet (the fusion server creates it)")
     try:
         with RoadMapDb(path, readonly=True) as db:
             return what(db)

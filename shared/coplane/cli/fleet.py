@@ -48,8 +48,9 @@ def fleet(
         Path | None,
         typer.Option(
             "--map",
-            help="Road-surface map (SQLite): the fusion server shares it with the agents on the bus (pc-map, "
-            "pc-self-map) and extends it with this run's solutions (created if missing).",
+            help="Road-surface map (SQLite) the fusion server extends with this run's solutions and shares with "
+            "the agents on the bus (pc-map, pc-self-map); default: the fleet's map in the state directory; "
+            "'none': no map.",
         ),
     ] = None,
     nmea_port: Annotated[

@@ -44,6 +44,7 @@ from coplane.methods import get_method
 from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import open_recording
 from coplane.replay import vehicle_schedule
+from coplane.store import map_path
 
 log = logging.getLogger("coplane.fleet")
 
@@ -69,7 +70,8 @@ class FleetOptions:
     interruption: float = 0.0
     insecure: bool = False
     certs: Path | None = None  # the certificates folder; default: default_certs_dir()
-    map: Path | None = None  # road-surface map: the agents read it, the fusion server extends it
+    map: Path | None = None  # road-surface map the fusion server extends and shares; None: the
+    # fleet's map in the state directory (store.map_path "auto"), Path("none"): no map
     nmea_port: int | None = None  # NMEA 0183 GGA + RMC per vehicle on this port and the next ones
 
 
@@ -138,15 +140,17 @@ def run_fleet(
     o = options
     if o.pace not in PACES:
         raise ConfigError(f"--pace must be lockstep or realtime, got {o.pace!r}")
-    if get_method(o.method).plane_map and o.map is None:
-        raise ConfigError(
-            f"method {o.method!r} takes its planes from a road-surface map: give one"
-            " (--map MAP; `coplane map build` makes it)"
-        )
+    method = get_method(o.method)
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
     fleet_name, vehicles = fleet_of(path)
+    road_map = map_path(o.map if o.map is not None else "auto", fleet_name)
+    if method.plane_map and road_map is None:
+        raise ConfigError(
+            f"method {o.method!r} takes its planes from a road-surface map: drop --map none, or give"
+            " one (--map MAP; `coplane map build` makes it)"
+        )
     interval = rec.manifest.interval_s
     n_epochs = len({t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), interval)})
     security = fleet_security(o, vehicles)
@@ -187,7 +191,7 @@ def run_fleet(
                 o.seed,
                 o.interruption,
                 start,
-                map_path=o.map.resolve() if o.map is not None else None,
+                map_path=road_map.resolve() if road_map is not None else None,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]

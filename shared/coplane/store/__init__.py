@@ -9,7 +9,7 @@ from coplane.store.log import (
     StoreError,
     Synchronous,
 )
-from coplane.store.paths import default_state_dir, log_path
+from coplane.store.paths import default_state_dir, log_path, map_path
 
 __all__ = [
     "APPLICATION_ID",
@@ -20,4 +20,5 @@ __all__ = [
     "Synchronous",
     "default_state_dir",
     "log_path",
+    "map_path",
 ]

@@ -34,3 +34,17 @@ def log_path(setting: str | None, *parts: str, connect: Sequence[str] = ()) -> P
         return Path(setting).expanduser()
     name = "-".join(_slug(p) for p in (*parts, *(connect[:1] or ["local"])))
     return default_state_dir() / f"{name}.sqlite"
+
+
+def map_path(setting: str | Path | None, fleet: str) -> Path | None:
+    """The road map a `map` setting names: None when disabled, the path as given, or for `auto`
+    `<state dir>/map-<fleet>.sqlite`. Unlike a solution log it is not per router: the map is about
+    the fleet's roads and keeps learning across runs (evidence counts once, docs/roadmap.md)."""
+    if setting is None:
+        return None
+    text = str(setting)
+    if text.strip().lower() in DISABLED:
+        return None
+    if text != "auto":
+        return Path(text).expanduser()
+    return default_state_dir() / f"map-{_slug(fleet)}.sqlite"
