@@ -13,6 +13,8 @@ from typing import Annotated
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry
 
+from coplane.store import map_path
+
 from .bus_client import Bus
 from .hub import StreamHub
 from .state import FleetState
@@ -44,8 +46,8 @@ def get_dashboard_html(request: Request) -> str:
 
 
 def get_map_path(request: Request) -> Path | None:
-    """The road map file the API serves (settings.map), or None."""
-    return request.app.state.settings.map  # type: ignore[no-any-return]
+    """The road map file the API serves (settings.map; auto: the fusion server's default), or None."""
+    return map_path(request.app.state.settings.map, request.app.state.fleet.fleet)
 
 
 StateDep = Annotated[FleetState, Depends(get_state)]

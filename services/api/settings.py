@@ -67,9 +67,10 @@ class ApiSettings(ServiceSettings):
         description="Accepted solutions log (SQLite), loaded on start: auto = <state dir>/api-<fleet>-<router>.sqlite,"
         " none = off, or a path (docs/reliability/durability.md)",
     )
-    map: Path | None = Field(
-        default=None,
-        description="Road-surface map file (SQLite, read-only) served by /map/tiles and /map/changes",
+    map: str | None = Field(
+        default="auto",
+        description="Road-surface map (SQLite, read-only) served by /map/tiles and /map/changes: auto = the"
+        " fusion server's <state dir>/map-<fleet>.sqlite, none = off, or a path",
     )
     access_log: bool = False
     log_level: str = "INFO"

@@ -29,7 +29,11 @@ def _tile(key: TileKey) -> TilePlane:
 
 def _app(map_path: Path | None) -> TestClient:
     fleet = SyntheticFleet(n_vehicles=1, n_epochs=1)
-    app = create_app(ApiSettings(fleet=FLEET, map=map_path), LocalBus(), state=fleet.state(clock_now=0.0))
+    app = create_app(
+        ApiSettings(fleet=FLEET, map=str(map_path) if map_path else None),
+        LocalBus(),
+        state=fleet.state(clock_now=0.0),
+    )
     return TestClient(app)
 
 
@@ -92,3 +96,19 @@ def test_no_map_is_404_and_a_broken_one_503_without_stopping_the_api(tmp_path: P
         assert r.status_code == 503 and "broken.sqlite" in r.text
         assert c.get("/map/changes").status_code == 503
         assert c.get("/healthz").status_code == 200  # the API goes on
+
+
+def test_auto_serves_the_fusion_servers_default_map(
+    map_file: tuple[Path, list[TileKey]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Default `auto`: the map the fusion server keeps in the shared state directory (compose)."""
+    state = tmp_path / "state"
+    state.mkdir()
+    monkeypatch.setenv("COPLANE_STATE_DIR", str(state))
+    (state / f"map-{FLEET}.sqlite").write_bytes(map_file[0].read_bytes())
+    fleet = SyntheticFleet(n_vehicles=1, n_epochs=1)
+    app = create_app(ApiSettings(fleet=FLEET), LocalBus(), state=fleet.state(clock_now=0.0))
+    d = 0.001
+    with TestClient(app) as c:
+        r = c.get("/map/tiles", params={"bbox": f"{LON - d},{LAT - d},{LON + d},{LAT + d}"})
+        assert r.status_code == 200 and len(r.json()["features"]) == len(map_file[1])

@@ -178,7 +178,9 @@ def filled_app(  # type: ignore[no-untyped-def]
     st.on_alive("fusion", "0", True)
     for vid in fleet.ids[:-1]:
         st.on_alive("agent", vid, True)
-    app = create_app(ApiSettings(fleet=FLEET, map=map_path), bus or LocalBus(), state=st)
+    app = create_app(
+        ApiSettings(fleet=FLEET, map=str(map_path) if map_path else None), bus or LocalBus(), state=st
+    )
     ev = st.stream_event(sol, now) if sol is not None else None
     if ev is not None:
         app.state.hub.publish(ev)  # as Ingest would have: a new /stream client gets it first
