@@ -219,11 +219,26 @@ class VehicleAgent:
                 self.published += 1
                 if s.pace == "lockstep":
                     self._wait_for_solution(t, node, key, payload)
+            if s.pace == "realtime" and self.published and not self.stop.is_set():
+                self._await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
             log.info(
                 "agent finished",
                 extra={"vehicle": self.step.vehicle_id, "published": self.published, "skipped": self.skipped},
             )
             return self.published
+
+    def _await_last_solution(self, node: BusNode, t_last: GpsTime, timeout_s: float) -> None:
+        """Realtime end: stay on the bus until the last epoch's solution arrives (or `timeout_s`).
+        Closing the session right after the last put could drop that message in the transport
+        before it left (seen in CI: a vehicle's last epoch missing at the server)."""
+        deadline = time.monotonic() + timeout_s
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            ev = node.get(timeout=0.05)
+            if ev is None:
+                continue
+            sol = self._ingest_one(ev)
+            if sol is not None and not (gps_time(sol.epoch) < t_last):
+                return
 
     def _wait_for_solution(self, t: GpsTime, node: BusNode, key: str, payload: bytes) -> None:
         last_send = time.monotonic()
