@@ -34,6 +34,7 @@ from coplane.replay import fleet_id
 from .bus_client import Bus, Ingest, ZenohBus
 from .history import check_history, open_history
 from .hub import StreamHub
+from .map_reader import MapReader
 from .models import GeoJsonFeatureCollection, Problem, StreamEvent
 from .routers import accuracy, dashboard, health, metrics, planes, stream, vehicles
 from .routers import map as road_map
@@ -163,6 +164,7 @@ def create_app(
     hub = StreamHub(settings.stream_max_clients, settings.stream_queue)
     ingest = Ingest(state, hub, settings.max_pending, clock)
     the_bus: Bus = bus if bus is not None else ZenohBus(fleet, settings.connect, settings.lease_ms)
+    map_reader = MapReader()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -180,6 +182,7 @@ def create_app(
             await asyncio.to_thread(the_bus.close)
             if history is not None:
                 history.close()
+            await asyncio.to_thread(map_reader.close)
             log.info("api stopped", extra={"solutions": state.solutions})
 
     app = FastAPI(
@@ -194,7 +197,9 @@ def create_app(
     app.state.ingest = ingest
     app.state.bus = the_bus
     app.state.clock = clock
+    app.state.map_reader = map_reader
     app.state.registry = metrics.make_registry(metrics.FleetCollector(state, ingest, hub, the_bus, clock))
+    app.state.registry.register(map_reader)
     app.state.dashboard_html = dashboard.load_dashboard()
     for r in (vehicles, planes, accuracy, stream, health, metrics, dashboard, road_map):
         app.include_router(r.router)

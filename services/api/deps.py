@@ -17,6 +17,7 @@ from coplane.store import map_path
 
 from .bus_client import Bus
 from .hub import StreamHub
+from .map_reader import MapReader
 from .state import FleetState
 
 
@@ -50,6 +51,10 @@ def get_map_path(request: Request) -> Path | None:
     return map_path(request.app.state.settings.map, request.app.state.fleet.fleet)
 
 
+def get_map_reader(request: Request) -> MapReader:
+    return request.app.state.map_reader  # type: ignore[no-any-return]
+
+
 StateDep = Annotated[FleetState, Depends(get_state)]
 HubDep = Annotated[StreamHub, Depends(get_hub)]
 BusDep = Annotated[Bus, Depends(get_bus)]
@@ -57,3 +62,4 @@ NowDep = Annotated[float, Depends(get_now)]
 RegistryDep = Annotated[CollectorRegistry, Depends(get_registry)]
 DashboardHtmlDep = Annotated[str, Depends(get_dashboard_html)]
 MapPathDep = Annotated[Path | None, Depends(get_map_path)]
+MapReaderDep = Annotated[MapReader, Depends(get_map_reader)]

@@ -112,3 +112,98 @@ def test_auto_serves_the_fusion_servers_default_map(
     with TestClient(app) as c:
         r = c.get("/map/tiles", params={"bbox": f"{LON - d},{LAT - d},{LON + d},{LAT + d}"})
         assert r.status_code == 200 and len(r.json()["features"]) == len(map_file[1])
+
+
+def _box(d: float = 0.001) -> str:
+    return f"{LON - d},{LAT - d},{LON + d},{LAT + d}"
+
+
+def test_features_are_the_tiles_inside_with_their_numbers(map_file: tuple[Path, list[TileKey]]) -> None:
+    path, keys = map_file
+    with _app(path) as c:
+        fc = c.get("/map/tiles", params={"bbox": _box()}).json()
+        assert {f["id"] for f in fc["features"]} == {str(k) for k in keys}  # not the far tile
+        for f in fc["features"]:
+            p = f["properties"]
+            assert p["tile"] == f["id"] and p["n_passes"] == 4 and p["version"] == 4 and p["changes"] == 0
+            assert p["sigma_m"] > 0 and isinstance(p["usable"], bool) and math.isfinite(p["height_m"])
+            ring = f["geometry"]["coordinates"][0]
+            assert all(len(pt) == 2 and abs(pt[0] - LON) < 0.01 and abs(pt[1] - LAT) < 0.01 for pt in ring)
+        # a box beside the mapped tiles: an empty collection, not an error
+        far = c.get("/map/tiles", params={"bbox": f"{LON + 0.1},{LAT},{LON + 0.2},{LAT + 0.1}"}).json()
+        assert far == {"type": "FeatureCollection", "features": []}
+
+
+def test_boxes_the_grid_cannot_answer_are_422(
+    map_file: tuple[Path, list[TileKey]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from coplane.api.routers import map as road_map
+
+    with _app(map_file[0]) as c:
+        r = c.get("/map/tiles", params={"bbox": "10,85.5,10.1,85.6"})  # beyond the grid: not a 500
+        assert r.status_code == 422 and "85" in r.json()["detail"]
+        monkeypatch.setattr(road_map, "MAX_TILES", 4)
+        r = c.get("/map/tiles", params={"bbox": _box()})
+        assert r.status_code == 422 and "more than 4 stored tiles" in r.json()["detail"]
+        monkeypatch.setattr(road_map, "MAX_ROWS", 2)
+        r = c.get("/map/tiles", params={"bbox": _box()})
+        assert r.status_code == 422 and "grid rows" in r.json()["detail"]
+        r = c.get("/map/changes", params={"limit": 0})
+        assert r.status_code == 422
+        assert c.get("/map/changes", params={"limit": 1001}).status_code == 422
+
+
+def test_reads_follow_a_concurrent_writer_without_blocking_it(map_file: tuple[Path, list[TileKey]]) -> None:
+    """The map stays open for reading while the fusion server writes (WAL): new tiles show up on
+    the next request, and a read during the writer's open transaction neither waits nor fails."""
+    path, keys = map_file
+    extra = TileKey(keys[0].row - 1, keys[0].col)  # just south of the 3 x 3 block, inside the box
+    with _app(path) as c, RoadMapDb(path) as writer:
+        assert len(c.get("/map/tiles", params={"bbox": _box()}).json()["features"]) == len(keys)
+        writer.write([_tile(extra)], [ChangeEvent(extra, 1.5e9, 12.0, 12.6, 2)])
+        fc = c.get("/map/tiles", params={"bbox": _box()}).json()
+        assert str(extra) in {f["id"] for f in fc["features"]}
+        assert c.get("/map/changes", params={"limit": 1}).json()["changes"][0]["tile"] == str(extra)
+        writer.db.execute("BEGIN IMMEDIATE")  # the writer is in the middle of a batch
+        writer.db.execute("DELETE FROM tiles")
+        fc = c.get("/map/tiles", params={"bbox": _box()}).json()  # the last committed state
+        assert len(fc["features"]) == len(keys) + 1
+        writer.db.execute("ROLLBACK")
+        writer.write([_tile(TileKey(extra.row - 1, extra.col))])  # and it can still commit
+        metrics = c.get("/metrics").text
+        assert 'coplane_api_map_requests_total{path="/map/tiles",status="200"} 3.0' in metrics
+        assert "coplane_api_map_opens_total 1.0" in metrics  # one connection, kept
+
+
+def test_a_replaced_or_broken_file_is_noticed_and_the_api_recovers(
+    map_file: tuple[Path, list[TileKey]], tmp_path: Path
+) -> None:
+    path, keys = map_file
+    served = tmp_path / "served.sqlite"
+    served.write_bytes(path.read_bytes())
+    with _app(served) as c:
+        assert len(c.get("/map/tiles", params={"bbox": _box()}).json()["features"]) == len(keys)
+        # replaced (a rebuilt map moved into place): the new file is served, not the old inode
+        fresh = tmp_path / "fresh.sqlite"
+        with RoadMapDb(fresh) as db:
+            db.write([_tile(keys[4])])
+        fresh.replace(served)
+        fc = c.get("/map/tiles", params={"bbox": _box()}).json()
+        assert [f["id"] for f in fc["features"]] == [str(keys[4])]
+        # replaced by garbage: 503 naming the file, every other endpoint goes on
+        junk = tmp_path / "junk"
+        junk.write_bytes(b"\x00garbage" * 4096)
+        junk.replace(served)
+        r = c.get("/map/tiles", params={"bbox": _box()})
+        assert r.status_code == 503 and "served.sqlite" in r.json()["detail"]
+        assert c.get("/map/changes").status_code == 503
+        assert c.get("/vehicles").status_code == 200 and c.get("/healthz").status_code == 200
+        # removed: "not there yet" again; a good map put back: served again
+        served.unlink()
+        assert c.get("/map/tiles", params={"bbox": _box()}).status_code == 404
+        served.write_bytes(path.read_bytes())
+        assert len(c.get("/map/tiles", params={"bbox": _box()}).json()["features"]) == len(keys)
+        metrics = c.get("/metrics").text
+        assert 'coplane_api_map_requests_total{path="/map/tiles",status="503"} 1.0' in metrics
+        assert 'coplane_api_map_requests_total{path="/map/changes",status="503"} 1.0' in metrics
+        assert 'coplane_api_map_requests_total{path="/map/tiles",status="404"} 1.0' in metrics

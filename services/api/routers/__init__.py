@@ -12,6 +12,6 @@ def problems(*codes: int) -> dict[int | str, dict[str, Any]]:
     text = {
         404: "Not found (an unknown vehicle, no road map configured)",
         422: "Invalid parameters",
-        503: "Unavailable (too many clients or shutting down)",
+        503: "Unavailable (too many clients, shutting down, the road map file unreadable)",
     }
     return {c: {"model": Problem, "description": text.get(c, "Error")} for c in codes}
