@@ -189,3 +189,79 @@ def test_a_tile_without_a_sound_plane_never_reaches_the_graph(road: Road) -> Non
     assert m.plane_at(antenna, ANT) is None and m.rejected["tile without a plane"] == 1
     m.tiles[plane.key] = dataclasses.replace(tile, eta=np.array([np.nan, 0.0, 0.0]), version=tile.version + 2)
     assert m.plane_at(antenna, ANT) is None and sum(m.rejected.values()) == 2
+
+
+def test_plane_at_refuses_singular_and_not_positive_definite_information(road: Road) -> None:
+    """Information that is singular with the slope prior, or invertible but not positive definite
+    (how a negative sigma looks in information form), gives no plane; the sound tile again does."""
+    m = built(road)
+    antenna = road.antenna_ecef(3.0, 1.0, ANT)
+    plane = m.plane_at(antenna, ANT)
+    assert plane is not None
+    tile = m.tiles[plane.key]
+    p = 1.0 / CFG.slope_prior_sigma**2
+    singular = np.diag([1.0, -p, 0.0])  # info + prior = diag(1, 0, p)
+    m.tiles[plane.key] = dataclasses.replace(tile, info=singular, version=tile.version + 1)
+    assert m.plane_at(antenna, ANT) is None
+    assert m.rejected == {"tile without a plane": 1}
+    # invertible, every sigma at the vehicle looks fine, yet one direction has negative variance
+    not_pd = np.diag([1.0, -2.0 * p, 0.0])
+    m.tiles[plane.key] = dataclasses.replace(tile, info=not_pd, version=tile.version + 2)
+    assert tile.problem(CFG) is None and m.tiles[plane.key].problem(CFG) is not None
+    assert m.plane_at(antenna, ANT) is None
+    assert m.rejected["information matrix not positive definite"] == 1
+    m.tiles[plane.key] = tile
+    again = m.plane_at(antenna, ANT)
+    assert again is not None and again.d_road == plane.d_road and sum(m.rejected.values()) == 2
+
+
+@pytest.mark.parametrize(
+    ("patch", "reason"),
+    [
+        ("double normal", "normal not a unit vector"),
+        ("downward normal", "normal not upward"),
+        ("nan d_road", "non-finite plane"),
+        ("negative sigma", "sigma not a positive number"),
+        ("zero sigma", "sigma not a positive number"),
+        ("nan sigma", "sigma not a positive number"),
+    ],
+)
+def test_plane_at_refuses_an_unsound_plane(
+    road: Road, monkeypatch: pytest.MonkeyPatch, patch: str, reason: str
+) -> None:
+    """Whatever the tile's numbers, a plane that is not unit, upward, finite with a positive sigma
+    never reaches the graph: None, counted by reason."""
+    m = built(road)
+    antenna = road.antenna_ecef(3.0, 1.0, ANT)
+    assert m.plane_at(antenna, ANT) is not None
+    plane_ecef, sigma_at = TilePlane.plane_ecef, TilePlane.sigma_at_ecef
+
+    def bad_plane(self: TilePlane, config: RoadMapConfig) -> tuple[np.ndarray, float]:
+        n, d = plane_ecef(self, config)
+        if patch == "double normal":
+            return 2.0 * n, d
+        if patch == "downward normal":
+            return -n, -d
+        return n, (math.nan if patch == "nan d_road" else d)
+
+    def bad_sigma(self: TilePlane, p: object, config: RoadMapConfig) -> float:
+        s = sigma_at(self, p, config)  # type: ignore[arg-type]
+        return {"negative sigma": -s, "zero sigma": 0.0, "nan sigma": math.nan}.get(patch, s)
+
+    monkeypatch.setattr(TilePlane, "plane_ecef", bad_plane)
+    monkeypatch.setattr(TilePlane, "sigma_at_ecef", bad_sigma)
+    fresh = RoadMap(CFG, m.tiles)  # no cached plane
+    assert fresh.plane_at(antenna, ANT) is None
+    assert fresh.rejected == {reason: 1}
+
+
+def test_geojson_of_a_tile_without_a_sound_plane_has_null_numbers(road: Road) -> None:
+    """A viewer (map show, the API) shows a damaged tile without its numbers instead of failing."""
+    m = built(road)
+    key, tile = next(iter(m.tiles.items()))
+    p = 1.0 / CFG.slope_prior_sigma**2
+    bad = dataclasses.replace(tile, info=np.diag([1.0, -p, 0.0]))
+    fc = tiles_geojson([bad], CFG)
+    props = fc["features"][0]["properties"]
+    assert props["tile"] == str(key) and props["height_m"] is None and props["sigma_m"] is None
+    json.dumps(fc, allow_nan=False)

@@ -17,7 +17,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coplane.roadmap import ChangeEvent, PassEvidence, RoadMap, RoadMapConfig, TileKey, TilePlane, tile_centre
+from coplane.roadmap import (
+    ChangeEvent,
+    PassEvidence,
+    RoadMap,
+    RoadMapConfig,
+    TileKey,
+    TilePlane,
+    tile_centre,
+    tile_corners_lonlat,
+)
 from coplane.store import SolutionLog, StoreError
 from coplane.store.roadmap_db import SCHEMA_VERSION, RoadMapDb
 
@@ -247,15 +256,44 @@ def test_a_closed_map_is_one_file_that_can_be_copied(tmp_path: Path) -> None:
     ("sql", "reason"),
     [
         ("UPDATE tiles SET h0_m = 1e6", "height out of range"),
+        # SQLite stores a NaN REAL as NULL (refused: NOT NULL); as text it gets in
+        ("UPDATE tiles SET h0_m = 'NaN'", "height out of range"),
         ("UPDATE tiles SET i11 = -1e6", "information matrix not positive definite"),
+        ("UPDATE tiles SET i00 = -0.5", "information matrix not positive definite"),
+        ("UPDATE tiles SET i01 = i00 * 1e3", "information matrix not positive definite"),
+        ("UPDATE tiles SET i22 = 9e999", "non-finite information"),
         ("UPDATE tiles SET eta0 = 'x'", "unreadable row"),
         ("UPDATE tiles SET n_passes = -3", "negative count"),
+        ("UPDATE tiles SET cusum_neg_n = -1", "negative count"),
+        ("UPDATE tiles SET n_passes = 9e999", "unreadable row (OverflowError)"),
+        ("UPDATE tiles SET updated_s = 'NaN'", "time not finite"),
+        ("UPDATE tiles SET cusum_pos = -9e999", "change detector state invalid"),
+        ("UPDATE tiles SET row = 1000000000", "tile key outside the grid"),
         ("UPDATE tiles SET recent = '[{\"t\": 1}]'", "unreadable row"),
+        ("UPDATE tiles SET recent = 'garbage, not JSON'", "unreadable row"),
+        ("UPDATE tiles SET recent = x'00ff10'", "unreadable row"),
+        ("UPDATE tiles SET recent = '{\"a\": 1}'", "unreadable row"),
+        (
+            "UPDATE tiles SET recent = '" + "[" * 100_000 + "]" * 100_000 + "'",
+            "unreadable row (RecursionError)",
+        ),
+        # a pass summary's fields: too many numbers, an infinite count, NaN where JSON allows it
+        ("UPDATE tiles SET recent = replace(recent, '\"info\": [', '\"info\": [1.0, ')", "unreadable row"),
+        ('UPDATE tiles SET recent = replace(recent, \'"n": \', \'"n": 1e999, "x": \')', "unreadable row"),
+        ("UPDATE tiles SET recent = replace(recent, '\"eta\": [', '\"eta\": [NaN, ')", "invalid recent pass"),
+        (
+            'UPDATE tiles SET recent = replace(recent, \'"info": [\', \'"info": [NaN, 0, 0, 0, 0, 0], "x": [\')',
+            "invalid recent pass",
+        ),
+        (
+            'UPDATE tiles SET recent = replace(recent, \'"info": [\', \'"info": [-1, 0, 0, 0, 0, 0], "x": [\')',
+            "invalid recent pass",
+        ),
+        ('UPDATE tiles SET recent = replace(recent, \'"t": \', \'"t": NaN, "x": \')', "invalid recent pass"),
     ],
 )
 def test_damaged_rows_are_skipped_counted_and_the_rest_kept(tmp_path: Path, sql: str, reason: str) -> None:
     """A tampered or bit-rotted row costs itself: the other tiles load bit for bit."""
-    import sqlite3
 
     m, changes = synthetic_map()
     path = tmp_path / "map.sqlite"
@@ -272,6 +310,46 @@ def test_damaged_rows_are_skipped_counted_and_the_rest_kept(tmp_path: Path, sql:
             same_tile(m.tiles[k], loaded.tiles[k])
         assert sum(n for why, n in db.rejected.items() if why.startswith(reason)) == 1, db.rejected
         assert db.load_keys([BASE]) == {}
+
+
+def test_damaged_rows_are_logged_once_per_reason_naming_tile_and_file(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Every read path (load, load_keys, tiles_in_bbox) skips and counts the same bad rows; the log
+    names the file and the tile once per reason, not once per row; the good tiles come back whole."""
+    m, changes = synthetic_map()
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write(m.take_dirty(), changes)
+    keys = sorted(m.tiles)
+    nan_h0, bad_recent = keys[:2], keys[2]
+    con = sqlite3.connect(path)
+    for k in nan_h0:
+        con.execute("UPDATE tiles SET h0_m = 'NaN' WHERE row = ? AND col = ?", (k.row, k.col))
+    con.execute(
+        "UPDATE tiles SET recent = '[1, 2' WHERE row = ? AND col = ?", (bad_recent.row, bad_recent.col)
+    )
+    con.commit()
+    con.close()
+    good = set(keys) - {*nan_h0, bad_recent}
+    with caplog.at_level("WARNING", logger="coplane.store.roadmap_db"), RoadMapDb(path, readonly=True) as db:
+        loaded = db.load()
+        assert set(loaded.tiles) == good
+        assert db.rejected == {"height out of range": 2, "unreadable row (JSONDecodeError)": 1}
+        got = db.load_keys(keys)
+        lon, lat = zip(*(xy for k in keys for xy in tile_corners_lonlat(k, CFG.tile_size_m)), strict=True)
+        boxed = db.tiles_in_bbox(min(lon), min(lat), max(lon), max(lat))
+        assert set(got) == good and {t.key for t in boxed} == good
+        for t in [*got.values(), *boxed]:
+            same_tile(m.tiles[t.key], t)
+        assert db.rejected == {"height out of range": 6, "unreadable row (JSONDecodeError)": 3}
+    records = [r for r in caplog.records if r.name == "coplane.store.roadmap_db"]
+    assert len(records) == 2, [r.getMessage() for r in records]
+    by_reason = {r.reason: r for r in records}  # type: ignore[attr-defined]
+    first = by_reason["height out of range"]
+    assert str(path) in first.getMessage() and str(nan_h0[0]) in first.getMessage()
+    assert first.tile == str(nan_h0[0]) and first.path == str(path)  # type: ignore[attr-defined]
+    assert str(bad_recent) in by_reason["unreadable row (JSONDecodeError)"].getMessage()
 
 
 def test_mapped_until_is_stored_with_the_batch(tmp_path: Path) -> None:

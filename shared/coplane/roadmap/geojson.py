@@ -20,14 +20,20 @@ def _num(x: float) -> float | None:
 
 
 def tile_feature(tile: TilePlane, config: RoadMapConfig) -> dict[str, Any]:
-    """One tile as a Feature; its plane's numbers are None while it has no offset information."""
+    """One tile as a Feature; its plane's numbers are None while it has no offset information, or
+    when its information gives no plane (a damaged tile: a viewer must not fail on it)."""
     height = sigma = grade_e = grade_n = slope_sigma = None
     if tile.info[0, 0] > 0.0:
-        theta, cov = tile.estimate(config)
-        h, s = tile.height_at(0.0, 0.0, config)
-        height, sigma = _num(h), _num(s)
-        grade_e, grade_n = _num(theta[1]), _num(theta[2])
-        slope_sigma = _num(math.sqrt(max(float(np.linalg.eigvalsh(cov[1:, 1:])[-1]), 0.0)))
+        try:
+            theta, cov = tile.estimate(config)
+            h, s = tile.height_at(0.0, 0.0, config)
+            slope_var = float(np.linalg.eigvalsh(cov[1:, 1:])[-1])
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            pass
+        else:
+            height, sigma = _num(h), _num(s)
+            grade_e, grade_n = _num(theta[1]), _num(theta[2])
+            slope_sigma = _num(math.sqrt(max(slope_var, 0.0)))
     ring = [[lon, lat] for lon, lat in tile_corners_lonlat(tile.key, config.tile_size_m)]
     return {
         "type": "Feature",

@@ -104,21 +104,24 @@ class RoadMap:
     def plane_at(self, antenna_ecef: ArrayLike, antenna_height_m: float) -> MapPlane | None:
         """The plane of the tile under an antenna, if the tile is usable and its height sigma at the
         vehicle is at most `max_use_sigma_m`; None otherwise. A tile whose numbers do not give a
-        sound plane (singular information, a non-unit or downward normal, a sigma that is not a
-        positive number) gives None too, counted in `rejected`: it never reaches the graph."""
+        sound plane (singular or not positive definite information, a non-finite, non-unit or
+        downward normal, a sigma that is not a positive number) gives None too, counted in `rejected`: it never reaches the graph."""
         cfg = self.config
         road = project_to_road(antenna_ecef, antenna_height_m)
         tile = self.tile_at(road)
         if tile is None or not tile.usable(cfg):
             return None
         try:
-            sigma = tile.sigma_at_ecef(road, cfg)
-            if not sigma <= cfg.max_use_sigma_m:
-                return None
             version, normal, d_road, offset_sigma, tilt_sigma = self._plane(tile)
-        except (ValueError, np.linalg.LinAlgError):
+            sigma = tile.sigma_at_ecef(road, cfg)
+        except _NotPositiveDefinite:
+            self.rejected["information matrix not positive definite"] += 1
+            return None
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # e.g. singular information
             self.rejected["tile without a plane"] += 1
             return None
+        if math.isfinite(sigma) and sigma > cfg.max_use_sigma_m:
+            return None  # a sound tile, too uncertain here
         why = _plane_problem(normal, d_road, (sigma, offset_sigma, tilt_sigma), road)
         if why is not None:
             self.rejected[why] += 1
@@ -155,10 +158,17 @@ class RoadMap:
         normal, d_road = tile.plane_ecef(self.config)
         normal.flags.writeable = False
         _, cov = tile.estimate(self.config)
+        if not np.isfinite(cov).all() or not float(np.linalg.eigvalsh(cov)[0]) > 0.0:
+            # (info + prior)^-1 exists but is no covariance: every sigma from it would be a lie
+            raise _NotPositiveDefinite(f"tile {tile.key}")
         slope_var = float(np.linalg.eigvalsh(cov[1:, 1:])[-1])
         out = (tile.version, normal, d_road, math.sqrt(float(cov[0, 0])), math.atan(math.sqrt(slope_var)))
         self._planes[tile.key] = (tile, out)
         return out
+
+
+class _NotPositiveDefinite(ValueError):
+    """A tile's information (with the slope prior) is not positive definite."""
 
 
 def _plane_problem(normal: Vec, d_road: float, sigmas: tuple[float, ...], road: ArrayLike) -> str | None:

@@ -123,6 +123,8 @@ class TilePlane:
         """What makes this tile unfit to give a plane, as stored or received (a tampered file, a
         bit flip, a forged message), or None. The map file and the bus both check with it, so a
         bad tile is skipped and counted there and never reaches the factor graph."""
+        if not _in_grid(self.key, config.tile_size_m):
+            return "tile key outside the grid"
         if not (math.isfinite(self.h0_m) and -1000.0 <= self.h0_m <= 10000.0):
             return "height out of range"
         if np.shape(self.info) != (3, 3) or np.shape(self.eta) != (3,):
@@ -131,9 +133,18 @@ class TilePlane:
             return "non-finite information"
         if not np.array_equal(self.info, self.info.T):
             return "information matrix not symmetric"
-        if min(self.n_passes, self.n_points, self.outlier_passes, self.changes, self.version) < 0:
+        counts = (self.n_passes, self.n_points, self.outlier_passes, self.changes, self.version)
+        if min(*counts, self.cusum_pos_n, self.cusum_neg_n) < 0:
             return "negative count"
-        if self.n_passes > 0:
+        if not math.isfinite(self.updated_s):
+            return "time not finite"
+        # NaN here would silently switch change detection off; a negative CUSUM cannot happen
+        if not all(math.isfinite(x) and x >= 0.0 for x in (self.cusum_pos, self.cusum_neg)):
+            return "change detector state invalid"
+        # a change re-learns the tile from these, so a bad one would poison the tile later
+        if any(_summary_problem(p) for p in self.recent):
+            return "invalid recent pass"
+        if self.n_passes > 0 or np.any(self.info):
             p = 1.0 / config.slope_prior_sigma**2
             try:
                 np.linalg.cholesky(self.info + np.diag([0.0, p, p]))
@@ -267,6 +278,29 @@ class TilePlane:
         self.info, self.eta = info, eta
         self.n_passes = len(passes)
         self.n_points = sum(p.n_points for p in passes)
+
+
+def _in_grid(key: TileKey, size_m: float) -> bool:
+    """Whether a key names a tile of the grid (|lat| <= 85 deg, longitude in [-180, 180) deg):
+    anything else cannot come from `tile_of_geodetic` and has no frame or outline."""
+    try:
+        _, lon = tile_centre(key, size_m)
+    except (ValueError, OverflowError):
+        return False
+    return -math.pi <= lon < math.pi
+
+
+def _summary_problem(p: PassSummary) -> bool:
+    """Whether a stored pass summary is unfit to re-learn from: its information must be finite,
+    symmetric, of non-negative diagonal (a pass's information is positive semi-definite)."""
+    info, eta = np.asarray(p.info), np.asarray(p.eta)
+    if info.shape != (3, 3) or eta.shape != (3,):
+        return True
+    if not (np.isfinite(info).all() and np.isfinite(eta).all() and np.array_equal(info, info.T)):
+        return True
+    if (np.diag(info) < 0.0).any() or p.n_points < 0 or not math.isfinite(p.time_s):
+        return True
+    return math.isinf(p.z)  # nan: the tile's first pass
 
 
 def _after_change_point(run: list[PassSummary]) -> list[PassSummary]:

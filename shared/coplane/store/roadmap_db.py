@@ -334,16 +334,20 @@ class RoadMapDb:
             try:
                 tile = _tile_of(r)
                 why = tile.problem(self.config)
-            except (TypeError, ValueError, KeyError, IndexError) as exc:  # a garbled row
+            # a garbled row: text for a number, an infinite count, JSON nested too deep, ...
+            except (TypeError, ValueError, KeyError, IndexError, ArithmeticError, RecursionError) as exc:
                 why = f"unreadable row ({type(exc).__name__})"
             if why is None:
                 out.append(tile)
                 continue
             if not self.rejected[why]:
+                where = f"r{r[0]}c{r[1]}" if len(r) > 1 else "?"
                 log.warning(
-                    "road map tile skipped: %s",
+                    "%s: road map tile %s skipped: %s (further tiles skipped for this reason are only counted)",
+                    self.path,
+                    where,
                     why,
-                    extra={"path": str(self.path), "tile": f"r{r[0]}c{r[1]}"},
+                    extra={"path": str(self.path), "tile": where, "reason": why},
                 )
             self.rejected[why] += 1
         return out
