@@ -100,6 +100,9 @@ class SppReport(_Model):
     pdop: float | None = Field(default=None, ge=0.0, le=1e6)
     hdop: float | None = Field(default=None, ge=0.0, le=1e6)
     vdop: float | None = Field(default=None, ge=0.0, le=1e6)
+    dgnss_age_s: float | None = Field(
+        default=None, ge=-60.0, le=3600.0, description="receiver time minus the base epoch used (None: no DGNSS)"
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> SppReport:
@@ -227,6 +230,7 @@ class VehicleState(_Model):
     has_gnss_fix: bool
     n_satellites: int = Field(default=0, ge=0)
     spp_ok: bool = False
+    dgnss_age_s: float | None = None  # age of the base corrections this epoch's SPP used
 
 
 class SolutionMessage(_Model):

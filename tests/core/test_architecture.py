@@ -42,6 +42,7 @@ LAYERS: dict[str, int] = {
     # shells
     "runtime": 12,
     "store": 12,  # the solution log (SQLite) the services and the fleet collector keep
+    "live": 12,  # live receiver streams, NTRIP and UWB input (transports and stream decoding)
     "bus": 13,
     "fleet": 14,
     "vehicle_agent": 15,

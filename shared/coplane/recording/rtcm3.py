@@ -55,7 +55,7 @@ from pyrtcm.rtcmtables import BEIDOU_SIG_MAP, GPS_SIG_MAP
 
 from coplane.gtime import GpsTime, bdt_to_gpst, gpst_to_bdt
 from coplane.recording.broadcast import nearest_week, resolve_week, today
-from coplane.recording.frames import Frame, rtcm_frames
+from coplane.recording.frames import Frame, Skipped, rtcm_frames
 from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import (
@@ -265,16 +265,21 @@ def _raw(msg: Any, name: str, df: str) -> int:
 
 
 @dataclass
-class _Msm:
+class Msm:
+    """One MSM message of an epoch: where it was, its system and GPST time tag."""
+
     offset: int
     sys: str
     tow_ms: int  # GPST milliseconds of week
     msg: Any
 
 
-class _Reader:
+class RtcmReader:
+    """RTCM 3 frames -> MSM observation sets and ephemeris messages, one frame at a time (the
+    file reader and live streams / NTRIP)."""
+
     def __init__(
-        self, path: Path, problems: Problems, signals: Mapping[str, SignalCodes], systems: Sequence[str]
+        self, path: str | Path, problems: Problems, signals: Mapping[str, SignalCodes], systems: Sequence[str]
     ) -> None:
         self.path = path
         self.problems = problems
@@ -284,34 +289,44 @@ class _Reader:
     def _p(self, offset: int, kind: str, reason: str) -> None:
         self.problems.add(self.path, None, kind, reason, offset=offset)
 
-    def parse(self, data: bytes) -> tuple[list[_Msm], list[tuple[int, Any]]]:
-        msms: list[_Msm] = []
+    def take(self, item: Frame | Skipped) -> Msm | tuple[int, Any] | None:
+        """An MSM of a wanted system, an (offset, message) of 1019/1042/1005/1006, or None (other
+        messages, and bad ones, which are counted)."""
+        if not isinstance(item, Frame):
+            if not item.ascii:
+                self._p(item.offset, "garbled-frame", f"{item.length} byte(s) skipped: {item.reason}")
+            return None
+        try:
+            msg = RTCMReader.parse(item.raw)
+            ident = msg.identity
+        except Exception as exc:  # pyrtcm raises its own types and IndexError/ValueError
+            self._p(item.offset, "malformed-frame", f"RTCM frame does not decode: {exc}")
+            return None
+        sys = _SYSTEM_OF.get(ident[:3])
+        if ident in ("1019", "1042", "1005", "1006"):
+            return (item.offset, msg)
+        if sys in self.codes and ident[3:] in ("4", "7"):
+            ms = int(msg.DF004) if sys == "G" else int(msg.DF427) + _BDT_LAG_MS
+            if not 0 <= int(msg.DF004 if sys == "G" else msg.DF427) < _WEEK_MS:
+                self._p(item.offset, "malformed-epoch", f"MSM {ident} epoch time {ms} ms: skipped")
+                return None
+            return Msm(item.offset, sys, ms % _WEEK_MS, msg)
+        return None
+
+    def parse(self, data: bytes) -> tuple[list[Msm], list[tuple[int, Any]]]:
+        msms: list[Msm] = []
         ephs: list[tuple[int, Any]] = []
         for item in rtcm_frames(data):
-            if not isinstance(item, Frame):
-                if not item.ascii:
-                    self._p(item.offset, "garbled-frame", f"{item.length} byte(s) skipped: {item.reason}")
-                continue
-            try:
-                msg = RTCMReader.parse(item.raw)
-                ident = msg.identity
-            except Exception as exc:  # pyrtcm raises its own types and IndexError/ValueError
-                self._p(item.offset, "malformed-frame", f"RTCM frame does not decode: {exc}")
-                continue
-            sys = _SYSTEM_OF.get(ident[:3])
-            if ident in ("1019", "1042"):
-                ephs.append((item.offset, msg))
-            elif sys in self.codes and ident[3:] in ("4", "7"):
-                ms = int(msg.DF004) if sys == "G" else int(msg.DF427) + _BDT_LAG_MS
-                if not 0 <= int(msg.DF004 if sys == "G" else msg.DF427) < _WEEK_MS:
-                    self._p(item.offset, "malformed-epoch", f"MSM {ident} epoch time {ms} ms: skipped")
-                    continue
-                msms.append(_Msm(item.offset, sys, ms % _WEEK_MS, msg))
+            got = self.take(item)
+            if isinstance(got, Msm):
+                msms.append(got)
+            elif got is not None and got[1].identity in ("1019", "1042"):
+                ephs.append(got)
         return msms, ephs
 
-    def epochs(self, msms: list[_Msm], reference: GpsTime) -> list[ObsEpoch]:
+    def epochs(self, msms: list[Msm], reference: GpsTime) -> list[ObsEpoch]:
         out: list[ObsEpoch] = []
-        cur: list[_Msm] = []
+        cur: list[Msm] = []
         ref = reference
         last: GpsTime | None = None
         for m in [*msms, None]:
@@ -323,12 +338,13 @@ class _Reader:
                 if last is not None and t <= last:
                     self._p(cur[0].offset, "non-monotonic-time", f"epoch {t} is not after {last}: skipped")
                 else:
-                    out.append(self._epoch(t, cur))
+                    out.append(self.epoch(t, cur))
                     ref = last = t
             cur = [m] if m is not None else []
         return out
 
-    def _epoch(self, t: GpsTime, msgs: list[_Msm]) -> ObsEpoch:
+    def epoch(self, t: GpsTime, msgs: list[Msm]) -> ObsEpoch:
+        """One epoch from its MSMs (all of one time tag)."""
         sats: list[SatObservation] = []
         seen: set[str] = set()
         for m in msgs:
@@ -340,7 +356,7 @@ class _Reader:
                 sats.append(s)
         return ObsEpoch(t, tuple(sats))
 
-    def _msm_sats(self, m: _Msm) -> list[SatObservation]:
+    def _msm_sats(self, m: Msm) -> list[SatObservation]:
         msg, sys = m.msg, m.sys
         msm7 = msg.identity[3] == "7"
         code = self.codes[sys]
@@ -428,7 +444,7 @@ def read_rtcm3(
 ) -> tuple[ObsHeader, list[ObsEpoch]]:
     """MSM4/MSM7 epochs of an RTCM 3 file (garbled frames reported with their byte offset)."""
     path = Path(path)
-    rd = _Reader(path, problems, dict(DEFAULT_SIGNALS if signals is None else signals), systems)
+    rd = RtcmReader(path, problems, dict(DEFAULT_SIGNALS if signals is None else signals), systems)
     msms, ephs = rd.parse(_load(path))
     epochs = rd.epochs(msms, rd.reference(ephs, reference))
     obs_types = {
@@ -440,6 +456,6 @@ def read_rtcm3(
 def read_rtcm3_nav(path: str | Path, problems: Problems, reference: GpsTime | None = None) -> NavData:
     """The 1019/1042 ephemerides of an RTCM 3 file."""
     path = Path(path)
-    rd = _Reader(path, problems, DEFAULT_SIGNALS, DEFAULT_SYSTEMS)
+    rd = RtcmReader(path, problems, DEFAULT_SIGNALS, DEFAULT_SYSTEMS)
     _, ephs = rd.parse(_load(path))
     return rd.nav(ephs, rd.reference(ephs, reference))

@@ -285,30 +285,43 @@ def read_sfrbx_nav(
                     f"{item.length} byte(s) skipped: {item.reason}",
                     offset=item.offset,
                 )
-    ref = reference or today()
-    nav = NavData()
-    bds_reader = _BdsCollector(path, problems, nav)
-    pending: dict[str, dict[int, dict[str, int]]] = {}
+    dec = SfrbxDecoder(path, problems, NavData(), reference or today())
     for fr in frames:
+        dec.add(fr)
+    return dec.nav
+
+
+class SfrbxDecoder:
+    """RXM-SFRBX frames -> ephemerides and Klobuchar coefficients in `nav`, one frame at a time
+    (the file reader and live receiver streams, where subframes arrive as they are broadcast)."""
+
+    def __init__(self, path: str | Path, problems: Problems, nav: NavData, reference: GpsTime) -> None:
+        self.path, self.problems, self.nav, self.reference = path, problems, nav, reference
+        self.bds = _BdsCollector(path, problems, nav)
+        self.pending: dict[str, dict[int, dict[str, int]]] = {}
+
+    def add(self, fr: Frame) -> None:
+        """One UBX frame (anything but RXM-SFRBX is ignored); bad subframes are counted."""
+        path, problems, nav = self.path, self.problems, self.nav
         if fr.raw[2:4] != b"\x02\x13":  # RXM-SFRBX class/id: skip other messages before parsing
-            continue
+            return
         try:
             msg = UBXReader.parse(fr.raw)
         except Exception as exc:  # pyubx2's own errors, struct.error, ...
             problems.add(path, None, "malformed-frame", f"RXM-SFRBX does not decode: {exc}", offset=fr.offset)
-            continue
+            return
         if msg.gnssId == 3 and msg.numWords == 10:
-            bds_reader.add(msg, fr.offset)
-            continue
+            self.bds.add(msg, fr.offset)
+            return
         if msg.gnssId != 0 or msg.numWords != 10:
-            continue  # other systems / signals: not decoded here
+            return  # other systems / signals: not decoded here
         stream, parity_ok = _stream([getattr(msg, f"dwrd_{i:02d}") & 0x3FFFFFFF for i in range(1, 11)])
         head = _unpack((), stream)
         sfid = head["_sfid"]
         if head["_pre"] != PREAMBLE or not parity_ok or sfid not in SUBFRAME:
             problems.add(path, None, "malformed-record", f"G{msg.svId:02d} subframe: bad preamble or parity",
                          offset=fr.offset)  # fmt: skip
-            continue
+            return
         vals = _unpack(SUBFRAME[sfid], stream)
         if sfid == 4:
             if vals["_sv"] == PAGE18_SV and "G" not in nav.iono:
@@ -316,25 +329,24 @@ def read_sfrbx_nav(
                     tuple(vals[f"a{i}"] * lsb(f"a{i}") for i in range(4)),  # type: ignore[arg-type]
                     tuple(vals[f"b{i}"] * lsb(f"b{i}") for i in range(4)),  # type: ignore[arg-type]
                 )
-            continue
+            return
         sat = f"G{int(msg.svId):02d}"
-        sfs = pending.setdefault(sat, {})
+        sfs = self.pending.setdefault(sat, {})
         sfs[sfid] = vals
         if all(k in sfs for k in (1, 2, 3)):
             iodc_lo = sfs[1]["_iodc_lo"]
             if sfs[2]["_iode"] == sfs[3]["_iode"] == iodc_lo:
                 try:
-                    nav.add(_decode(sat, sfs, ref))
+                    nav.add(_decode(sat, sfs, self.reference))
                 except ValueError as exc:
                     problems.add(path, None, "malformed-record", f"{sat}: {exc}", offset=fr.offset)
-                pending.pop(sat)
-    return nav
+                self.pending.pop(sat)
 
 
 class _BdsCollector:
     """Gathers BeiDou D1 subframes 1-3 (SOW s, s+6, s+12) or D2 pages 1, 3-10 (SOW s + 3(k-1))."""
 
-    def __init__(self, path: Path, problems: Problems, nav: NavData) -> None:
+    def __init__(self, path: str | Path, problems: Problems, nav: NavData) -> None:
         self.path, self.problems, self.nav = path, problems, nav
         self.parts: dict[str, dict[int, dict[int, dict[str, int]]]] = {}  # sat -> number -> sow -> fields
 

@@ -185,9 +185,11 @@ def write_ubx(
 # Reading
 
 
-class _Reader:
+class RawxReader:
+    """RXM-RAWX frames -> epochs, one frame at a time (the file reader and live streams)."""
+
     def __init__(
-        self, path: Path, problems: Problems, signals: Mapping[str, SignalCodes], systems: Sequence[str]
+        self, path: str | Path, problems: Problems, signals: Mapping[str, SignalCodes], systems: Sequence[str]
     ) -> None:
         self.path = path
         self.problems = problems
@@ -275,7 +277,7 @@ def read_ubx(
         data = path.read_bytes()
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read UBX file ({exc.strerror or exc})") from exc
-    rd = _Reader(path, problems, sig, systems)
+    rd = RawxReader(path, problems, sig, systems)
     epochs: list[ObsEpoch] = []
     for item in ubx_frames(data):
         if isinstance(item, Frame):

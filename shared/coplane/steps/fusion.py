@@ -120,6 +120,7 @@ class FusionStep:
                     has_gnss_fix=est.has_gnss_fix,
                     n_satellites=sum(1 for s in msg.satellites if s.used),
                     spp_ok=msg.spp.ok,
+                    dgnss_age_s=msg.spp.dgnss_age_s,
                 )
             )
         out = SolutionMessage(

@@ -167,7 +167,7 @@ class VehicleStep:
             epoch=epoch_time(t),
             rx_time=epoch_time(epoch.time),
             antenna_height_m=self.antenna_height_m,
-            spp=self._spp_report(res),
+            spp=self._spp_report(res, None if corrections is None else epoch.time - corrections.time),
             velocity=self._velocity_report(res),
             satellites=sats,
             plane=plane,
@@ -180,10 +180,12 @@ class VehicleStep:
         self.seq += 1
         return msg
 
-    def _spp_report(self, res: EpochResult) -> SppReport:
+    def _spp_report(self, res: EpochResult, dgnss_age_s: float | None) -> SppReport:
+        """`dgnss_age_s`: how old the base corrections were (a live base lags; users see it)."""
         s = res.spp
+        age = None if dgnss_age_s is None else round(min(max(dgnss_age_s, -60.0), 3600.0), 3)
         if not s.ok:
-            return SppReport(ok=False, reason=s.reason, excluded=list(s.excluded))
+            return SppReport(ok=False, reason=s.reason, excluded=list(s.excluded), dgnss_age_s=age)
         d = s.dops
         return SppReport(
             ok=True,
@@ -196,6 +198,7 @@ class VehicleStep:
             pdop=d.pdop if d else None,
             hdop=d.hdop if d else None,
             vdop=d.vdop if d else None,
+            dgnss_age_s=age,
         )
 
     @staticmethod
