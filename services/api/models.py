@@ -63,6 +63,9 @@ class VehicleSummary(_Out):
     n_satellites: int | None = None
     n_pseudoranges: int | None = None
     n_ranges: int | None = None
+    dgnss_age_s: float | None = Field(
+        default=None, description="Age of the base corrections this state's SPP used (None: no DGNSS)"
+    )
     error_h_m: float | None = Field(default=None, description="Horizontal error vs truth at this epoch")
     error_v_m: float | None = Field(default=None, description="Signed vertical error vs truth")
     age_s: float | None = Field(default=None, description="Wall seconds since this state arrived")

@@ -64,6 +64,7 @@ def _summary_fields(v: StoredVehicle, now: float) -> dict[str, object]:
         n_satellites=s.n_satellites,
         n_pseudoranges=s.n_pseudoranges,
         n_ranges=s.n_ranges,
+        dgnss_age_s=s.dgnss_age_s,
         error_h_m=v.error[0] if v.error else None,
         error_v_m=v.error[1] if v.error else None,
         age_s=max(0.0, now - v.received) if v.received is not None else None,

@@ -33,6 +33,7 @@ from coplane.bus import (
 from coplane.bus.trust import SolutionGate
 from coplane.gtime import GpsTime
 from coplane.messages import MapTilesMessage, SolutionMessage
+from coplane.recording.model import NavData, ObsEpoch, UwbRange
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
 from coplane.roadmap import RoadMap
@@ -88,11 +89,19 @@ class VehicleAgent:
             self.tiles = MapReceiver(self.fleet, self.step.road_map)
             self.step.road_map = self.tiles.map
         self.bad_tiles = 0
-        self.schedule = vehicle_schedule(rec.vehicle_epochs(vid), man.interval_s)
-        # only this vehicle's file, the base and uwb.csv are read: agents start fast
-        self.corrections = BaseCorrections.of(rec, setup.use_dgnss)
-        self.uwb = uwb_for_vehicle(rec.uwb(), vid, (t for t, _ in self.schedule), man.interval_s)
-        self.t0 = first_epoch(rec)  # the fleet's first epoch: the realtime origin
+        self.live = settings.gnss is not None  # a receiver stream, not the recording's file
+        self.live_status: dict[str, object] = {}  # the live inputs at the end of a live run
+        if self.live:
+            self.schedule: list[tuple[GpsTime, ObsEpoch | None]] = []
+            self.corrections = BaseCorrections({}, None, NavData())
+            self.uwb: dict[GpsTime, list[UwbRange]] = {}
+            self.t0: GpsTime | None = None
+        else:
+            self.schedule = vehicle_schedule(rec.vehicle_epochs(vid), man.interval_s)
+            # only this vehicle's file, the base and uwb.csv are read: agents start fast
+            self.corrections = BaseCorrections.of(rec, setup.use_dgnss)
+            self.uwb = uwb_for_vehicle(rec.uwb(), vid, (t for t, _ in self.schedule), man.interval_s)
+            self.t0 = first_epoch(rec)  # the fleet's first epoch: the realtime origin
         self.skipped = 0
         self.published = 0
         self.ingested = 0
@@ -118,7 +127,7 @@ class VehicleAgent:
         """Solutions (and vehicles in them) the gate kept out of the plane history, by reason."""
         return self.gate.counts
 
-    def _ingest_one(self, ev: BusEvent, expect: GpsTime | None = None) -> SolutionMessage | None:
+    def ingest_one(self, ev: BusEvent, expect: GpsTime | None = None) -> SolutionMessage | None:
         """Decode, gate and ingest one bus event; the solution taken, or None. `expect`: this
         agent's current epoch (solutions far beyond it are forged; a gap before it is no reason to
         reject the one a lockstep agent waits for)."""
@@ -154,7 +163,7 @@ class VehicleAgent:
         if rejected:
             self.warn.log(logging.WARNING, ("tiles", "rejected"), "map tiles rejected", rejected)
 
-    def _wait_for_map(self, node: BusNode) -> None:
+    def wait_for_map(self, node: BusNode) -> None:
         """Map methods: wait (up to `map_wait_s`) for a whole snapshot of the fusion server's map,
         so the first epochs already use it; solutions that arrive meanwhile are ingested as usual."""
         if self.tiles is None or self.s.map_wait_s <= 0.0:
@@ -162,7 +171,7 @@ class VehicleAgent:
         deadline = time.monotonic() + self.s.map_wait_s
         while not self.tiles.complete and not self.stop.is_set() and time.monotonic() < deadline:
             if (ev := node.get(timeout=0.05)) is not None:
-                self._ingest_one(ev)
+                self.ingest_one(ev)
         log.info(
             "road map from the bus" if self.tiles.complete else "no whole road map from the bus yet",
             extra={"vehicle": self.step.vehicle_id, **self.tiles.map.stats(), **dict(self.tiles.counts)},
@@ -186,7 +195,12 @@ class VehicleAgent:
         return taken
 
     def run(self) -> int:
-        """Replay the whole schedule; returns the number of node messages published."""
+        """Replay the whole schedule (or, with --gnss, follow the live streams until they end or
+        the agent is stopped); returns the number of node messages published."""
+        if self.live:
+            from .live import run_live
+
+            return run_live(self)
         s = self.s
         with self.node() as node:
             log.info(
@@ -195,7 +209,7 @@ class VehicleAgent:
             )
             if not self.schedule:
                 return 0
-            self._wait_for_map(node)
+            self.wait_for_map(node)
             start = s.start_unix_s if s.start_unix_s is not None else time.time()
             t0 = self.t0 or self.schedule[0][0]
             interval = self.rec.manifest.interval_s
@@ -211,23 +225,23 @@ class VehicleAgent:
                     if self.stop.wait(max(0.0, due - time.time())):
                         break
                 for ev in node.drain():  # ingest what has arrived, in order
-                    self._ingest_one(ev, expect=t)
+                    self.ingest_one(ev, expect=t)
                 msg = self.step.process(t, ep, self.corrections.at(t), self.uwb.get(t, ()))
                 msg = msg.model_copy(update={"sent_unix_s": time.time()})  # latency stamp only
                 payload = encode(msg)
                 node.put(key, payload)
                 self.published += 1
                 if s.pace == "lockstep":
-                    self._wait_for_solution(t, node, key, payload)
+                    self.wait_for_solution(t, node, key, payload)
             if s.pace == "realtime" and self.published and not self.stop.is_set():
-                self._await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
+                self.await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
             log.info(
                 "agent finished",
                 extra={"vehicle": self.step.vehicle_id, "published": self.published, "skipped": self.skipped},
             )
             return self.published
 
-    def _await_last_solution(self, node: BusNode, t_last: GpsTime, timeout_s: float) -> None:
+    def await_last_solution(self, node: BusNode, t_last: GpsTime, timeout_s: float) -> None:
         """Realtime end: stay on the bus until the last epoch's solution arrives (or `timeout_s`).
         Closing the session right after the last put could drop that message in the transport
         before it left (seen in CI: a vehicle's last epoch missing at the server)."""
@@ -236,17 +250,17 @@ class VehicleAgent:
             ev = node.get(timeout=0.05)
             if ev is None:
                 continue
-            sol = self._ingest_one(ev)
+            sol = self.ingest_one(ev)
             if sol is not None and not (gps_time(sol.epoch) < t_last):
                 return
 
-    def _wait_for_solution(self, t: GpsTime, node: BusNode, key: str, payload: bytes) -> None:
+    def wait_for_solution(self, t: GpsTime, node: BusNode, key: str, payload: bytes) -> None:
         last_send = time.monotonic()
         while not self.stop.is_set():
             ev = node.get(timeout=0.05)
             sol = None
             if ev is not None:
-                sol = self._ingest_one(ev, expect=t)
+                sol = self.ingest_one(ev, expect=t)
             elif (held := self.gate.held) is not None and (v := self.gate.release(time.time())) is not None:
                 # a restarted server's first solution, held until the old one went quiet
                 sol = self._take(v.solution, held)

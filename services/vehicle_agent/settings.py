@@ -15,8 +15,28 @@ class AgentSettings(ServiceSettings):
     model_config = SettingsConfigDict(env_prefix="COPLANE_AGENT_", extra="ignore")
     toml_table: str = "agent"
 
-    recording: Path = Field(description="Fleet recording directory (fleet.toml)")
+    recording: Path = Field(
+        description="Fleet recording directory (fleet.toml): the fleet's vehicles, base position and "
+        "UWB settings; with --gnss its observation files are not read (docs/live.md)"
+    )
     vehicle_id: str = Field(description="Which vehicle of the recording this agent replays")
+    gnss: str | None = Field(
+        default=None,
+        description="Live receiver stream instead of the recording's file, e.g. ubx+tcp://HOST:PORT, "
+        "rtcm3+serial:///dev/ttyACM0?baud=115200, ubx+file:///path/log.ubx (docs/live.md)",
+    )
+    base: str | None = Field(
+        default=None,
+        description="Live base corrections (RTCM 3), e.g. ntrip://user:pass@HOST:2101/MOUNT; "
+        "with --gnss, default: none",
+    )
+    uwb: str | None = Field(default=None, description="Live UWB ranges, e.g. udp://:5600 (docs/live.md)")
+    max_correction_age_s: float = Field(
+        default=30.0, gt=0.0, description="Live: base corrections older than this are dropped"
+    )
+    align_wait_s: float = Field(
+        default=0.3, ge=0.0, description="Live realtime: how long an epoch waits for the base's and UWB's"
+    )
     method: str = "pc"
     fleet: str | None = Field(default=None, description="Bus fleet id; default: from the recording name")
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])

@@ -67,7 +67,7 @@ def test_agent_ingests_only_genuine_solutions(
         t = gps_time(s.epoch)
         order = [*_forgeries(s), s] if k else [s, *_forgeries(s)]  # then the forger gets in first
         for m in (*order, s):  # the last: a resend / the republish after a resume
-            agent._ingest_one(Payload(key, encode(m)), expect=t)
+            agent.ingest_one(Payload(key, encode(m)), expect=t)
     assert taken == sols  # every genuine solution, each once, nothing else
     n, u = len(sols), agent.untrusted
     assert u["stale"] == u["too-far-ahead"] == u["off-earth"] == u["wrong-method"] == n
@@ -87,8 +87,8 @@ def test_plane_history_is_the_clean_runs(genuine: tuple[Path, list[SolutionMessa
     for k, s in enumerate(sols):
         t = gps_time(s.epoch)
         for m in [*_forgeries(s), s] if k else [s, *_forgeries(s)]:  # as above
-            attacked._ingest_one(Payload(key, encode(m)), expect=t)
-        clean._ingest_one(Payload(key, encode(s)), expect=t)
+            attacked.ingest_one(Payload(key, encode(m)), expect=t)
+        clean.ingest_one(Payload(key, encode(s)), expect=t)
     assert attacked.ingested == clean.ingested == len(sols)
     assert attacked.step._last_fused is not None and clean.step._last_fused is not None
     assert attacked.step._last_fused[0] == clean.step._last_fused[0]
@@ -123,12 +123,12 @@ def test_lockstep_agent_is_not_stalled_by_a_fast_server_restart(
     agent.gate.restart_quiet_s = 0.3
     key = agent.keys.solution
     for s in sols[:3]:
-        assert agent._ingest_one(Payload(key, encode(s)), expect=gps_time(s.epoch)) is not None
+        assert agent.ingest_one(Payload(key, encode(s)), expect=gps_time(s.epoch)) is not None
     t = gps_time(sols[3].epoch)
     restarted = sols[3].model_copy(update={"generation": "5ca1ab1e5ca1ab1e", "seq": 0})
     node = _QuietNode([Payload(key, encode(restarted))])
     t0 = time.monotonic()
-    agent._wait_for_solution(t, node, agent.keys.node("u3"), b"{}")  # type: ignore[arg-type]
+    agent.wait_for_solution(t, node, agent.keys.node("u3"), b"{}")  # type: ignore[arg-type]
     assert time.monotonic() - t0 < 5.0
     assert agent.gate.generation == "5ca1ab1e5ca1ab1e" and agent.gate.resets == 1
     assert agent.ingested == 4

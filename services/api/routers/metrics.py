@@ -90,13 +90,22 @@ class FleetCollector(Collector):
             "Share of epochs with a usable plane (available or after FE) among epochs with a plane report",
             labels=["vehicle"],
         )
+        dgnss = GaugeMetricFamily(
+            "coplane_vehicle_dgnss_age_seconds",
+            "Age of the base corrections in the vehicle's latest state (absent: no DGNSS)",
+            labels=["vehicle"],
+        )
         for vid in sorted(st.vehicles):
-            online.add_metric([vid], 1.0 if st.vehicles[vid].online else 0.0)
+            vehicle = st.vehicles[vid]
+            online.add_metric([vid], 1.0 if vehicle.online else 0.0)
             pr = views.plane_ratio(st, vid)
             if pr is not None:
                 ratio.add_metric([vid], pr)
+            if vehicle.state is not None and vehicle.state.dgnss_age_s is not None:
+                dgnss.add_metric([vid], vehicle.state.dgnss_age_s)
         yield online
         yield ratio
+        yield dgnss
         fleet_ratio = views.planes(st).availability_ratio
         fr = GaugeMetricFamily(
             "coplane_fleet_plane_availability_ratio", "Plane availability over all vehicles"

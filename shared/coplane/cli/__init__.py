@@ -20,6 +20,7 @@ import typer
 from rich.markup import escape
 from typer.core import TyperGroup
 
+from coplane.cli.agent import agent
 from coplane.cli.certs import certs_app
 from coplane.cli.compose import compose
 from coplane.cli.convert import convert
@@ -95,6 +96,7 @@ app.command()(version)
 app.command()(spp)
 app.command("eval")(eval_)
 app.command()(fleet)
+app.command()(agent)
 app.command()(compose)
 app.command()(convert)
 app.add_typer(certs_app)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import csv
 import math
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from pathlib import Path
 
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime
@@ -26,7 +26,9 @@ DEFAULT_MAX_UWB_RANGE_M = 10_000.0  # when the manifest gives no max_range_m
 EARTH_RADIUS_BOUNDS_M = (6.0e6, 7.0e6)  # |ECEF| of a point near the surface (incl. aircraft)
 
 
-class _RowError(ValueError):
+class RowError(ValueError):
+    """A bad row: `kind` (a problems slug) and the reason."""
+
     def __init__(self, kind: str, reason: str) -> None:
         super().__init__(reason)
         self.kind = kind
@@ -66,9 +68,9 @@ def _time(row: dict[str, str]) -> GpsTime:
         week = int(row["gps_week"])
         tow = float(row["tow_s"])
     except ValueError:
-        raise _RowError("malformed-row", f"unreadable time {row['gps_week']!r},{row['tow_s']!r}") from None
+        raise RowError("malformed-row", f"unreadable time {row['gps_week']!r},{row['tow_s']!r}") from None
     if week < 0 or not (0.0 <= tow < SECONDS_PER_WEEK):
-        raise _RowError("malformed-row", f"time {week},{tow} out of range")
+        raise RowError("malformed-row", f"time {week},{tow} out of range")
     return GpsTime(week, tow)
 
 
@@ -76,10 +78,26 @@ def _float(row: dict[str, str], key: str) -> float:
     try:
         v = float(row[key])
     except ValueError:
-        raise _RowError("malformed-row", f"{key}: unreadable number {row[key]!r}") from None
+        raise RowError("malformed-row", f"{key}: unreadable number {row[key]!r}") from None
     if not math.isfinite(v):
-        raise _RowError("nan-value", f"{key}: {row[key]!r}")
+        raise RowError("nan-value", f"{key}: {row[key]!r}")
     return v
+
+
+def uwb_range(row: dict[str, str], vehicle_ids: Collection[str], limit_m: float) -> UwbRange:
+    """One uwb.csv row (or a live UWB line, docs/live.md) as a range; a `RowError` (kind, reason)
+    names what is wrong with it."""
+    t = _time(row)
+    a, b = row["from_id"], row["to_id"]
+    for vid in (a, b):
+        if vid not in vehicle_ids:
+            raise RowError("unknown-id", f"vehicle id {vid!r} is not in the manifest")
+    if a == b:
+        raise RowError("malformed-row", f"range from {a!r} to itself")
+    r = _float(row, "range_m")
+    if not 0.0 < r <= limit_m:
+        raise RowError("absurd-value", f"range {r} m outside (0, {limit_m}] m")
+    return UwbRange(t, a, b, r)
 
 
 def read_uwb(
@@ -97,23 +115,14 @@ def read_uwb(
     for lineno, row, error in _rows(path, UWB_COLUMNS):
         try:
             if error is not None:
-                raise _RowError("malformed-row", error)
-            t = _time(row)
-            a, b = row["from_id"], row["to_id"]
-            for vid in (a, b):
-                if vid not in vehicle_ids:
-                    raise _RowError("unknown-id", f"vehicle id {vid!r} is not in the manifest")
-            if a == b:
-                raise _RowError("malformed-row", f"range from {a!r} to itself")
-            r = _float(row, "range_m")
-            if not 0.0 < r <= limit:
-                raise _RowError("absurd-value", f"range {r} m outside (0, {limit}] m")
+                raise RowError("malformed-row", error)
+            u = uwb_range(row, vehicle_ids, limit)
+            t = u.time
             if last is not None and t < last:
-                raise _RowError("non-monotonic-time", f"time {t} is before the previous row's {last}")
-            u = UwbRange(t, a, b, r)
+                raise RowError("non-monotonic-time", f"time {t} is before the previous row's {last}")
             if (t, u.pair) in seen:
-                raise _RowError("duplicate-row", f"pair {u.pair} already has a range at {t}")
-        except _RowError as exc:
+                raise RowError("duplicate-row", f"pair {u.pair} already has a range at {t}")
+        except RowError as exc:
             problems.add(path, lineno, exc.kind, f"{exc}: row skipped")
             continue
         seen.add((t, u.pair))
@@ -131,15 +140,15 @@ def read_truth(path: str | Path, problems: Problems) -> list[TruthPoint]:
     for lineno, row, error in _rows(path, TRUTH_COLUMNS):
         try:
             if error is not None:
-                raise _RowError("malformed-row", error)
+                raise RowError("malformed-row", error)
             t = _time(row)
             xyz = (_float(row, "x_m"), _float(row, "y_m"), _float(row, "z_m"))
             norm = math.sqrt(xyz[0] ** 2 + xyz[1] ** 2 + xyz[2] ** 2)
             if not lo <= norm <= hi:
-                raise _RowError("absurd-value", f"|ECEF| {norm:.0f} m is not near the Earth's surface")
+                raise RowError("absurd-value", f"|ECEF| {norm:.0f} m is not near the Earth's surface")
             if last is not None and t <= last:
-                raise _RowError("non-monotonic-time", f"time {t} is not after the previous row's {last}")
-        except _RowError as exc:
+                raise RowError("non-monotonic-time", f"time {t} is not after the previous row's {last}")
+        except RowError as exc:
             problems.add(path, lineno, exc.kind, f"{exc}: row skipped")
             continue
         last = t
