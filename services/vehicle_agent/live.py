@@ -6,8 +6,9 @@ through the live path): the agent waits for each epoch's fleet solution and fill
 epochs a receiver log lacks with empty ones, as the replay schedule does, so the answers equal
 the replay's. Realtime (a receiver on the road): no wait, no fill; an epoch that is not after the
 last one (a receiver that restarted, a time jump back) is dropped and counted. A stream that
-drops is reconnected by its source; meanwhile the vehicle sends nothing, so the fusion server
-sees it go offline and come back.
+drops is reconnected by its source; meanwhile the vehicle sends nothing, and the fusion server
+does not wait for it: after OFFLINE_AFTER_S without an epoch the agent withdraws its liveliness
+token (the vehicle goes offline for the fleet) and declares it again with the next epoch.
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("coplane.vehicle_agent")
 MAX_FILL_EPOCHS = 600  # lockstep: a receiver log gap longer than this is not filled epoch by epoch
 STATUS_EVERY_S = 10.0
+# realtime: a receiver silent this long (and this many intervals) takes the vehicle off the bus
+OFFLINE_AFTER_S = 3.0
+OFFLINE_AFTER_EPOCHS = 3
 
 
 def live_inputs(agent: VehicleAgent) -> LiveInputs:
@@ -65,6 +69,8 @@ def run_live(agent: VehicleAgent) -> int:
     lockstep = agent.s.pace == "lockstep"
     key = agent.keys.node(agent.step.vehicle_id)
     last_t: GpsTime | None = None
+    last_epoch_at = time.monotonic()
+    offline_after = max(OFFLINE_AFTER_S, OFFLINE_AFTER_EPOCHS * interval)
     next_status = time.monotonic() + STATUS_EVERY_S
     with agent.node() as node:
         log.info(
@@ -83,7 +89,17 @@ def run_live(agent: VehicleAgent) -> int:
             if got is END:
                 break
             if not isinstance(got, ObsEpoch):
+                if not lockstep and node.present and time.monotonic() - last_epoch_at > offline_after:
+                    node.set_present(False)  # the fleet stops waiting for this vehicle
+                    log.warning(
+                        "receiver silent: vehicle offline",
+                        extra={"vehicle": agent.step.vehicle_id, "silent_s": round(offline_after, 1)},
+                    )
                 continue
+            last_epoch_at = time.monotonic()
+            if not node.present:
+                node.set_present(True)
+                log.info("receiver back: vehicle online", extra={"vehicle": agent.step.vehicle_id})
             t = got.time.round_to(interval)
             if last_t is not None and t <= last_t:
                 agent.skipped += 1  # a second receiver epoch of one nominal epoch, or time going back

@@ -3,8 +3,8 @@ serial-to-TCP bridge looks like to an agent (`ubx+tcp://`), for the live-path te
 
 Frames before the first epoch (navigation) go out on connect; each epoch's frames go out at
 `start_unix_s + (epoch - t0) / speed`. A client that connects late joins at the current epoch, as
-with a real receiver. `drop(seconds)` cuts the client and refuses connections for that long (a
-receiver stream that drops).
+with a real receiver. `drop(seconds)` cuts the clients and refuses connections for that long (a
+receiver stream that drops). Several clients may connect (a base several agents read).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ class PacedReceiver:
         self.sock = socket.socket()
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(1)
+        self.sock.listen(8)
         self.sock.settimeout(0.2)
         self.port = int(self.sock.getsockname()[1])
         self.stop = threading.Event()
@@ -79,8 +79,11 @@ class PacedReceiver:
                 conn.close()  # the receiver is away
                 continue
             self.connections += 1
-            with contextlib.closing(conn):
-                self._stream(conn)
+            threading.Thread(target=self._client, args=(conn,), daemon=True).start()
+
+    def _client(self, conn: socket.socket) -> None:
+        with contextlib.closing(conn):
+            self._stream(conn)
 
     def _stream(self, conn: socket.socket) -> None:
         try:

@@ -157,6 +157,24 @@ class BusNode:
             key = self._token_key if isinstance(self._token_key, str) else self._token_key(self.zid)
             self._token = session.liveliness().declare_token(key)
 
+    @property
+    def present(self) -> bool:
+        """This node's liveliness token is declared."""
+        return self._token is not None
+
+    def set_present(self, present: bool) -> None:
+        """Withdraw or re-declare the liveliness token while the session stays open: a vehicle
+        whose receiver went silent is offline for the fleet (the server stops waiting for it) and
+        comes back with its next epoch."""
+        if self._session is None or self._token_key is None or present == self.present:
+            return
+        if present:
+            key = self._token_key if isinstance(self._token_key, str) else self._token_key(self.zid)
+            self._token = self._session.liveliness().declare_token(key)
+        else:
+            token, self._token = self._token, None
+            token.undeclare()
+
     def close(self) -> None:
         """Withdraw the token (peers see this node go at once, not after the lease) and close."""
         session, self._session = self._session, None

@@ -81,7 +81,7 @@ class Backoff:
     """Exponential reconnect delay: `first`, doubling up to `cap`, reset after a good connection."""
 
     first_s: float = 0.5
-    cap_s: float = 10.0
+    cap_s: float = 5.0  # a receiver back from an outage is read again within this
     _next: float = 0.0
 
     def __post_init__(self) -> None:
