@@ -153,3 +153,19 @@ def test_file_source_yields_the_file(logs: dict[str, Path]) -> None:
     assert data == logs["ubx"].read_bytes() and src.status.bytes == len(data)
     missing = FileSource(logs["ubx"].with_name("nope.ubx"))
     assert list(missing.chunks(threading.Event())) == [] and "nope.ubx" in (missing.status.last_error or "")
+
+
+def test_joining_an_rtcm_stream_mid_epoch_drops_the_partial_epoch(logs: dict[str, Path]) -> None:
+    """A socket or caster joined in the middle of an epoch's MSMs: that epoch would lack a system,
+    so the first epoch after joining is dropped and counted; the rest are the file's."""
+    epochs, nav = _reference("rtcm3", logs["rtcm3"])
+    known = NavData()
+    known.merge(nav)  # what an agent knows from its receiver: the week (MSM carries none)
+    frames = _frames(logs["rtcm3"].read_bytes(), "rtcm3")
+    msm = [i for i, f in enumerate(frames) if f[3:5] in (b"\x43\x50", b"\x46\x70")]  # 1077, 1127 headers
+    joined = b"".join(frames[msm[1] :])  # from the second MSM: the first epoch's GPS MSM is gone
+    problems = Problems()
+    dec = GnssStreamDecoder("rtcm3", "rtcm3+tcp://base:1", known, problems, mid_stream=True)
+    got = dec.feed(joined, final=True)
+    assert problems.counts["partial-first-epoch"] == 1
+    assert [e.time for e in got] == [e.time for e in epochs[1:]]

@@ -46,8 +46,14 @@ class GnssStreamDecoder:
         problems: Problems,
         signals: Mapping[str, SignalCodes] | None = None,
         systems: Sequence[str] = DEFAULT_SYSTEMS,
+        mid_stream: bool = False,
     ) -> None:
+        """`mid_stream`: the bytes start wherever the stream was when we joined (a socket, a
+        caster, a serial port, not a file): the first RTCM epoch may lack the MSMs sent before we
+        joined, so it is dropped (counted `partial-first-epoch`) unless the end of an earlier
+        epoch was seen first. UBX epochs are one RAWX each, never partial."""
         self.fmt, self.where, self.nav, self.problems = fmt, where, nav, problems
+        self._synced = not mid_stream  # an epoch's first MSM is known to follow a closed epoch
         sig = dict(DEFAULT_SIGNALS if signals is None else signals)
         self.frames = 0
         self.epochs = 0
@@ -137,6 +143,19 @@ class GnssStreamDecoder:
         return out
 
     def _close(self) -> ObsEpoch | None:
+        """The pending MSMs as an epoch, if it is known to be whole."""
+        if not self._synced:
+            self._synced = True
+            msms, self._pending = self._pending, []
+            self.problems.add(
+                self.where, None, "partial-first-epoch",
+                "first epoch after joining the stream dropped: its first MSMs may have gone before",
+                offset=msms[0].offset,
+            )  # fmt: skip
+            return None
+        return self._close_epoch()
+
+    def _close_epoch(self) -> ObsEpoch | None:
         msms, self._pending = self._pending, []
         if self.reference is None:
             self._set_reference(self._nav_reference() or today())

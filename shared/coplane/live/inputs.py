@@ -148,7 +148,13 @@ class LiveInputs:
         self.problems = Problems(keep=200)
         self.counts: Counter[str] = Counter()
         self.gnss = Feed(open_source(gnss))
-        self.rover = GnssStreamDecoder(gnss.format, gnss.redacted(), nav, self.problems)  # type: ignore[arg-type]
+        self.rover = GnssStreamDecoder(
+            gnss.format,
+            gnss.redacted(),
+            nav,
+            self.problems,
+            mid_stream=gnss.transport != "file",  # type: ignore[arg-type]
+        )
         self.base_feed = Feed(open_source(base)) if base is not None else None
         self.base = (
             GnssStreamDecoder("rtcm3", base.redacted(), nav, self.problems) if base is not None else None
