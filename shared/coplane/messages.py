@@ -101,7 +101,10 @@ class SppReport(_Model):
     hdop: float | None = Field(default=None, ge=0.0, le=1e6)
     vdop: float | None = Field(default=None, ge=0.0, le=1e6)
     dgnss_age_s: float | None = Field(
-        default=None, ge=-60.0, le=3600.0, description="receiver time minus the base epoch used (None: no DGNSS)"
+        default=None,
+        ge=-60.0,
+        le=3600.0,
+        description="receiver time minus the base epoch used (None: no DGNSS)",
     )
 
     @model_validator(mode="after")

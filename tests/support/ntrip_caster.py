@@ -34,7 +34,9 @@ class PacedLog:
 
         _, epochs = epochs_of(path, "rtcm3")
         t0g = GpsTime(*t0)
-        self.items = [(start + (t - t0g), data) for t, data in epochs if start + (t - t0g) >= time.time() - 0.5]
+        self.items = [
+            (start + (t - t0g), data) for t, data in epochs if start + (t - t0g) >= time.time() - 0.5
+        ]
         if self.items:  # measured: pygnssutils' server loses the first message it relays, so
             # the first epoch's first frame goes out once before it (a repeat, if it arrives)
             first = next(f.raw for f in rtcm_frames(self.items[0][1]) if isinstance(f, Frame))

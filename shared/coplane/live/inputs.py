@@ -149,11 +149,11 @@ class LiveInputs:
         self.counts: Counter[str] = Counter()
         self.gnss = Feed(open_source(gnss))
         self.rover = GnssStreamDecoder(
-            gnss.format,
+            "rtcm3" if gnss.format == "rtcm3" else "ubx",
             gnss.redacted(),
             nav,
             self.problems,
-            mid_stream=gnss.transport != "file",  # type: ignore[arg-type]
+            mid_stream=gnss.transport != "file",
         )
         self.base_feed = Feed(open_source(base)) if base is not None else None
         self.base = (
