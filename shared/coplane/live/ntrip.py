@@ -24,7 +24,7 @@ import socket
 import threading
 from collections.abc import Iterator
 
-from coplane.live.sources import CHUNK, report_down
+from coplane.live.sources import CHUNK, end_of_connection
 from coplane.live.status import Backoff, SourceStatus
 
 log = logging.getLogger("coplane.live")
@@ -123,11 +123,7 @@ class NtripSource:
                 why = f"{self.where}: no data for {self.timeout_s:g} s"
             except OSError as exc:
                 why = f"{self.where}: {exc.strerror or exc}"
-            if stop.is_set():
-                self.status.connected = False
-                return
-            report_down(self.status, why)
-            if self.backoff.wait(stop):
+            if end_of_connection(self.status, self.backoff, stop, why):
                 return
 
 

@@ -20,6 +20,16 @@ log = logging.getLogger("coplane.live")
 CHUNK = 65536
 
 
+def end_of_connection(status: SourceStatus, backoff: Backoff, stop: threading.Event, why: str) -> bool:
+    """After a connection ended: True when the reader should return (`stop` set, also during the
+    backoff), else the outage is recorded and the backoff waited, and it should reconnect."""
+    if stop.is_set():
+        status.connected = False
+        return True
+    report_down(status, why)
+    return backoff.wait(stop)
+
+
 def report_down(status: SourceStatus, reason: str) -> None:
     """Record a failed connect or a lost connection; log once per outage (a receiver that stays
     away must not flood the log)."""
@@ -111,11 +121,7 @@ class TcpSource:
                 why = f"connection lost: {exc.strerror or exc}"
             finally:
                 sock.close()
-            if stop.is_set():
-                self.status.connected = False
-                return
-            report_down(self.status, f"{self.host}:{self.port}: {why}")
-            if self.backoff.wait(stop):
+            if end_of_connection(self.status, self.backoff, stop, f"{self.host}:{self.port}: {why}"):
                 return
 
 
@@ -155,9 +161,5 @@ class SerialSource:
                 why = f"{self.device}: {exc}"
             finally:
                 port.close()
-            if stop.is_set():
-                self.status.connected = False
-                return
-            report_down(self.status, why)
-            if self.backoff.wait(stop):
+            if end_of_connection(self.status, self.backoff, stop, why):
                 return
