@@ -169,3 +169,27 @@ def test_joining_an_rtcm_stream_mid_epoch_drops_the_partial_epoch(logs: dict[str
     got = dec.feed(joined, final=True)
     assert problems.counts["partial-first-epoch"] == 1
     assert [e.time for e in got] == [e.time for e in epochs[1:]]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_reconnect_in_the_middle_of_a_frame_costs_that_frame(logs: dict[str, Path], fmt: str) -> None:
+    """The stream drops in the middle of a frame and a new connection starts at a frame boundary
+    (RTCM: in the middle of an epoch's MSMs): the cut frame is counted, not glued to the new bytes;
+    for RTCM the cut epoch and the first one after the reconnect are dropped; the rest are the file's."""
+    epochs, nav = _reference(fmt, logs[fmt])
+    known = NavData()
+    known.merge(nav)
+    frames = _frames(logs[fmt].read_bytes(), fmt)
+    cut = len(frames) // 2
+    problems = Problems()
+    dec = GnssStreamDecoder(fmt, f"{fmt}+tcp://r:1", known, problems, mid_stream=False)  # type: ignore[arg-type]
+    got = dec.feed(b"".join(frames[:cut]) + frames[cut][: len(frames[cut]) // 2])
+    dec.rejoin()
+    got += dec.feed(b"".join(frames[cut + 2 :]), final=True)
+    assert problems.counts["garbled-frame"] == 1
+    times = [e.time for e in got]
+    assert times == sorted(times) and set(times) <= {e.time for e in epochs}
+    missing = len(epochs) - len(got)
+    assert missing <= (2 if fmt == "ubx" else 3)
+    by_t = {e.time: e for e in epochs}
+    assert all(by_t[e.time] == e for e in got)

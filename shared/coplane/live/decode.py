@@ -75,6 +75,30 @@ class GnssStreamDecoder:
             self.scanner = rtcm_scanner()
             self.rtcm = RtcmReader(where, problems, sig, systems)
 
+    def rejoin(self) -> None:
+        """The stream reconnected: what was held of the old connection (a frame cut by the drop,
+        an epoch's first MSMs) cannot be completed by the new bytes, and the first RTCM epoch of
+        the new connection may lack MSMs sent before it (dropped as after the first join)."""
+        old = self.scanner
+        for item in old.feed(b"", final=True):  # the old connection's tail: counted as garbage
+            if self.fmt == "ubx":
+                self._ubx(item)
+            else:
+                self._rtcm(item)
+        self.scanner = ubx_scanner() if self.fmt == "ubx" else rtcm_scanner()
+        self.scanner.base = old.base + len(old.buf)  # offsets keep counting the stream's bytes
+        if self._pending:
+            self.problems.add(
+                self.where,
+                None,
+                "partial-epoch",
+                "epoch cut by a reconnect dropped",
+                offset=self._pending[0].offset,
+            )
+            self._pending = []
+        if self.fmt == "rtcm3":
+            self._synced = False
+
     def feed(self, data: bytes, final: bool = False) -> list[ObsEpoch]:
         """Decode `data`; `final`: the stream ended (flush a partial frame and the last epoch)."""
         out: list[ObsEpoch] = []

@@ -20,7 +20,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,12 +68,24 @@ def open_source(url: SourceUrl) -> ByteSource:
     raise ValueError(f"no transport for {name}")  # parse_source accepts none other
 
 
-class Feed:
-    """One source read on its own thread into a bounded queue (END when it ends)."""
+class _Rejoined:
+    """Queued before the first chunk of a new connection (in order with the data)."""
 
-    def __init__(self, source: ByteSource) -> None:
+
+REJOINED = _Rejoined()
+
+
+class Feed:
+    """One source read on its own thread into a bounded queue (END when it ends).
+
+    `on_rejoin` is called, on the reading thread of `get`, where a new connection's bytes begin:
+    its decoder drops what it held of the old connection (a half frame, a partial epoch)."""
+
+    def __init__(self, source: ByteSource, on_rejoin: Callable[[], None] | None = None) -> None:
         self.source = source
-        self.queue: queue.Queue[bytes] = queue.Queue(QUEUE_CHUNKS)
+        self.on_rejoin = on_rejoin
+        self.rejoins = 0
+        self.queue: queue.Queue[bytes | _Rejoined] = queue.Queue(QUEUE_CHUNKS)
         self.ended = False
         self.thread: threading.Thread | None = None
 
@@ -86,14 +98,13 @@ class Feed:
         self.thread.start()
 
     def _run(self, stop: threading.Event) -> None:
+        connects = 1
         try:
             for data in self.source.chunks(stop):
-                while not stop.is_set():
-                    try:
-                        self.queue.put(data, timeout=0.2)
-                        break
-                    except queue.Full:
-                        continue
+                if self.status.connects > connects:  # bytes of a new connection from here on
+                    connects = self.status.connects
+                    self._put(REJOINED, stop)
+                self._put(data, stop)
         except Exception as exc:  # a transport bug must end this feed visibly, not the agent
             self.status.down(f"reader failed: {exc!r}")
             log.exception("live source reader failed", extra={"source": self.status.name})
@@ -106,6 +117,14 @@ class Feed:
                     if stop.is_set():
                         break
 
+    def _put(self, item: bytes | _Rejoined, stop: threading.Event) -> None:
+        while not stop.is_set():
+            try:
+                self.queue.put(item, timeout=0.2)
+                return
+            except queue.Full:
+                continue
+
     def get(self, timeout: float | None) -> bytes | None:
         """The next chunk (END at the end), or None if none came within `timeout` (0: no wait)."""
         if self.ended:
@@ -113,6 +132,11 @@ class Feed:
         try:
             data = self.queue.get(timeout=timeout) if timeout else self.queue.get_nowait()
         except queue.Empty:
+            return None
+        if isinstance(data, _Rejoined):
+            self.rejoins += 1
+            if self.on_rejoin is not None:
+                self.on_rejoin()
             return None
         if data == END:
             self.ended = True
@@ -147,7 +171,7 @@ class LiveInputs:
         self.nav = nav
         self.problems = Problems(keep=200)
         self.counts: Counter[str] = Counter()
-        self.gnss = Feed(open_source(gnss))
+        self.gnss = Feed(open_source(gnss), on_rejoin=lambda: self.rover.rejoin())
         self.rover = GnssStreamDecoder(
             "rtcm3" if gnss.format == "rtcm3" else "ubx",
             gnss.redacted(),
@@ -155,9 +179,17 @@ class LiveInputs:
             self.problems,
             mid_stream=gnss.transport != "file",
         )
-        self.base_feed = Feed(open_source(base)) if base is not None else None
+        self.base_feed = (
+            Feed(open_source(base), on_rejoin=lambda: self.base.rejoin() if self.base is not None else None)
+            if base is not None
+            else None
+        )
         self.base = (
-            GnssStreamDecoder("rtcm3", base.redacted(), nav, self.problems) if base is not None else None
+            GnssStreamDecoder(
+                "rtcm3", base.redacted(), nav, self.problems, mid_stream=base.transport != "file"
+            )
+            if base is not None
+            else None
         )
         self.base_position: AnyArray | None = (
             np.asarray(base_position_ecef_m, dtype=float) if base_position_ecef_m is not None else None
