@@ -1,7 +1,8 @@
-"""The NTRIP client (pygnssutils' GNSSNTRIPClient, wrapped) against a real caster (pygnssutils'
-socket server in NTRIP mode, its own process): the log's frames arrive; a wrong password or
-mountpoint is a clear status, never an exception, never the password; a caster restart is a
-reconnect; stop ends the reader at once."""
+"""The NTRIP client (coplane's own, `live/ntrip.py`) against a real caster (pygnssutils' socket
+server in NTRIP mode, its own process, `support/ntrip_caster.py`): the log's frames arrive; a wrong
+password or mountpoint is a clear status, never an exception, never the password; a caster restart
+is a reconnect after a backoff; stop ends the reader at once; the answer forms of NTRIP 1 and 2
+(chunked) and the GGA upload against a scripted caster."""
 
 from __future__ import annotations
 
@@ -25,6 +26,17 @@ from coplane.recording.reader import open_recording
 from coplane.sim.generate import simulate
 
 SECRET = "pw-s3cret"
+GGA = "$GPGGA,123519.00,4807.03800,N,01131.00000,E,1,08,0.9,545.4,M,46.9,M,,*69"
+
+
+class CountingBackoff(Backoff):
+    """A Backoff that counts its waits (the reconnect must have used it)."""
+
+    waits = 0
+
+    def wait(self, stop: threading.Event) -> bool:
+        self.waits += 1
+        return super().wait(stop)
 
 
 @pytest.fixture(scope="module")
@@ -82,6 +94,7 @@ def test_wrong_credentials_or_mountpoint(
     assert not th.is_alive() and got == [] and not src.status.connected
     assert why in (src.status.last_error or "") and src.status.failures >= 2  # it keeps trying
     assert password not in caplog.text and password not in str(src.status.snapshot())
+    assert "me:" not in caplog.text and "Basic" not in caplog.text  # nor user:password in base64
 
 
 def test_caster_restart_is_a_reconnect(tmp_path: Path, caster: tuple[int, Path, float]) -> None:
@@ -89,9 +102,10 @@ def test_caster_restart_is_a_reconnect(tmp_path: Path, caster: tuple[int, Path, 
     _, epochs = epochs_of(log, "rtcm3")
     port = free_port()
     p = start_caster(log, port, "me", SECRET, start, epochs[0][0])
-    src = NtripSource("127.0.0.1", port, MOUNTPOINT, "me", SECRET, backoff=Backoff(0.2, 1.0))
+    backoff = CountingBackoff(0.2, 1.0)
+    src = NtripSource("127.0.0.1", port, MOUNTPOINT, "me", SECRET, backoff=backoff)
     got, stop, th = _read(src, 3.0)
-    assert src.status.connected and got
+    assert src.status.connected and got and backoff.waits == 0
     p.kill()
     p.wait()
     deadline = time.monotonic() + 10
@@ -105,6 +119,9 @@ def test_caster_restart_is_a_reconnect(tmp_path: Path, caster: tuple[int, Path, 
         time.sleep(0.05)
     try:
         assert src.status.connected and src.status.connects == 2 and len(got) > n
+        assert backoff.waits >= 1 and src.status.failures == backoff.waits  # refused while down
+        frames = [f for f in rtcm_frames(b"".join(got[n:])) if isinstance(f, Frame)]
+        assert frames  # whole, CRC-good frames after the reconnect
         t0 = time.monotonic()
         stop.set()
         th.join(3.0)
@@ -158,3 +175,51 @@ def test_answer_forms(answer: bytes, body: str) -> None:
             stop.set()
     server.close()
     assert got == payload
+
+
+def test_gga_upload() -> None:
+    """A VRS-like caster that sends nothing until the rover's GGA: the sentence goes out after the
+    answer, again every interval, and a gga() without a position yet (None) is asked again."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    received: list[bytes] = []
+
+    def serve() -> None:
+        conn, _ = server.accept()
+        conn.settimeout(5.0)
+        conn.recv(4096)  # the request
+        conn.sendall(b"ICY 200 OK\r\n")
+        buf = b""
+        while buf.count(b"\r\n") < 3:
+            more = conn.recv(4096)
+            if not more:
+                break
+            buf += more
+            if b"\r\n" in buf and not received:
+                conn.sendall(b"\xd3\x00\x00\x47\xea\x4b")  # data only after the first GGA
+            received[:] = buf.split(b"\r\n")[:-1]
+        conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    answers = iter([None])
+    calls = 0
+
+    def gga() -> str | None:
+        nonlocal calls
+        calls += 1
+        return next(answers, GGA)
+
+    src = NtripSource(
+        "127.0.0.1", port, "VRS", backoff=Backoff(5.0, 5.0), version=1, gga=gga, gga_interval_s=0.2
+    )
+    got, stop, th = _read(src, 0.0)
+    deadline = time.monotonic() + 5.0
+    while len(received) < 3 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    stop.set()
+    th.join(2.0)
+    server.close()
+    assert not th.is_alive() and got == [b"\xd3\x00\x00\x47\xea\x4b"]
+    assert received[:3] == [GGA.encode()] * 3 and calls >= 4  # None first, then every 0.2 s

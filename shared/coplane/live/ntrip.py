@@ -6,6 +6,9 @@ every connect is lost, so a live run's first DGNSS epoch differs from the replay
 empty reads once a caster closes the connection, decodes no chunked transfer encoding (NTRIP 2
 casters may use it) and gives up after a fixed number of retries. The protocol itself is one HTTP
 GET, so it is done here; the caster in the tests is pygnssutils' own server in NTRIP mode.
+It also answers a 401 or a sourcetable by stopping for good (a caster that is being reconfigured
+would end the agent's corrections) and takes the GGA it uploads from a GUI application object's
+`get_coordinates()`, where an agent has a plain callable.
 
 What an agent gets:
 * the raw stream as a `ByteSource`: frames go through the same frame search and decoder as any
@@ -13,7 +16,10 @@ What an agent gets:
 * reconnects that never end, with backoff: a refused connection, an error answer, a caster that
   closes or goes silent for `timeout_s`;
 * a status naming host:port/mount and the caster's answer (`401 Unauthorized`, `sourcetable: no
-  mountpoint 'X'`, `no data for 10 s`), never the credentials; the age of the last byte.
+  mountpoint 'X'`, `no data for 10 s`), never the credentials; the age of the last byte;
+* optionally the rover's position uploaded as an NMEA GGA sentence (`gga`), right after the caster
+  accepted the request and every `gga_interval_s` (10 s) after: VRS and nearest-base casters
+  choose or compute the stream from it, and some send nothing until the first GGA arrives.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ import base64
 import logging
 import socket
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 from coplane.live.sources import CHUNK, end_of_connection
 from coplane.live.status import Backoff, SourceStatus
@@ -30,6 +37,8 @@ from coplane.live.status import Backoff, SourceStatus
 log = logging.getLogger("coplane.live")
 MAX_HEADER = 16384  # bytes of response header before the caster is taken for something else
 USER_AGENT = "NTRIP coplane"
+GGA_INTERVAL_S = 10.0  # NTRIP practice: a VRS caster follows the rover with this
+GGA_RETRY_S = 1.0  # no position yet (gga() gave None): asked again this soon
 
 
 class NtripError(Exception):
@@ -51,11 +60,16 @@ class NtripSource:
         backoff: Backoff | None = None,
         timeout_s: float = 10.0,
         version: int = 2,
+        gga: Callable[[], str | None] | None = None,
+        gga_interval_s: float = GGA_INTERVAL_S,
     ) -> None:
+        """`gga`: the rover's position as an NMEA GGA sentence (None while it has none), sent
+        to the caster after each connect and every `gga_interval_s`; omit for a fixed base."""
         self.host, self.port, self.mountpoint = host, port, mountpoint
         self._auth = base64.b64encode(f"{user}:{password or ''}".encode()).decode() if user else None
         self.timeout_s = timeout_s
         self.version = version
+        self.gga, self.gga_interval_s = gga, gga_interval_s
         self.backoff = backoff or Backoff()
         self.where = f"{host}:{port}/{mountpoint}"
         self.status = SourceStatus(name or f"ntrip://{self.where}")
@@ -111,8 +125,11 @@ class NtripSource:
                     self.status.up()
                     log.info("ntrip corrections flowing", extra={"source": self.status.name})
                     sock.settimeout(min(0.5, self.timeout_s))
-                    body = _dechunk(first, sock, stop, self.timeout_s) if chunked else None
-                    for data in body or _raw(first, sock, stop, self.timeout_s):
+                    tick = _GgaUpload(sock, self.gga, self.gga_interval_s) if self.gga else None
+                    if tick:
+                        tick()  # before reading: a VRS caster may wait for it
+                    body = _dechunk(first, sock, stop, self.timeout_s, tick) if chunked else None
+                    for data in body or _raw(first, sock, stop, self.timeout_s, tick):
                         self.backoff.reset()
                         self.status.data(len(data))
                         yield data
@@ -127,12 +144,44 @@ class NtripSource:
                 return
 
 
-def _raw(first: bytes, sock: socket.socket, stop: threading.Event, timeout_s: float) -> Iterator[bytes]:
-    """The stream as is (TimeoutError after `timeout_s` without a byte)."""
+class _GgaUpload:
+    """The rover's GGA sentence sent on one connection: when called, if it is due."""
+
+    def __init__(self, sock: socket.socket, gga: Callable[[], str | None], interval_s: float) -> None:
+        self.sock, self.gga, self.interval_s = sock, gga, interval_s
+        self.due = 0.0
+
+    def __call__(self) -> None:
+        now = time.monotonic()
+        if now < self.due:
+            return
+        try:
+            sentence = self.gga()
+        except Exception as exc:  # the caller's position source: its bug must not end the stream
+            log.warning("ntrip: gga() failed, nothing sent", extra={"error": repr(exc)})
+            sentence = None
+        if not sentence:
+            self.due = now + GGA_RETRY_S
+            return
+        self.due = now + self.interval_s
+        self.sock.sendall(sentence.strip().encode("ascii", errors="replace") + b"\r\n")  # OSError: reconnect
+
+
+def _raw(
+    first: bytes,
+    sock: socket.socket,
+    stop: threading.Event,
+    timeout_s: float,
+    tick: Callable[[], None] | None = None,
+) -> Iterator[bytes]:
+    """The stream as is (TimeoutError after `timeout_s` without a byte); `tick` runs between
+    reads (at least every half second: the GGA upload)."""
     if first:
         yield first
     silent = 0.0
     while not stop.is_set():
+        if tick:
+            tick()
         try:
             data = sock.recv(CHUNK)
         except TimeoutError:
@@ -146,10 +195,16 @@ def _raw(first: bytes, sock: socket.socket, stop: threading.Event, timeout_s: fl
         yield data
 
 
-def _dechunk(first: bytes, sock: socket.socket, stop: threading.Event, timeout_s: float) -> Iterator[bytes]:
+def _dechunk(
+    first: bytes,
+    sock: socket.socket,
+    stop: threading.Event,
+    timeout_s: float,
+    tick: Callable[[], None] | None = None,
+) -> Iterator[bytes]:
     """HTTP chunked transfer decoding (`size CRLF data CRLF`), as some NTRIP 2 casters send."""
     buf = first
-    raw = _raw(b"", sock, stop, timeout_s)
+    raw = _raw(b"", sock, stop, timeout_s, tick)
     while True:
         line_end = buf.find(b"\r\n")
         if line_end < 0:
