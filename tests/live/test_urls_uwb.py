@@ -41,6 +41,7 @@ def test_url_forms(tmp_path: Path) -> None:
     assert (u.user, u.password) == ("me", "s3cret")
     assert "s3cret" not in str(u) and "s3cret" not in repr(u) and "me:***@" in u.redacted()
     assert parse_source("ntrip://caster.example/M", option="--base", role="base").port == 2101
+    assert parse_source("ntrip://caster.example/M?version=1", option="--base", role="base").version == 1
     u = parse_source("udp://:5600", option="--uwb", role="uwb")
     assert (u.transport, u.format, u.host, u.port) == ("udp", "uwb", None, 5600)
 

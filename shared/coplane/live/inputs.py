@@ -59,7 +59,9 @@ def open_source(url: SourceUrl) -> ByteSource:
         from coplane.live.ntrip import NtripSource
 
         assert url.host is not None and url.port is not None and url.mountpoint is not None
-        return NtripSource(url.host, url.port, url.mountpoint, url.user, url.password, name=name)
+        return NtripSource(
+            url.host, url.port, url.mountpoint, url.user, url.password, name=name, version=url.version
+        )
     if url.transport == "udp":
         from coplane.live.uwb import UwbUdpSource
 

@@ -59,6 +59,7 @@ class SourceUrl:
     user: str | None = None
     password: str | None = None
     mountpoint: str | None = None
+    version: int = 2  # NTRIP protocol version (ntrip:// only)
 
     def redacted(self) -> str:
         """The URL with the password hidden: the only form that goes into logs and errors."""
@@ -117,6 +118,7 @@ def parse_source(text: str, *, option: str, role: Role) -> SourceUrl:
 
     fmt: Format | None = fmt_given or None  # type: ignore[assignment]
     host, path, baud, user, password, mount = None, None, None, None, None, None
+    ntrip_version = 2
     if transport in ("tcp", "ntrip", "udp"):
         host = u.hostname or None
         if host is None and transport != "udp":
@@ -139,6 +141,7 @@ def parse_source(text: str, *, option: str, role: Role) -> SourceUrl:
             version = query.get("version", ["2"])[-1]
             if version not in ("1", "2"):
                 raise bad(f"version {version!r}: NTRIP version is 1 or 2")
+            ntrip_version = int(version)
         elif u.username or u.password:
             raise bad("credentials are only for ntrip://")
     else:  # file, serial: the path is everything after the scheme
@@ -165,4 +168,4 @@ def parse_source(text: str, *, option: str, role: Role) -> SourceUrl:
         raise bad(f"format missing: write {FORMATS_OF[role][0]}+{transport}://...")
     if fmt not in FORMATS_OF[role]:
         raise bad(f"format {fmt!r} is not for {role} input; one of {', '.join(FORMATS_OF[role])}")
-    return SourceUrl(text, transport, fmt, host, port, path, baud, user, password, mount)
+    return SourceUrl(text, transport, fmt, host, port, path, baud, user, password, mount, ntrip_version)
