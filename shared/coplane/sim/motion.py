@@ -56,6 +56,15 @@ class MotionParams:
     dt_s: float = 0.1
 
 
+@dataclass(frozen=True)
+class FleetStart:
+    """Per vehicle: start position (m along the loop), convoy index and desired-speed factor."""
+
+    s_m: AnyArray
+    convoy: AnyArray
+    factor: AnyArray
+
+
 @dataclass
 class FleetTrack:
     """Per epoch (K) and vehicle (M) truth and road coordinates."""
@@ -108,8 +117,13 @@ def simulate_motion(
     interval_s: float,
     origin: tuple[float, float, float],
     rng: np.random.Generator,
+    start: FleetStart | None = None,
 ) -> FleetTrack:
-    """Drive `n_vehicles` for `n_epochs` epochs; truth sampled exactly at the epochs."""
+    """Drive `n_vehicles` for `n_epochs` epochs; truth sampled exactly at the epochs.
+
+    Without `start` the fleet starts as one queue behind `start_s_m` in convoys of `convoy_size`;
+    the city (coplane.sim.city) passes its platoons' positions, groups and speed factors instead.
+    """
     p = params
     L = road.length_m
     m = n_vehicles
@@ -118,7 +132,7 @@ def simulate_motion(
 
     factor = rng.uniform(*p.desired_factor, size=m)
     h_ant = np.round(rng.uniform(*p.antenna_height_m, size=m), 3)  # mm, as written in fleet.toml
-    group = np.arange(m) // max(p.convoy_size, 1)
+    group = np.arange(m) // max(p.convoy_size, 1) if start is None else np.asarray(start.convoy)
     n_groups = int(group.max()) + 1
     lanes = np.arange(m) % road.lanes
     # initial positions: per lane, behind each other with random gaps; lanes staggered
@@ -135,6 +149,8 @@ def simulate_motion(
                     min(gaps[i], max(budget - p.vehicle_length_m, p.idm_min_gap_m + 2.0)) + p.vehicle_length_m
                 )
             s[i] = pos
+    if start is not None:  # the same draws as above were made: other streams do not shift
+        s, factor = np.asarray(start.s_m, dtype=float), np.asarray(start.factor, dtype=float)
     s = np.mod(s, L)
     y = road.lane_offset(lanes)
     v = np.clip(factor * vlim[(s / grid_step).astype(int) % len(vlim)], p.min_speed_mps, p.max_speed_mps)

@@ -7,6 +7,9 @@
   orbit/clock, clock, multipath and noise remain).
 * `dense-urban`: the same road lined with taller buildings closer to the road, a second
   underpass and stronger multipath (hard case).
+* `city`: load generation: a street grid a few km wide whose loops (rectangles of 1-4 blocks)
+  share and cross streets, vehicles in platoons of 2-6 per loop (coplane.sim.city); the base
+  stands in the middle block. Only `road`'s origin and lanes apply to it.
 
 The time window 2024-06-24 08:10 GPST lies inside the validity of the bundled broadcast
 ephemerides (GPS and BeiDou usable 08:00-10:00 GPST, see coplane/data/nav/README.md).
@@ -19,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 from coplane.sim.canyon import BuildingParams, CanyonParams, UnderpassParams
+from coplane.sim.city import CityParams
 from coplane.sim.errors import (
     CommonModeParams,
     IonoParams,
@@ -130,6 +134,7 @@ class Scenario:
     base_receiver: ReceiverParams = field(default_factory=base_receiver_params)
     base: BaseStationParams | None = field(default_factory=BaseStationParams)
     uwb: UwbParams | None = field(default_factory=UwbParams)
+    city: CityParams | None = None  # set: many loops of a street grid instead of `road`'s one loop
 
     def nav_path(self) -> Path:
         p = Path(self.nav_file)
@@ -190,6 +195,15 @@ def _dense_urban() -> Scenario:
     )
 
 
+def _city() -> Scenario:
+    return Scenario(
+        name="city",
+        description="load generation: loops of a street grid, platoons of 2-6 that meet and part",
+        city=CityParams(),
+        base=BaseStationParams(east_m=0.0, north_m=0.0),  # the middle block's centre, 12 m up
+    )
+
+
 SCENARIOS: dict[str, Scenario] = {
     "urban-loop": Scenario(
         name="urban-loop",
@@ -197,6 +211,7 @@ SCENARIOS: dict[str, Scenario] = {
     ),
     "open-sky": _open_sky(),
     "dense-urban": _dense_urban(),
+    "city": _city(),
 }
 DEFAULT_SCENARIO = "urban-loop"
 

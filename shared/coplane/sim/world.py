@@ -19,6 +19,7 @@ from coplane.recording.model import NavData
 from coplane.recording.problems import Problems
 from coplane.recording.rinex_nav import read_nav
 from coplane.sim.canyon import Canyon
+from coplane.sim.city_world import build_city
 from coplane.sim.errors import ReceiverParams, component_rng
 from coplane.sim.motion import FleetTrack, simulate_motion
 from coplane.sim.road import RaisedProfile, Road, RoadRaise, Sections, enu_to_ecef_curved
@@ -128,15 +129,24 @@ def build_world(
     _check_window(nav, sats, t0, times[-1])
 
     rp = sc.road
-    road = Road(rp.waypoints_en, rp.corner_radius_m, rp.lanes, rp.lane_width_m, rp.grade_changes)
-    if road_raise:
-        road.profile = RaisedProfile(road.profile, road_raise)
-    sections = Sections(road.length_m, rp.sections)
-    canyon = Canyon(road, sections, sc.canyon, component_rng(seed, "canyon"))
     origin = (rp.origin_lat_deg, rp.origin_lon_deg, rp.origin_h_m)
-    track = simulate_motion(
-        road, sections, sc.motion, vehicles, n_ep, dt, origin, component_rng(seed, "motion")
-    )
+    road: Road
+    sections: Sections
+    canyon: Canyon
+    if sc.city is not None:
+        if road_raise:
+            raise ValueError("road_raise applies to a single-loop scenario, not to the city")
+        city = build_city(sc, vehicles, n_ep, seed)
+        road, sections, canyon, track = city.road, city.sections, city.canyon, city.track
+    else:
+        road = Road(rp.waypoints_en, rp.corner_radius_m, rp.lanes, rp.lane_width_m, rp.grade_changes)
+        if road_raise:
+            road.profile = RaisedProfile(road.profile, road_raise)
+        sections = Sections(road.length_m, rp.sections)
+        canyon = Canyon(road, sections, sc.canyon, component_rng(seed, "canyon"))
+        track = simulate_motion(
+            road, sections, sc.motion, vehicles, n_ep, dt, origin, component_rng(seed, "motion")
+        )
     origin_ecef = geodetic_to_ecef(
         math.radians(rp.origin_lat_deg), math.radians(rp.origin_lon_deg), rp.origin_h_m
     )
