@@ -36,7 +36,7 @@ from .history import check_history, open_history
 from .hub import StreamHub
 from .map_reader import MapReader
 from .models import GeoJsonFeatureCollection, Problem, StreamEvent
-from .routers import accuracy, dashboard, health, metrics, planes, stream, vehicles
+from .routers import accuracy, dashboard, health, metrics, planes, regions, stream, vehicles
 from .routers import map as road_map
 from .settings import ApiSettings
 from .state import FleetState
@@ -201,7 +201,7 @@ def create_app(
     app.state.registry = metrics.make_registry(metrics.FleetCollector(state, ingest, hub, the_bus, clock))
     app.state.registry.register(map_reader)
     app.state.dashboard_html = dashboard.load_dashboard()
-    for r in (vehicles, planes, accuracy, stream, health, metrics, dashboard, road_map):
+    for r in (vehicles, planes, accuracy, stream, health, metrics, dashboard, road_map, regions):
         app.include_router(r.router)
     app.add_exception_handler(StarletteHTTPException, _http_problem)
     app.add_exception_handler(RequestValidationError, _validation_problem)

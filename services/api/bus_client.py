@@ -98,14 +98,14 @@ class Ingest:
             {"source": source, "reason": str(exc), "count": n},
         )
 
-    def solution(self, payload: bytes) -> None:
+    def solution(self, payload: bytes, server: str = "") -> None:
         try:
             sol = decode(SolutionMessage, payload)
         except BadMessage as exc:
             self._rejected("solution", exc)
             return
         now = self.clock()
-        if self.state.on_solution(sol, now):
+        if self.state.on_solution(sol, now, server):
             ev = self.state.stream_event(sol, now)
             if ev is not None:
                 self.hub.publish(ev)
@@ -120,13 +120,13 @@ class Ingest:
                 {"reason": v.reason, "seq": sol.seq, "generation": sol.generation, "count": n},
             )
 
-    def diagnostics(self, payload: bytes) -> None:
+    def diagnostics(self, payload: bytes, server: str = "") -> None:
         try:
             d = decode(DiagnosticsMessage, payload)
         except BadMessage as exc:
             self._rejected("diagnostics", exc)
             return
-        self.state.on_diagnostics(d)
+        self.state.on_diagnostics(d, server)
 
     def alive(self, key: str, present: bool) -> None:
         ident = KeySpace.id_of_alive_key(key)
@@ -191,8 +191,8 @@ class ZenohBus:
             # the API may run several times: its token is named by its session id
             token=lambda zid: keys.alive("api", zid[:32]),
             subscribe=[
-                Subscription(keys.solution),
-                Subscription(keys.diagnostics),
+                Subscription(keys.all_solutions),  # one server's `solution`, or several servers' (regions)
+                Subscription(f"{keys.diagnostics}/**"),
                 Subscription(keys.all_alive("*"), liveliness=True),
             ],
             sink=lambda event: self._route(ingest, event),
@@ -202,10 +202,11 @@ class ZenohBus:
         """One bus event (on a Zenoh thread) to its handler on the loop."""
         if isinstance(event, Presence):
             ingest.submit(ingest.alive, event.key, event.alive)
-        elif isinstance(event, Payload) and event.key == self.keys.solution:
-            ingest.submit(ingest.solution, event.data)
-        elif isinstance(event, Payload) and event.key == self.keys.diagnostics:
-            ingest.submit(ingest.diagnostics, event.data)
+        elif isinstance(event, Payload) and event.key.startswith(self.keys.solution):
+            ingest.submit(ingest.solution, event.data, KeySpace.server_of_solution_key(event.key))
+        elif isinstance(event, Payload) and event.key.startswith(self.keys.diagnostics):
+            server = event.key.removeprefix(self.keys.diagnostics).lstrip("/")
+            ingest.submit(ingest.diagnostics, event.data, server)
 
     def _open(self) -> None:
         assert self.ingest is not None

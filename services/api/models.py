@@ -206,6 +206,22 @@ class Readiness(_Out):
     reasons: list[str] = Field(description="Why not ready (empty when ready)")
 
 
+class ServerRegions(_Out):
+    server: str
+    alive: bool = Field(description="Its liveliness token (alive/fusion/<server>) is present")
+    shards: list[int] = Field(description="The shards it owns (rendezvous hashing over the live servers)")
+    regions: dict[str, list[str]] = Field(description="Region -> the vehicles it last heard there")
+    epochs_solved: int
+
+
+class RegionOwnership(_Out):
+    servers: list[ServerRegions]
+    live_servers: list[str]
+    overlapping_shards: list[int] = Field(
+        description="Shards two live servers claim (they see different live sets: a change in progress)"
+    )
+
+
 class StreamVehicle(_Out):
     vehicle_id: str
     enu_m: Vec3

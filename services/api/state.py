@@ -20,11 +20,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coplane.bus.trust import SolutionGate, Verdict
+from coplane.bus.trust import MAX_SERVERS, GateSet, Verdict
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
-from coplane.messages import DiagnosticsMessage, SolutionMessage, VehicleCounters, VehicleState
+from coplane.messages import (
+    DiagnosticsMessage,
+    SolutionMessage,
+    VehicleCounters,
+    VehicleState,
+    merge_diagnostics,
+)
 from coplane.typing import Mat
 
 from .accuracy import RunningAccuracy, TruthTrack
@@ -119,7 +125,7 @@ class FleetState:
         truth: Mapping[str, Mapping[GpsTime, Iterable[float]]] | None = None,
         known_vehicles: Iterable[str] = (),
         started: float = 0.0,
-        gate: SolutionGate | None = None,
+        gate: GateSet | None = None,
     ) -> None:
         self.fleet = fleet
         self.history = history_per_vehicle
@@ -133,7 +139,8 @@ class FleetState:
         for v in known:
             self._vehicle(v)
         # with a recording the fleet's vehicles are known: no other id is taken from a solution
-        self.gate = gate or SolutionGate(fleet, vehicles=known or None, max_vehicles=max_vehicles)
+        # one gate per fusion server: with regions each server is its own run (docs/scale.md)
+        self.gate = gate or GateSet(fleet, vehicles=known or None, max_vehicles=max_vehicles)
         self.last_verdict: Verdict | None = None  # of the latest solution offered (for the ingest's log)
         self.fusion_alive: set[str] = set()
         self.solutions = 0
@@ -147,7 +154,8 @@ class FleetState:
         self._origin_rot: Mat | None = None
         self.accuracy: dict[str, dict[str, RunningAccuracy]] = {}
         self.windows: dict[str, tuple[GpsTime, GpsTime]] = {}  # method -> (first, last) epoch seen
-        self.diagnostics: DiagnosticsMessage | None = None
+        self.diagnostics: DiagnosticsMessage | None = None  # the server's, or all servers' merged
+        self.server_diagnostics: dict[str, DiagnosticsMessage] = {}  # by server ("": the single one)
         self.rejected: Counter[tuple[str, str]] = Counter()  # (source, kind)
         self.solve_time = Histogram(SOLVE_TIME_BUCKETS)
         self.latency = Histogram(LATENCY_BUCKETS)
@@ -199,7 +207,7 @@ class FleetState:
         self.last_t = None
 
     # -- inputs ------------------------------------------------------------------------------
-    def on_solution(self, sol: SolutionMessage, now: float) -> bool:
+    def on_solution(self, sol: SolutionMessage, now: float, server: str = "") -> bool:
         """Take one fleet solution if the gate lets it through; False if it was not used (the reason
         is counted: `duplicates` for a repeated epoch, `rejected["solution", reason]` otherwise,
         `rejected["vehicle", reason]` for vehicles left out of a taken one)."""
@@ -207,7 +215,7 @@ class FleetState:
         if sol.method not in self.accuracy and len(self.accuracy) >= MAX_METHODS:
             self.reject("solution", "too-many-methods")
             return False
-        verdict = self.last_verdict = self.gate.check(sol, now)
+        verdict = self.last_verdict = self.gate.check(server, sol, now)
         if verdict.solution is None:
             if verdict.reason == "repeat":
                 self.duplicates += 1
@@ -216,11 +224,11 @@ class FleetState:
             return False
         for _, reason in verdict.dropped:
             self.reject("vehicle", reason)
-        if verdict.reset:
-            self._rewind(sol.method)
+        if verdict.reset and not server:
+            self._rewind(sol.method)  # with regions a server's restart is a take-over: tracks go on
         sol = verdict.solution
         t = GpsTime(sol.epoch.week, sol.epoch.tow)
-        self.last_t = t
+        self.last_t = t if self.last_t is None or self.last_t < t or not server else self.last_t
         self.last_method = sol.method
         self.last_received = now
         self.solutions += 1
@@ -238,6 +246,9 @@ class FleetState:
                 continue
             if self.origin is None:
                 self._set_origin(vs.position_ecef_m)
+            if server and v.t is not None and t <= v.t:
+                self.reject("vehicle", "older-than-held")  # two servers during a hand-over
+                continue
             self._take_state(v, vs, sol, t, now, acc)
         return True
 
@@ -270,16 +281,23 @@ class FleetState:
             StoredPoint(t, vs.position_ecef_m, llh, enu, cov, vs.plane_status, err[0] if err else None)
         )
 
-    def on_diagnostics(self, d: DiagnosticsMessage) -> bool:
+    def on_diagnostics(self, d: DiagnosticsMessage, server: str = "") -> bool:
         """Take the server's counters; False for another fleet, or for another server generation
         than the one whose solutions the gate follows (a stray or forged server's counters)."""
         if d.fleet != self.fleet:
             self.reject("diagnostics", "wrong-fleet")
             return False
-        gen = self.gate.generation
+        g = self.gate.gates.get(server)
+        gen = g.generation if g is not None else None
         if d.generation is not None and gen is not None and d.generation != gen:
             self.reject("diagnostics", "other-generation")
             return False
+        if server not in self.server_diagnostics and len(self.server_diagnostics) >= MAX_SERVERS:
+            self.reject("diagnostics", "too-many-servers")
+            return False
+        self.server_diagnostics[server] = d
+        if len(self.server_diagnostics) > 1:
+            d = merge_diagnostics(list(self.server_diagnostics.values()))
         self.diagnostics = d
         for vid, c in d.vehicles.items():
             v = self._vehicle(vid)

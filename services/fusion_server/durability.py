@@ -79,7 +79,8 @@ class Durability:
     def for_server(cls, server: FusionServer) -> Durability:
         """The log the settings name (`db`: auto, none, or a path), not opened yet."""
         s = server.s
-        path = log_path(s.db, "fusion", server.fleet, server.spec.name, connect=s.connect)
+        parts = ("fusion", server.fleet, server.spec.name, *((s.server_id,) if s.regions else ()))
+        path = log_path(s.db, *parts, connect=s.connect)  # one log per server of a regional fleet
         if path is not None and path.is_file():
             SolutionLog(path, writer=False).close()  # a corrupt or foreign file fails now, named
         return cls(path, server.fleet, server.spec.name, s.resume_max_age_s)

@@ -12,6 +12,7 @@ import logging
 import threading
 import time
 from collections import Counter, defaultdict
+from typing import Any
 
 from coplane.bus import (
     BadMessage,
@@ -26,6 +27,7 @@ from coplane.bus import (
     encode,
     session_config,
 )
+from coplane.estimation.contract import seed_estimator
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
 from coplane.recording.manifest import load_manifest
@@ -36,13 +38,15 @@ from coplane.store import map_path
 
 from .admission import Admission, AdmissionConfig
 from .durability import Durability
+from .pacing import Pacing
+from .regions import RegionRole
 from .road_map import LiveRoadMap
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
 
 
-class FusionServer:
+class FusionServer(Pacing):
     def __init__(self, settings: FusionSettings, stop: threading.Event | None = None) -> None:
         self.s = settings
         self.stop = stop or threading.Event()
@@ -92,18 +96,41 @@ class FusionServer:
         self.durable = Durability.for_server(self)  # the solution log (opened by run)
         self.heights = {v.id: v.antenna_height_m for v in man.vehicles}
         self.road_map: LiveRoadMap | None = None  # opened by run (settings.map)
+        self.regions: RegionRole | None = None  # one of several servers of the fleet (docs/scale.md)
+        if settings.regions:
+            window = int(getattr(getattr(self.step.estimator, "config", None), "window_epochs", 10))
+            self.regions = RegionRole(
+                settings.server_id,
+                self.keys,
+                settings.region_config(),
+                window * man.interval_s,
+                settings.expected_servers,
+            )
+        self.solution_key = (
+            self.keys.server_solution(settings.server_id) if settings.regions else self.keys.solution
+        )
+        self.diagnostics_key = (
+            f"{self.keys.diagnostics}/{settings.server_id}" if settings.regions else self.keys.diagnostics
+        )
 
     def node(self) -> BusNode:
         """The server's place on the bus: every vehicle's node key and the agents' tokens in,
         solutions and diagnostics out."""
+        if self.regions is not None:  # node keys follow the shards owned (RegionRole.sync)
+            listen = [
+                Subscription(self.keys.all_alive("fusion"), liveliness=True),
+                Subscription(self.keys.all_solutions),  # the other servers': hand-over seeds
+            ]
+        else:
+            listen = [Subscription(self.keys.all_nodes, history=True)]  # agents' caches, after a restart
         return BusNode(
             session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
-            token=self.keys.alive("fusion", "0"),
+            token=self.keys.alive("fusion", self.s.server_id),
             publish=[
-                Publication(self.keys.solution, must_deliver=True),
+                Publication(self.solution_key, must_deliver=True),
                 # reliable too: the final diagnostics are put just before the session closes, and a
                 # dropped one leaves consumers with stale counters (it is one message a second)
-                Publication(self.keys.diagnostics, must_deliver=True),
+                Publication(self.diagnostics_key, must_deliver=True),
                 # the road map's tiles, cached for agents that start later (docs/roadmap.md)
                 *(
                     [Publication(self.keys.map_tiles, must_deliver=True, history=self.road_map.cache_size)]
@@ -111,10 +138,7 @@ class FusionServer:
                     else []
                 ),
             ],
-            subscribe=[
-                Subscription(self.keys.all_nodes, history=True),  # agents' caches, after a restart
-                Subscription(self.keys.all_alive("agent"), liveliness=True),
-            ],
+            subscribe=[*listen, Subscription(self.keys.all_alive("agent"), liveliness=True)],
         )
 
     def _put_tiles(self, node: BusNode) -> None:
@@ -132,11 +156,25 @@ class FusionServer:
         """The one dispatch of bus events; a bad event is logged and never stops the server."""
         try:
             if isinstance(event, Payload):
-                self.handle_node(event.key, event.data)
+                if self.regions is not None and KeySpace.vehicle_of_node_key(event.key) is None:
+                    self.handle_peer_solution(event.key, event.data)
+                else:
+                    self.handle_node(event.key, event.data)
             elif isinstance(event, Presence):
                 self.handle_alive(event.key, event.alive)
         except Exception:
             log.exception("event handling failed")
+
+    def handle_peer_solution(self, key: str, payload: bytes) -> None:
+        """Regions: another server's solution, kept for hand-over seeds (a bad one is counted)."""
+        assert self.regions is not None
+        try:
+            sol = decode(SolutionMessage, payload)
+        except BadMessage as exc:
+            self.rejected_by_reason[f"peer-solution-{exc.kind}"] += 1
+            return
+        if sol.fleet == self.fleet:
+            self.regions.peer_solution(key, sol)
 
     def handle_node(self, key: str, payload: bytes, now: float | None = None) -> None:
         """One node payload: decoded, then admitted into `pending` only if `Admission` lets it in
@@ -146,6 +184,9 @@ class FusionServer:
         vid = KeySpace.vehicle_of_node_key(key)
         if vid is None or vid not in self.known:
             self._reject(None, "unknown-vehicle", key[:120])
+            return
+        if self.regions is not None and self.regions.own_copy(key):
+            self.regions.counts["own-copies"] += 1  # heard on its home key too
             return
         c = self.counters[vid]
         c["received"] += 1
@@ -158,6 +199,8 @@ class FusionServer:
         except BadMessage as exc:
             self._reject(vid, exc.kind, str(exc))
             return
+        if self.regions is not None:
+            self.regions.saw_node(vid, key, now, gps_time(msg.epoch))  # where it is, even if late
         t = gps_time(msg.epoch)
         digest = hashlib.blake2b(payload, digest_size=16).digest()
         v = self.admission.check(
@@ -170,7 +213,9 @@ class FusionServer:
             epoch_pending=t in self.pending,
         )
         if v.outcome == "late":
-            c["late"] += 1
+            # regions: an epoch this server passed without solving the vehicle is another's
+            mine = self.regions is None or self.regions.mine(vid)
+            c["late" if mine else "elsewhere"] += 1
             return
         if v.outcome == "duplicate":
             c["duplicate"] += 1  # an identical re-send (lockstep agents resend every second)
@@ -207,6 +252,9 @@ class FusionServer:
 
     def handle_alive(self, key: str, alive: bool) -> None:
         ident = KeySpace.id_of_alive_key(key)
+        if ident is not None and ident[0] == "fusion" and self.regions is not None:
+            self.regions.server_presence(ident[1], alive)
+            return
         if ident is None or ident[0] != "agent" or ident[1] not in self.known:
             return
         vid = ident[1]
@@ -221,77 +269,21 @@ class FusionServer:
             self.latest.pop(vid, None)
             self.admission.offline(vid)  # a restarted agent counts its seq from 0 again
 
-    # -- solving -------------------------------------------------------------------------------
-    def ready_epoch(self, now: float) -> GpsTime | None:
-        """The next epoch to solve now, or None.
-
-        Realtime never solves an epoch ahead of the fleet's current epoch (`Admission.solve_limit`):
-        a message ahead of the fleet waits for it instead of making the fleet's epochs late. Lockstep
-        waits for each silent live vehicle once (`stall_timeout_s`), then not again until it sends."""
-        self._drop_outside_window(now)
-        if not self.pending or self._start_wait(now):
-            return None
-        t = min(self.pending)
-        if self.s.pace == "realtime":
-            limit = self.admission.solve_limit(now, self.solved_up_to)
-            if limit is not None and limit < t:
-                return None
-            return t if now - self.first_arrival[t] >= self.s.deadline_s else None
-        if now - self.started < self.s.startup_wait_s and not self.known <= self.live:
-            return None  # lockstep start: give every agent the chance to show up
-        waiting = [
-            v
-            for v in self.live
-            if (v not in self.latest or self.latest[v] < t) and not self.admission.is_silent(v)
-        ]
-        if not waiting:
-            self.waiting_since = None
-            return t
-        if self.waiting_since is None:
-            self.waiting_since = now
-        if now - self.waiting_since > self.s.stall_timeout_s:
-            log.warning("solving without silent vehicles", extra={"vehicles": ",".join(sorted(waiting))})
-            self.admission.mark_silent(waiting)  # e.g. a token without an agent: wait once, not every epoch
-            self.waiting_since = None
-            return t
-        return None
-
-    def _start_wait(self, now: float) -> bool:
-        """Start (nothing solved, no resume): wait until every vehicle of the recording has been
-        admitted, or `startup_wait_s`, so a lone first sender (its epoch could be a week ahead or
-        behind) is not taken for the fleet. A fast realtime replay with a vehicle that never speaks
-        stops waiting once two vehicles have spoken and half the pending bound is used, before
-        genuine epochs are refused."""
-        if self.solved_up_to is not None or now - self.started >= self.s.startup_wait_s:
-            return False
-        spoke = set(self.latest)
-        if self.known <= spoke:
-            return False
-        return not (len(spoke) >= 2 and len(self.pending) >= self.admission.config.pending_limit // 2)
-
-    def _drop_outside_window(self, now: float) -> None:
-        """Drop pending epochs outside the window of the fleet's current epoch (admitted before the
-        fleet's epoch was known, e.g. from a lone first sender): they would never be solved, or be
-        solved as a stray epoch far from the fleet's. Their messages are counted rejected
-        (too-far-ahead / too-far-behind), so the counters still add up."""
-        while self.pending:
-            side = None
-            for t in (max(self.pending), min(self.pending)):
-                if (side := self.admission.outside_window(t, now, self.solved_up_to)) is not None:
-                    break
-            if side is None:
-                return
-            msgs = self.pending.pop(t)
-            self.first_arrival.pop(t, None)
-            self.admission.forget(t)
-            for vid in msgs:
-                self._reject(vid, side, f"epoch {t} dropped from pending")
-
+    # -- solving (when: pacing.py) -------------------------------------------------------------
     def solve(self, t: GpsTime) -> SolutionMessage | None:
         msgs = self.pending.pop(t)
         self.first_arrival.pop(t, None)
         self.admission.solved(t)
-        missing = sorted(v for v in self.live if v not in msgs)
+        if self.regions is not None:
+            msgs, others = self.regions.select(t, msgs)
+            for v in others:
+                self.counters[v]["elsewhere"] += 1
+            if not msgs:
+                self.solved_up_to = t
+                return None
+            tracked = getattr(self.step.estimator, "tracked_vehicles", [])
+            seed_estimator(self.step.estimator, self.regions.seeds(msgs, tracked))
+        missing = sorted(v for v in self._live_here() if v not in msgs)
         for v in missing:
             self.counters[v]["missing"] += 1
         try:
@@ -310,6 +302,17 @@ class FusionServer:
         self.solved_up_to = t
         self.epochs_solved += 1
         self.last_solve_s = sol.solve_time_s
+        if self.regions is not None:
+            # only the vehicles this server answers for: those it solved and its own silent ones
+            # (the estimator still carries a vehicle that crossed to another server for a while)
+            mine = set(msgs) | set(missing)
+            sol = sol.model_copy(
+                update={
+                    "server": self.s.server_id,
+                    "answered": sorted(msgs),
+                    "vehicles": [v for v in sol.vehicles if v.vehicle_id in mine],
+                }
+            )
         return sol
 
     def diagnostics(self) -> DiagnosticsMessage:
@@ -330,11 +333,22 @@ class FusionServer:
             pending_epochs=len(self.pending),
             pending_limit=self.admission.config.pending_limit,
             generation=self.generation,
+            **(self._region_diagnostics() if self.regions is not None else {}),
         )
+
+    def _region_diagnostics(self) -> dict[str, Any]:
+        assert self.regions is not None
+        return {
+            "server": self.s.server_id,
+            "servers": sorted(self.regions.servers),
+            "shards": sorted(self.regions.shards),
+            "regions": self.regions.summary(),
+        }
 
     def run(self) -> None:
         s = self.s
-        path = map_path(s.map, self.fleet)
+        # regions: each server keeps its own map file for now (docs/scale.md, "Not yet")
+        path = map_path(s.map, f"{self.fleet}-{s.server_id}" if self.regions is not None else self.fleet)
         if path is not None:  # before the node: its tile publisher's cache is sized by the map
             self.road_map = LiveRoadMap.open(
                 path, self.heights, s.map_commit_every_s, self.fleet, s.map_snapshot_every_s
@@ -349,17 +363,19 @@ class FusionServer:
                 while not self.stop.is_set():
                     if (event := node.get(timeout=0.02)) is not None:
                         self.handle(event)
+                    if self.regions is not None:
+                        self.regions.sync(node)
                     now = time.monotonic()
                     while (t := self.ready_epoch(now)) is not None:
                         sol = self.solve(t)
                         if sol is not None:
-                            self.durable.publish(self, node, self.keys.solution, sol)  # committed first
-                    self.durable.tick(self, node, self.keys.solution)
+                            self.durable.publish(self, node, self.solution_key, sol)  # committed first
+                    self.durable.tick(self, node, self.solution_key)
                     if self.road_map is not None:
                         self.road_map.tick(now)
                         self._put_tiles(node)
                     if now - last_diag > s.diagnostics_period_s:
-                        node.put(self.keys.diagnostics, encode(self.diagnostics()))
+                        node.put(self.diagnostics_key, encode(self.diagnostics()))
                         last_diag = now
             finally:
                 for event in node.drain():  # account for everything that arrived before the stop
@@ -367,6 +383,6 @@ class FusionServer:
                 if self.road_map is not None:
                     self.road_map.close()  # the last passes: committed, then on the bus
                     self._put_tiles(node)
-                node.put(self.keys.diagnostics, encode(self.diagnostics()))
+                node.put(self.diagnostics_key, encode(self.diagnostics()))
                 log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
                 self.durable.close()

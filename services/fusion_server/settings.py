@@ -8,10 +8,10 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from coplane.runtime import ServiceSettings
+from coplane.runtime import RegionOptions, ServiceSettings
 
 
-class FusionSettings(ServiceSettings):
+class FusionSettings(ServiceSettings, RegionOptions):
     model_config = SettingsConfigDict(env_prefix="COPLANE_FUSION_", extra="ignore")
     toml_table: str = "fusion"
 
@@ -82,3 +82,12 @@ class FusionSettings(ServiceSettings):
         default=10.0, ge=0.0, description="At most one rejection log per vehicle and reason this often"
     )
     log_level: str = "INFO"
+    # Regions (docs/scale.md): several servers share a fleet; each needs its own id
+    server_id: str = Field(
+        default="0",
+        pattern=r"^[A-Za-z0-9_-]{1,32}$",
+        description="This server's id among the fleet's servers",
+    )
+    expected_servers: int = Field(
+        default=1, ge=1, le=256, description="Regions: wait (up to startup_wait_s) for this many servers"
+    )

@@ -30,9 +30,9 @@ from coplane.bus import (
     encode,
     session_config,
 )
-from coplane.bus.trust import SolutionGate
+from coplane.bus.trust import GateSet
 from coplane.gtime import GpsTime
-from coplane.messages import MapTilesMessage, SolutionMessage
+from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
@@ -41,6 +41,7 @@ from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
 from coplane.steps.map_tiles import MapReceiver
 
+from .region import NODE_HISTORY, RegionKeys
 from .settings import AgentSettings
 
 log = logging.getLogger("coplane.vehicle_agent")
@@ -81,8 +82,14 @@ class VehicleAgent:
         )
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)
-        self.gate = SolutionGate(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
+        # one gate per server: with regions each server is its own run (docs/scale.md)
+        self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
         self.step = setup.vehicle_step(rec, vid)
+        self.region: RegionKeys | None = None
+        if settings.regions:
+            base = man.base.position_ecef_m if man.base is not None else None
+            self.region = RegionKeys(self.keys, vid, settings.region_config(), base)
+        self.interval_s = man.interval_s
         # the road map from the bus (map methods): the fusion server's tiles on top of --map's file
         self.tiles: MapReceiver | None = None
         if setup.method.plane_map:
@@ -106,6 +113,7 @@ class VehicleAgent:
         self.published = 0
         self.ingested = 0
         self.bad_solutions = 0
+        self.unplaced = 0  # regions: epochs not sent, no position to place them in a region yet
         self.warn = RateLimitedLog(log)  # forged or bad floods must not flood the log
 
     def node(self) -> BusNode:
@@ -114,10 +122,14 @@ class VehicleAgent:
         return BusNode(
             session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
             token=self.keys.alive("agent", vid),
-            # history: a restarted fusion server still receives the last 120 (docs/reliability/durability.md)
-            publish=[Publication(self.keys.node(vid), must_deliver=True, history=120)],
+            # history: a restarted fusion server still receives the last 120 (docs/reliability/durability.md);
+            # with regions the node keys follow the vehicle (`node_keys`)
+            publish=[]
+            if self.region is not None
+            else [Publication(self.keys.node(vid), must_deliver=True, history=NODE_HISTORY)],
+            history_later=self.region is not None,
             subscribe=[
-                Subscription(self.keys.solution),
+                Subscription(self.keys.all_solutions),
                 *([Subscription(self.keys.map_tiles, history=True)] if self.tiles is not None else []),
             ],
         )
@@ -147,7 +159,28 @@ class VehicleAgent:
                 {"reason": str(exc), "count": self.bad_solutions},
             )
             return None
-        return self._take(self.gate.check(sol, time.time(), expect).solution, sol)
+        server = KeySpace.server_of_solution_key(ev.key)
+        return self._take(self.gate.check(server, sol, time.time(), expect).solution, sol)
+
+    def node_keys(self, node: BusNode, msg: NodeMessage) -> list[str]:
+        """The keys to put this epoch's node message on: the vehicle's own, or with regions its
+        region's and the copies near a boundary (empty: no position yet, the message is not sent).
+        The first is the one a lockstep agent re-sends on."""
+        if self.region is None:
+            return [self.keys.node(self.step.vehicle_id)]
+        keys = self.region.keys_for(msg, node)
+        if not keys:
+            self.unplaced += 1
+        return keys
+
+    def answered(self, sol: SolutionMessage, t: GpsTime) -> bool:
+        """Whether a lockstep agent waiting at `t` may go on: the solution answers this vehicle's
+        epoch `t` (or a later one); with regions, a solution two epochs past `t` from any server
+        also does (the fleet went on without this vehicle, e.g. its message came too late)."""
+        st = gps_time(sol.epoch)
+        if st < t:
+            return False
+        return sol.answers(self.step.vehicle_id) or st - t >= 2 * self.interval_s
 
     def _take_tiles(self, data: bytes) -> None:
         """One batch of road-map tiles from the fusion server (bad ones counted, never fatal)."""
@@ -213,7 +246,6 @@ class VehicleAgent:
             start = s.start_unix_s if s.start_unix_s is not None else time.time()
             t0 = self.t0 or self.schedule[0][0]
             interval = self.rec.manifest.interval_s
-            key = self.keys.node(self.step.vehicle_id)
             for t, ep in self.schedule:
                 if self.stop.is_set():
                     break
@@ -228,11 +260,14 @@ class VehicleAgent:
                     self.ingest_one(ev, expect=t)
                 msg = self.step.process(t, ep, self.corrections.at(t), self.uwb.get(t, ()))
                 msg = msg.model_copy(update={"sent_unix_s": time.time()})  # latency stamp only
+                if not (keys := self.node_keys(node, msg)):
+                    continue
                 payload = encode(msg)
-                node.put(key, payload)
+                for key in keys:
+                    node.put(key, payload)
                 self.published += 1
                 if s.pace == "lockstep":
-                    self.wait_for_solution(t, node, key, payload)
+                    self.wait_for_solution(t, node, keys, payload)
             if s.pace == "realtime" and self.published and not self.stop.is_set():
                 self.await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
             log.info(
@@ -254,18 +289,19 @@ class VehicleAgent:
             if sol is not None and not (gps_time(sol.epoch) < t_last):
                 return
 
-    def wait_for_solution(self, t: GpsTime, node: BusNode, key: str, payload: bytes) -> None:
+    def wait_for_solution(self, t: GpsTime, node: BusNode, keys: list[str], payload: bytes) -> None:
         last_send = time.monotonic()
         while not self.stop.is_set():
             ev = node.get(timeout=0.05)
             sol = None
             if ev is not None:
                 sol = self.ingest_one(ev, expect=t)
-            elif (held := self.gate.held) is not None and (v := self.gate.release(time.time())) is not None:
+            elif (released := self.gate.release(time.time())) is not None:
                 # a restarted server's first solution, held until the old one went quiet
-                sol = self._take(v.solution, held)
+                sol = self._take(released, released)
             elif time.monotonic() - last_send > self.s.resend_s:
-                node.put(key, payload)  # the server dedups; a restarted server needs it
+                for key in keys:
+                    node.put(key, payload)  # the server dedups; a restarted server needs it
                 last_send = time.monotonic()
-            if sol is not None and not (gps_time(sol.epoch) < t):
+            if sol is not None and self.answered(sol, t):
                 return

@@ -67,7 +67,6 @@ def run_live(agent: VehicleAgent) -> int:
     inputs = live_inputs(agent)
     interval = agent.rec.manifest.interval_s
     lockstep = agent.s.pace == "lockstep"
-    key = agent.keys.node(agent.step.vehicle_id)
     last_t: GpsTime | None = None
     last_epoch_at = time.monotonic()
     offline_after = max(OFFLINE_AFTER_S, OFFLINE_AFTER_EPOCHS * interval)
@@ -112,7 +111,7 @@ def run_live(agent: VehicleAgent) -> int:
                 ]
             todo.append((t, got))
             for tt, ep in todo:
-                _publish(agent, node, key, inputs, tt, ep, lockstep)
+                _publish(agent, node, inputs, tt, ep, lockstep)
             last_t = t
         if not lockstep and agent.published and not agent.stop.is_set() and last_t is not None:
             agent.await_last_solution(node, last_t, 2.0 + 3.0 * interval)
@@ -132,7 +131,6 @@ def run_live(agent: VehicleAgent) -> int:
 def _publish(
     agent: VehicleAgent,
     node: BusNode,
-    key: str,
     inputs: LiveInputs,
     t: GpsTime,
     ep: ObsEpoch | None,
@@ -145,8 +143,11 @@ def _publish(
         agent.ingest_one(ev, expect=t)
     msg = agent.step.process(t, ep, corrections, ranges)
     msg = msg.model_copy(update={"sent_unix_s": time.time()})
+    if not (keys := agent.node_keys(node, msg)):
+        return
     payload = encode(msg)
-    node.put(key, payload)
+    for key in keys:
+        node.put(key, payload)
     agent.published += 1
     if lockstep:
-        agent.wait_for_solution(t, node, key, payload)
+        agent.wait_for_solution(t, node, keys, payload)

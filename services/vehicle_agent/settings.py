@@ -8,10 +8,10 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from coplane.runtime import ServiceSettings
+from coplane.runtime import RegionOptions, ServiceSettings
 
 
-class AgentSettings(ServiceSettings):
+class AgentSettings(ServiceSettings, RegionOptions):
     model_config = SettingsConfigDict(env_prefix="COPLANE_AGENT_", extra="ignore")
     toml_table: str = "agent"
 
@@ -62,3 +62,25 @@ class AgentSettings(ServiceSettings):
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
     log_level: str = "INFO"
+
+
+class LoadgenSettings(ServiceSettings, RegionOptions):
+    """`coplane loadgen` (env COPLANE_LOADGEN_*, TOML table [loadgen], or --flags): many vehicles of
+    a recording in one process (services/vehicle_agent/loadgen.py)."""
+
+    model_config = SettingsConfigDict(env_prefix="COPLANE_LOADGEN_", extra="ignore")
+    toml_table: str = "loadgen"
+
+    recording: Path = Field(description="Fleet recording directory (fleet.toml)")
+    vehicles: int = Field(default=0, ge=0, description="Only the first N vehicles; 0: all")
+    method: str = "pc"
+    fleet: str | None = None
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    pace: Literal["lockstep", "realtime"] = "lockstep"
+    speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
+    seed: int = 0
+    resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: re-send unanswered node messages")
+    epoch_timeout_s: float = Field(
+        default=30.0, gt=0.0, description="Lockstep: give up on an epoch's answers"
+    )
+    lease_ms: int = Field(default=2000, ge=500)

@@ -250,12 +250,22 @@ class SolutionMessage(_Model):
     missing: list[VehicleId] = Field(default_factory=list)  # live vehicles that did not report
     oldest_node_sent_unix_s: float | None = None  # for end-to-end latency (node publish -> solution)
     generation: Generation | None = None  # the server run that solved it (same after a resume)
+    # regions (docs/scale.md): which of several servers solved it, and the vehicles whose node
+    # messages of this epoch it answers (a lockstep agent waits for the solution that names it)
+    server: VehicleId | None = None
+    answered: list[VehicleId] = Field(default_factory=list, max_length=4096)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
+    def answers(self, vehicle_id: str) -> bool:
+        """Whether this solution is the answer to `vehicle_id`'s node message of its epoch: the
+        single server's answers every vehicle; with regions only the owning server's does."""
+        return self.server is None or vehicle_id in self.answered
+
 
 class VehicleCounters(_Model):
-    """Per-vehicle message accounting at the fusion server: received = used + rejected + late + duplicate."""
+    """Per-vehicle message accounting at the fusion server: received = used + rejected + late +
+    duplicate + elsewhere."""
 
     received: int = 0
     used: int = 0
@@ -264,6 +274,7 @@ class VehicleCounters(_Model):
     duplicate: int = 0
     out_of_order: int = 0
     missing: int = 0  # epochs solved while this live vehicle had not reported
+    elsewhere: int = 0  # regions: messages heard across a boundary, solved by another server
     online: bool = False
 
 
@@ -282,6 +293,12 @@ class DiagnosticsMessage(_Model):
     pending_epochs: int = Field(default=0, ge=0)  # epochs waiting to be solved
     pending_limit: int = Field(default=0, ge=0)  # the bound on pending_epochs (0: not reported)
     generation: Generation | None = None
+    # regions (docs/scale.md): this server, the live servers it sees, the shards it owns and the
+    # regions its vehicles were last in
+    server: VehicleId | None = None
+    servers: list[VehicleId] = Field(default_factory=list, max_length=256)
+    shards: list[Annotated[int, Field(ge=0, le=4096)]] = Field(default_factory=list, max_length=4096)
+    regions: dict[str, list[VehicleId]] = Field(default_factory=dict, max_length=4096)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
@@ -316,3 +333,49 @@ class MapTilesMessage(_Model):
     tiles: list[MapTileState] = Field(max_length=1000)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
+
+
+def merge_diagnostics(diags: list[DiagnosticsMessage]) -> DiagnosticsMessage:
+    """Several fusion servers' diagnostics (regions, docs/scale.md) as one fleet-wide message:
+    per-vehicle counters and rejections added (each server's add up, so the sums do too), epochs
+    as the furthest server's, live vehicles, shards and regions united."""
+    first = diags[0]
+    vehicles: dict[str, VehicleCounters] = {}
+    for d in diags:
+        for vid, c in d.vehicles.items():
+            cur = vehicles.get(vid)
+            if cur is None:
+                vehicles[vid] = c
+                continue
+            counts = {
+                k: getattr(cur, k) + getattr(c, k)
+                for k, f in VehicleCounters.model_fields.items()
+                if f.annotation is int
+            }
+            vehicles[vid] = VehicleCounters(**counts, online=cur.online or c.online)
+    rejected: dict[str, int] = {}
+    regions: dict[str, list[str]] = {}
+    for d in diags:
+        for k, n in d.rejected_by_reason.items():
+            rejected[k] = rejected.get(k, 0) + n
+        for r, vs in d.regions.items():
+            regions[r] = sorted(set(regions.get(r, [])) | set(vs))
+    epochs = [d.last_epoch for d in diags if d.last_epoch is not None]
+    return first.model_copy(
+        update={
+            "epochs_solved": max(d.epochs_solved for d in diags),
+            "last_epoch": max(epochs, key=lambda e: (e.week, e.tow)) if epochs else None,
+            "last_solve_time_s": max((d.last_solve_time_s or 0.0) for d in diags),
+            "vehicles": dict(sorted(vehicles.items())),
+            "rejected_by_reason": rejected,
+            "live_vehicles": sorted({v for d in diags for v in d.live_vehicles}),
+            "node_payloads": sum(d.node_payloads for d in diags),
+            "pending_epochs": sum(d.pending_epochs for d in diags),
+            "pending_limit": sum(d.pending_limit for d in diags),
+            "generation": None,
+            "server": None,
+            "servers": sorted({s for d in diags for s in (d.servers or ([d.server] if d.server else []))}),
+            "shards": sorted({s for d in diags for s in d.shards}),
+            "regions": dict(sorted(regions.items())),
+        }
+    )

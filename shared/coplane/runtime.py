@@ -16,12 +16,15 @@ from collections.abc import Callable, Hashable, Iterator
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel, Field
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
     TomlConfigSettingsSource,
 )
+
+from coplane.regions import RegionConfig
 
 _STD = set(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {"message", "asctime"}
 
@@ -218,6 +221,32 @@ class ServiceSettings(BaseSettings):
                 )
             )
         return tuple(sources)
+
+
+class RegionOptions(BaseModel):
+    """The fleet's region settings (docs/scale.md), the same for every agent and server of a
+    fleet: a mixin of the agent's and the fusion server's settings."""
+
+    regions: bool = Field(
+        default=False,
+        description="Spread the fleet over several fusion servers by region (node keys gain shard/region)",
+    )
+    region_size_m: float = Field(default=4000.0, ge=100.0, description="Edge of a region (metric grid)")
+    region_shards: int = Field(default=64, ge=1, le=4096, description="Buckets of regions servers own")
+    region_margin_m: float = Field(
+        default=500.0, ge=0.0, description="Near another region, a vehicle also sends its node message there"
+    )
+
+    def region_config(self) -> RegionConfig:
+        """The settings as a `RegionConfig`; a bad combination is a `ConfigError` naming it."""
+        from coplane.errors import ConfigError
+
+        try:
+            return RegionConfig(
+                size_m=self.region_size_m, shards=self.region_shards, margin_m=self.region_margin_m
+            )
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
 
 
 def service_main(service: str, body: Callable[[], int]) -> int:

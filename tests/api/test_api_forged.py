@@ -107,7 +107,8 @@ def test_vehicle_count_and_track_length_are_capped() -> None:
     assert len(st.vehicles) == 5
     assert st.rejected["vehicle", "too-many-vehicles"] > 0
     assert len(st.vehicles["a"].track) == 10
-    assert len(st.gate.run.positions) <= 5 if st.gate.run else False
+    gate = st.gate.gate("")
+    assert gate is not None and gate.run is not None and len(gate.run.positions) <= 5
 
 
 def test_with_a_recording_only_its_vehicles_are_taken() -> None:

@@ -120,7 +120,9 @@ def test_lockstep_agent_is_not_stalled_by_a_fast_server_restart(
     while the old server was heard recently and the agent takes it once that one is quiet."""
     rec, sols = genuine
     agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc"))
-    agent.gate.restart_quiet_s = 0.3
+    gate = agent.gate.gate("")  # the single server's `solution` key
+    assert gate is not None
+    gate.restart_quiet_s = 0.3
     key = agent.keys.solution
     for s in sols[:3]:
         assert agent.ingest_one(Payload(key, encode(s)), expect=gps_time(s.epoch)) is not None
@@ -128,7 +130,7 @@ def test_lockstep_agent_is_not_stalled_by_a_fast_server_restart(
     restarted = sols[3].model_copy(update={"generation": "5ca1ab1e5ca1ab1e", "seq": 0})
     node = _QuietNode([Payload(key, encode(restarted))])
     t0 = time.monotonic()
-    agent.wait_for_solution(t, node, agent.keys.node("u3"), b"{}")  # type: ignore[arg-type]
+    agent.wait_for_solution(t, node, [agent.keys.node("u3")], b"{}")  # type: ignore[arg-type]
     assert time.monotonic() - t0 < 5.0
-    assert agent.gate.generation == "5ca1ab1e5ca1ab1e" and agent.gate.resets == 1
+    assert gate.generation == "5ca1ab1e5ca1ab1e" and gate.resets == 1
     assert agent.ingested == 4

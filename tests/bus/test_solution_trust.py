@@ -10,7 +10,7 @@ import pytest
 from support.api import FLEET, T0, ecef_at, solution, vehicle_state
 
 from coplane.bus import encode
-from coplane.bus.trust import SolutionGate, on_earth
+from coplane.bus.trust import GateSet, SolutionGate, on_earth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.gtime import GpsTime
@@ -150,7 +150,7 @@ def test_expect_bounds_a_fresh_gate_and_forgives_a_gap() -> None:
 def _collector(tmp_path: Path) -> Collector:
     """A collector without its bus node (its solution handler is what is tested)."""
     c = Collector.__new__(Collector)
-    c.gate = SolutionGate(FLEET, method="pc", vehicles=["a", "b"])
+    c.gate = GateSet(FLEET, method="pc", vehicles=["a", "b"])
     c.stream = SolutionLog(tmp_path / "s.sqlite", synchronous="NORMAL")
     c.run = MethodRun("pc", 0.0)
     c.lock = Lock()

@@ -33,6 +33,7 @@ LAYERS: dict[str, int] = {
     "roadmap": 5,  # the road-surface map: core (geo, gtime, errors, typing, ids) and plane/ only
     "fgo": 6,
     "baselines": 6,
+    "regions": 6,  # fleet regions and their ownership over fusion servers: roadmap.grid only
     "methods": 7,
     # the per-epoch steps and their wire models
     "messages": 8,

@@ -58,11 +58,14 @@ def live_fleet(
     agents: Sequence[str] | None = None,
     map_path: Path | None = None,
     listeners: Sequence[Callable[[SolutionMessage], None]] = (),
+    servers: int = 1,
+    region_args: Sequence[str] = (),
 ) -> Iterator[LiveFleet]:
     """Router, fusion server and one agent per vehicle in `agents` (default: every vehicle of the
     recording; certificates are made for all of them) as processes. `secure`: mutual TLS and access
     control (see the module docstring); False: plain TCP. The collector is the read-only monitor and
-    knows the recording's vehicles, as `coplane fleet`'s does."""
+    knows the recording's vehicles, as `coplane fleet`'s does. `servers` > 1: that many fusion
+    servers by region, each server and agent also given `region_args` (e.g. a smaller region)."""
     fleet, vehicles = fleet_of(recording)
     port = free_port()
     connect = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
@@ -84,9 +87,22 @@ def live_fleet(
         start = time.time() + start_delay_s if pace == "realtime" else None
         running = list(agents) if agents is not None else vehicles
         specs = fleet_services(
-            recording, method, pace, speed, connect, running, api=False, start_unix_s=start, map_path=map_path
+            recording,
+            method,
+            pace,
+            speed,
+            connect,
+            running,
+            api=False,
+            start_unix_s=start,
+            map_path=map_path,
+            servers=servers,
         )
-        specs[0].args += list(extra_fusion_args)
+        for spec in specs:
+            if spec.name.startswith("fusion-server"):
+                spec.args += list(extra_fusion_args)
+            if servers > 1 and spec.name.startswith(("fusion-server", "agent-")):
+                spec.args += list(region_args)
         for spec in specs:
             procs.start(spec)
         yield LiveFleet(procs, collector, connect, specs, fleet, security)

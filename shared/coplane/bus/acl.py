@@ -39,7 +39,10 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     """Every identity's grants (see the module docstring)."""
     k = KeySpace(fleet)
     p = k.prefix
+    # regions (docs/scale.md): node keys under shard/region, several servers' solution keys
     nodes_adv = f"{k.all_nodes}/@adv/**"
+    rnodes, rnodes_adv = k.all_region_nodes, f"{k.all_region_nodes}/@adv/**"
+    sols, diags = k.all_solutions, f"{k.diagnostics}/**"
     alive_all = f"{p}/alive/*/*"
     tiles, tiles_adv = k.map_tiles, f"{k.map_tiles}/@adv/**"
     # the road map: the fusion server's cached publisher, the agents' history subscribers
@@ -55,27 +58,37 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     for v in vehicles:
         own = f"{p}/vehicle/{v}/**"
         adv = f"{k.node(v)}/@adv/**"
+        r_own = f"{p}/shard/*/region/*/vehicle/{v}/**"
+        r_adv = f"{p}/shard/*/region/*/vehicle/{v}/node/@adv/**"
         out[vehicle_identity(v)] = [
-            ("ingress", ("put",), (own,)),
-            ("ingress", ("declare_subscriber",), (k.solution,)),
-            ("ingress", ("liveliness_token",), (k.alive("agent", v), adv)),
-            ("ingress", ("declare_queryable",), (adv,)),
-            ("ingress", ("reply",), (own, adv)),
-            ("egress", ("put",), (k.solution,)),
-            ("egress", ("query",), (adv,)),
-            ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv)),
+            ("ingress", ("put",), (own, r_own)),
+            ("ingress", ("declare_subscriber",), (k.solution, sols)),
+            ("ingress", ("liveliness_token",), (k.alive("agent", v), adv, r_adv)),
+            ("ingress", ("declare_queryable",), (adv, r_adv)),
+            ("ingress", ("reply",), (own, adv, r_own, r_adv)),
+            ("egress", ("put",), (k.solution, sols)),
+            ("egress", ("query",), (adv, r_adv)),
+            ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv)),
             *tile_reader,
         ]
     out[FUSION] = [
-        ("ingress", ("put",), (k.solution, k.diagnostics)),
+        ("ingress", ("put",), (k.solution, k.diagnostics, sols, diags)),
         ("ingress", ("liveliness_token",), (k.all_alive("fusion"),)),
-        ("ingress", ("declare_subscriber",), (k.all_nodes, nodes_adv)),
-        ("ingress", SUBSCRIBE_LIVELINESS, (k.all_alive("agent"), nodes_adv)),
-        ("ingress", ("query",), (nodes_adv,)),
-        ("egress", ("put",), (k.all_nodes,)),
-        ("egress", ("reply",), (k.all_nodes, nodes_adv)),
-        ("egress", ("liveliness_token",), (k.all_alive("agent"), nodes_adv)),
-        ("egress", ("declare_subscriber",), (k.solution, k.diagnostics)),
+        ("ingress", ("declare_subscriber",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv, sols)),
+        (
+            "ingress",
+            SUBSCRIBE_LIVELINESS,
+            (k.all_alive("agent"), k.all_alive("fusion"), nodes_adv, rnodes_adv),
+        ),
+        ("ingress", ("query",), (nodes_adv, rnodes_adv)),
+        ("egress", ("put",), (k.all_nodes, rnodes, sols)),
+        ("egress", ("reply",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv)),
+        (
+            "egress",
+            ("liveliness_token",),
+            (k.all_alive("agent"), k.all_alive("fusion"), nodes_adv, rnodes_adv),
+        ),
+        ("egress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags)),
         ("ingress", ("put",), (tiles,)),
         ("ingress", ("liveliness_token",), (tiles_adv,)),
         ("ingress", ("declare_queryable",), (tiles_adv,)),
@@ -84,9 +97,9 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
         ("egress", ("declare_subscriber",), (tiles, tiles_adv)),
     ]
     readers = [
-        ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics)),
+        ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags)),
         ("ingress", SUBSCRIBE_LIVELINESS, (alive_all,)),
-        ("egress", ("put",), (k.solution, k.diagnostics)),
+        ("egress", ("put",), (k.solution, k.diagnostics, sols, diags)),
         ("egress", ("liveliness_token",), (alive_all,)),
     ]
     out[API] = [*readers, ("ingress", ("liveliness_token",), (k.all_alive("api"),))]

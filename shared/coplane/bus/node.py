@@ -83,6 +83,8 @@ class BusNode:
     may run more than once, such as the API). It is declared after the publishers and
     subscriptions, so a node that says it is alive can already hear and speak. `sink`: where events
     go instead of the node's own queue; it runs on a Zenoh thread and must not block.
+    `history_later`: publications with a cache will be added while open (`add_publication`), so
+    the session needs timestamps from the start.
     """
 
     def __init__(
@@ -93,23 +95,25 @@ class BusNode:
         publish: Iterable[Publication] = (),
         subscribe: Iterable[Subscription] = (),
         sink: Sink | None = None,
+        history_later: bool = False,
     ) -> None:
         self._config = config
         self._token_key = token
         self._publish = list(publish)
         self._subscribe = list(subscribe)
         self._sink = sink
+        self._history_later = history_later  # publications with a cache may be added while open
         self._events: queue.Queue[BusEvent] = queue.Queue()
         self._session: zenoh.Session | None = None
         self._token: Any = None
         self._publishers: dict[str, Any] = {}
-        self._subscribers: list[Any] = []
+        self._subscribers: dict[str, Any] = {}
 
     # -- lifetime ------------------------------------------------------------------------------
     def open(self) -> BusNode:
         """Open the session and declare everything (blocks until a router is up if the config
         says to wait for one)."""
-        if any(p.history for p in self._publish):
+        if self._history_later or any(p.history for p in self._publish):
             # a publication cache needs timestamped samples (shared/notes.md, "Late joiners")
             self._config.insert_json5("timestamping/enabled", "true")
         session = zenoh.open(self._config)
@@ -123,39 +127,71 @@ class BusNode:
 
     def _declare(self, session: zenoh.Session) -> None:
         for p in self._publish:
-            qos: dict[str, Any] = {}
-            if p.must_deliver:
-                qos = {
-                    "congestion_control": zenoh.CongestionControl.BLOCK,
-                    "reliability": zenoh.Reliability.RELIABLE,
-                }
-            if p.history:
-                self._publishers[p.key] = zx.declare_advanced_publisher(
-                    session,
-                    p.key,
-                    cache=zx.CacheConfig(max_samples=p.history),
-                    publisher_detection=True,  # so history subscribers find it when it starts late
-                    **qos,
-                )
-            else:
-                self._publishers[p.key] = session.declare_publisher(p.key, **qos)
+            self._publishers[p.key] = self._declare_publisher(session, p)
         for s in self._subscribe:
-            sub: Any
-            if s.liveliness:
-                sub = session.liveliness().declare_subscriber(s.key, self._on_presence, history=True)
-            elif s.history:
-                sub = zx.declare_advanced_subscriber(
-                    session,
-                    s.key,
-                    self._on_sample,
-                    history=zx.HistoryConfig(detect_late_publishers=True),
-                )
-            else:
-                sub = session.declare_subscriber(s.key, self._on_sample)
-            self._subscribers.append(sub)
+            self._subscribers[s.key] = self._declare_subscriber(session, s)
         if self._token_key is not None:
             key = self._token_key if isinstance(self._token_key, str) else self._token_key(self.zid)
             self._token = session.liveliness().declare_token(key)
+
+    @staticmethod
+    def _declare_publisher(session: zenoh.Session, p: Publication) -> Any:
+        qos: dict[str, Any] = {}
+        if p.must_deliver:
+            qos = {
+                "congestion_control": zenoh.CongestionControl.BLOCK,
+                "reliability": zenoh.Reliability.RELIABLE,
+            }
+        if p.history:
+            return zx.declare_advanced_publisher(
+                session,
+                p.key,
+                cache=zx.CacheConfig(max_samples=p.history),
+                publisher_detection=True,  # so history subscribers find it when it starts late
+                **qos,
+            )
+        return session.declare_publisher(p.key, **qos)
+
+    def _declare_subscriber(self, session: zenoh.Session, s: Subscription) -> Any:
+        if s.liveliness:
+            return session.liveliness().declare_subscriber(s.key, self._on_presence, history=True)
+        if s.history:
+            return zx.declare_advanced_subscriber(
+                session,
+                s.key,
+                self._on_sample,
+                history=zx.HistoryConfig(detect_late_publishers=True),
+            )
+        return session.declare_subscriber(s.key, self._on_sample)
+
+    # -- changing what it speaks and hears while open (regions: docs/scale.md) -----------------
+    def add_publication(self, p: Publication) -> None:
+        """Declare one more publisher (no-op if its key is declared); e.g. an agent entering a region."""
+        if p.key not in self._publishers:
+            self._publishers[p.key] = self._declare_publisher(self.session, p)
+
+    def remove_publication(self, key: str) -> None:
+        """Undeclare a publisher added before (no-op if there is none)."""
+        pub = self._publishers.pop(key, None)
+        if pub is not None:
+            pub.undeclare()
+
+    def subscribe(self, s: Subscription) -> None:
+        """Declare one more subscription (no-op if its key is subscribed); e.g. a server taking
+        over a shard. A history subscription first receives what the publishers' caches hold."""
+        if s.key not in self._subscribers:
+            self._subscribers[s.key] = self._declare_subscriber(self.session, s)
+
+    def unsubscribe(self, key: str) -> None:
+        """Undeclare a subscription (no-op if there is none); events already queued stay queued."""
+        sub = self._subscribers.pop(key, None)
+        if sub is not None:
+            sub.undeclare()
+
+    @property
+    def subscriptions(self) -> list[str]:
+        """The key expressions subscribed now."""
+        return sorted(self._subscribers)
 
     @property
     def present(self) -> bool:

@@ -47,10 +47,12 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
     if vid is not None and vid not in vehicles:
         return False
     parts = key.split("/")
+    regional = len(parts) == 7 and parts[0] == "shard" and parts[2] == "region" and parts[4] == "vehicle"
+    per_server = len(parts) == 2 and parts[0] in ("solution", "diagnostics")  # regions: one per server
     if operation == "put":
         if vid is not None:
-            return parts[:2] == ["vehicle", vid]
-        return identity == FUSION and key in ("solution", "diagnostics", "map/tiles")
+            return parts[:2] == ["vehicle", vid] or (regional and parts[5] == vid)
+        return identity == FUSION and (key in ("solution", "diagnostics", "map/tiles") or per_server)
     if operation == "token":
         if parts[0] != "alive" or len(parts) != 3:
             return False
@@ -61,15 +63,18 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
             or (identity == API and role == "api")
         )
     if operation == "subscribe":
-        if key.startswith("vehicle/"):
+        if key.startswith("vehicle/") or regional:
             return identity == FUSION
         if key == "map/tiles":  # the road map's tiles, for the agents
             return vid is not None
-        if key == "solution":
-            return vid is not None or identity in (API, MONITOR)
-        return key == "diagnostics" and identity in (API, MONITOR)
-    if operation == "liveliness-subscribe":  # the agents' tokens, as the fusion server follows them
-        return (identity == FUSION and key == "alive/agent/*") or identity in (API, MONITOR)
+        if parts[0] == "solution":  # the fusion servers hear each other's (hand-over seeds)
+            return vid is not None or identity in (API, MONITOR, FUSION)
+        return parts[0] == "diagnostics" and identity in (API, MONITOR)
+    if operation == "liveliness-subscribe":  # agents' and servers' tokens, as fusion servers follow them
+        return (identity == FUSION and key in ("alive/agent/*", "alive/fusion/*")) or identity in (
+            API,
+            MONITOR,
+        )
     return False
 
 
@@ -165,9 +170,10 @@ def probe_access(
         on_put = lambda s: seen.add(str(s.key_expr), s.payload.to_bytes().decode())  # noqa: E731
         on_token = lambda s: seen.add(str(s.key_expr), str(s.kind))  # noqa: E731
         keep.append(listeners[FUSION].declare_subscriber(k.all_nodes, on_put))
+        keep.append(listeners[FUSION].declare_subscriber(k.all_region_nodes, on_put))
         keep.append(listeners[FUSION].liveliness().declare_subscriber(k.all_alive("agent"), on_token))
-        keep.append(listeners[API].declare_subscriber(k.solution, on_put))
-        keep.append(listeners[API].declare_subscriber(k.diagnostics, on_put))
+        keep.append(listeners[API].declare_subscriber(k.all_solutions, on_put))
+        keep.append(listeners[API].declare_subscriber(f"{k.diagnostics}/**", on_put))
         keep.append(listeners[API].liveliness().declare_subscriber(f"{k.prefix}/alive/*/*", on_token))
         # the map tiles' legitimate listener is an agent
         tile_listener = _open(endpoint, base.as_identity(f"vehicle-{vehicles[0]}"), wait=True)
@@ -176,7 +182,13 @@ def probe_access(
         for identity in identities:
             session(identity)
         time.sleep(0.5)  # every session knows the listeners (a client puts only where one listens)
-        data_keys = [*(k.node(v) for v in vehicles), k.solution, k.diagnostics, k.map_tiles]
+        data_keys = [
+            *(k.node(v) for v in vehicles),
+            *_region_keys(k, vehicles),
+            k.solution,
+            k.diagnostics,
+            k.map_tiles,
+        ]
         # -- puts: all at once, each payload names its sender, then one settle
         for identity in identities:
             for key in data_keys:
@@ -211,6 +223,12 @@ def probe_access(
     return out
 
 
+def _region_keys(k: KeySpace, vehicles: Sequence[str]) -> list[str]:
+    """The keys of a fleet with regions (docs/scale.md): a vehicle's node under a shard and region,
+    and one server's solution and diagnostics."""
+    return [k.region_node(3, "r1c2", v) for v in vehicles] + [k.server_solution("s1"), f"{k.diagnostics}/s1"]
+
+
 def _try_tokens(key: str, sessions: Sequence[zenoh.Session], seen: _Seen, timeout: float) -> bool:
     """Declare `key` from every session, wait for a listener to see it, withdraw: seen or not."""
     put, delete = (key, str(zenoh.SampleKind.PUT)), (key, str(zenoh.SampleKind.DELETE))
@@ -238,6 +256,9 @@ def _probe_subscriptions(
     seen = _Seen()
     subs: list[Any] = []
     publishers = {k.node(v): f"vehicle-{v}" for v in vehicles} | {
+        k.region_node(3, "r1c2", vehicles[0]): f"vehicle-{vehicles[0]}",
+        k.server_solution("s1"): FUSION,
+        f"{k.diagnostics}/s1": FUSION,
         k.solution: FUSION,
         k.diagnostics: FUSION,
         k.map_tiles: FUSION,

@@ -258,3 +258,52 @@ class SolutionGate:
         ):
             return "vehicle-jump"
         return None
+
+
+MAX_SERVERS = 256  # servers a consumer follows at once (bounded memory against invented keys)
+
+
+class GateSet:
+    """One `SolutionGate` per server key, for a fleet spread over several servers (regions,
+    docs/scale.md): each server is its own generation and its own sequence of epochs, so each is
+    gated on its own. The single server's `solution` key is the server "". At most `MAX_SERVERS`
+    are followed; solutions on further keys are rejected as `too-many-servers`."""
+
+    def __init__(self, fleet: str, **options: object) -> None:
+        self.fleet = fleet
+        self.options = options
+        self.gates: dict[str, SolutionGate] = {}
+        self.overflow: Counter[str] = Counter()
+        self.last_reason: str | None = None
+
+    def gate(self, server: str) -> SolutionGate | None:
+        g = self.gates.get(server)
+        if g is None and len(self.gates) < MAX_SERVERS:
+            g = self.gates[server] = SolutionGate(self.fleet, **self.options)  # type: ignore[arg-type]
+        return g
+
+    def check(self, server: str, sol: SolutionMessage, now: float, expect: GpsTime | None = None) -> Verdict:
+        """`SolutionGate.check` by the gate of `server` (the key's server chunk)."""
+        g = self.gate(server)
+        if g is None:
+            self.overflow["too-many-servers"] += 1
+            self.last_reason = "too-many-servers"
+            return Verdict(None, "too-many-servers")
+        v = g.check(sol, now, expect)
+        self.last_reason = g.last_reason
+        return v
+
+    def release(self, now: float) -> SolutionMessage | None:
+        """A held new-generation message that may now be taken (see `SolutionGate.release`)."""
+        for g in self.gates.values():
+            if g.held is not None and (v := g.release(now)) is not None:
+                return v.solution
+        return None
+
+    @property
+    def counts(self) -> Counter[str]:
+        """Every gate's rejections, added up."""
+        out: Counter[str] = Counter(self.overflow)
+        for g in self.gates.values():
+            out.update(g.counts)
+        return out

@@ -53,6 +53,15 @@ def fleet(
             "'none': no map.",
         ),
     ] = None,
+    servers: Annotated[
+        int,
+        typer.Option(
+            "--servers",
+            min=1,
+            max=16,
+            help="Fusion servers sharing the fleet by region (docs/scale.md); 1: one server for all.",
+        ),
+    ] = 1,
     nmea_port: Annotated[
         int | None,
         typer.Option(
@@ -93,6 +102,7 @@ def fleet(
         certs=certs,
         map=map_file,
         nmea_port=nmea_port,
+        servers=servers,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

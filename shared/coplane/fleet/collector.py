@@ -8,7 +8,7 @@ the collected run. SQLite rather than CSV rows with fsync: a transaction is eith
 not, so a kill at any instant never leaves a torn last row, and the file is the same format the
 fusion server and the API keep (docs/reliability/durability.md).
 
-Only solutions the consumers' `SolutionGate` accepts (`coplane.bus.trust`) are recorded or written:
+Only solutions the consumers' `SolutionGate` (one per server, `GateSet`) accepts (`coplane.bus.trust`) are recorded or written:
 a forged or implausible solution never reaches the results on disk; `untrusted` counts them.
 """
 
@@ -32,9 +32,9 @@ from coplane.bus import (
     encode,
     session_config,
 )
-from coplane.bus.trust import SolutionGate
+from coplane.bus.trust import MAX_SERVERS, GateSet
 from coplane.evaluate.runner import MethodRun, record_solution
-from coplane.messages import DiagnosticsMessage, SolutionMessage
+from coplane.messages import DiagnosticsMessage, SolutionMessage, merge_diagnostics
 from coplane.store import SolutionLog
 
 STREAM_FILE = "solutions.sqlite"
@@ -57,7 +57,7 @@ class Collector:
     ) -> None:
         self.keys = KeySpace(fleet)
         self.listeners = list(listeners)  # each trusted solution, after it is recorded (NMEA output)
-        self.gate = SolutionGate(fleet, method=method, vehicles=vehicles)
+        self.gate = GateSet(fleet, method=method, vehicles=vehicles)  # one gate per server
         self.stream: SolutionLog | None = None
         if out is not None:
             path = out / STREAM_FILE
@@ -67,30 +67,30 @@ class Collector:
         self.run = MethodRun(method, 0.0)
         self.lock = threading.Lock()
         self.epochs = 0
-        self.diag: DiagnosticsMessage | None = None
+        self.diags: dict[str, DiagnosticsMessage] = {}  # the last of each server
         self.bad = 0
         self.node = BusNode(
             session_config("client", [connect]),
-            subscribe=[Subscription(self.keys.solution), Subscription(self.keys.diagnostics)],
+            subscribe=[Subscription(self.keys.all_solutions), Subscription(f"{self.keys.diagnostics}/**")],
             sink=self._on_event,
         ).open()
 
     def _on_event(self, event: BusEvent) -> None:
         if not isinstance(event, Payload):
             return
-        if event.key == self.keys.solution:
-            self._on_solution(event.data)
-        elif event.key == self.keys.diagnostics:
-            self._on_diagnostics(event.data)
+        if event.key.startswith(self.keys.solution):
+            self._on_solution(event.data, KeySpace.server_of_solution_key(event.key))
+        elif event.key.startswith(self.keys.diagnostics):
+            self._on_diagnostics(event.data, event.key.removeprefix(self.keys.diagnostics).lstrip("/"))
 
-    def _on_solution(self, payload: bytes) -> None:
+    def _on_solution(self, payload: bytes, server: str = "") -> None:
         try:
             sol = decode(SolutionMessage, payload)
         except BadMessage:
             self.bad += 1
             return
         with self.lock:
-            taken = self.gate.check(sol, time.time()).solution
+            taken = self.gate.check(server, sol, time.time()).solution
             if taken is None:
                 return  # counted in `untrusted`
             if taken is not sol:  # some vehicles were left out: store what was taken
@@ -102,11 +102,23 @@ class Collector:
         for listener in self.listeners:
             listener(sol)
 
-    def _on_diagnostics(self, payload: bytes) -> None:
+    def _on_diagnostics(self, payload: bytes, server: str = "") -> None:
+        if server not in self.diags and len(self.diags) >= MAX_SERVERS:
+            self.bad += 1
+            return
         try:
-            self.diag = decode(DiagnosticsMessage, payload)
+            self.diags[server] = decode(DiagnosticsMessage, payload)
         except BadMessage:
             self.bad += 1
+
+    @property
+    def diag(self) -> DiagnosticsMessage | None:
+        """The fusion server's last diagnostics; with several servers (regions) their sum:
+        counters and epochs added, each vehicle as the server that used most of its messages saw
+        it."""
+        if len(self.diags) <= 1:
+            return next(iter(self.diags.values()), None)
+        return merge_diagnostics(list(self.diags.values()))
 
     @property
     def untrusted(self) -> Counter[str]:

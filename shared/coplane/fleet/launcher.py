@@ -78,6 +78,11 @@ def router_spec(port: int, secure: bool = False, fleet: str | None = None) -> Se
     return ServiceSpec("zenoh-router", ROUTER_MODULE, args, ROUTER)
 
 
+def fusion_name(i: int, servers: int) -> str:
+    """The service name of fusion server `i` (1-based) of `servers`."""
+    return "fusion-server" if servers == 1 else f"fusion-server-{i}"
+
+
 def fleet_services(
     recording: Path,
     method: str,
@@ -91,16 +96,21 @@ def fleet_services(
     interruption: float = 0.0,
     start_unix_s: float | None = None,
     map_path: Path | None = None,
+    servers: int = 1,
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
-    agents of a map method take it from (they need no access to the file)."""
+    agents of a map method take it from (they need no access to the file). `servers` > 1: that
+    many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N."""
     rec = str(recording)
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
     road_map = ["--map", str(map_path)] if map_path is not None else []
+    if servers > 1 and not road_map:
+        road_map = ["--map", "none"]  # servers do not share a map yet (docs/scale.md)
+    regional = ["--regions", "true"] if servers > 1 else []
     out = [
         ServiceSpec(
-            "fusion-server",
+            fusion_name(i, servers),
             FUSION_MODULE,
             [
                 "--recording",
@@ -118,9 +128,15 @@ def fleet_services(
                 "--deadline_s",
                 str(max(0.05, 0.5 / speed)),
                 *road_map,
+                *(
+                    [*regional, "--server_id", f"s{i}", "--expected_servers", str(servers)]
+                    if servers > 1
+                    else []
+                ),
             ],
             FUSION,
         )
+        for i in range(1, servers + 1)
     ]
     for vid in vehicles:
         out.append(
@@ -143,6 +159,7 @@ def fleet_services(
                     "--seed",
                     str(seed),
                     *start,
+                    *regional,
                 ],
                 vehicle_identity(vid),
             )

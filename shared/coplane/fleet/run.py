@@ -73,6 +73,10 @@ class FleetOptions:
     map: Path | None = None  # road-surface map the fusion server extends and shares; None: the
     # fleet's map in the state directory (store.map_path "auto"), Path("none"): no map
     nmea_port: int | None = None  # NMEA 0183 GGA + RMC per vehicle on this port and the next ones
+    servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
+
+
+MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
 
 
 def default_certs_dir() -> Path:
@@ -145,7 +149,13 @@ def run_fleet(
     path = o.recording.resolve()
     rec = open_recording(path)
     fleet_name, vehicles = fleet_of(path)
-    road_map = map_path(o.map if o.map is not None else "auto", fleet_name)
+    if not 1 <= o.servers <= MAX_FLEET_SERVERS:
+        raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
+    if o.servers > 1 and (method.plane_map or (o.map is not None and str(o.map) != "none")):
+        # one writer per map file, and servers do not share a map yet (docs/scale.md, "Not yet")
+        raise ConfigError("--servers > 1 runs without a road-surface map for now: drop --map and map methods")
+    default_map = "auto" if o.servers == 1 else "none"
+    road_map = map_path(o.map if o.map is not None else default_map, fleet_name)
     if method.plane_map and road_map is None:
         raise ConfigError(
             f"method {o.method!r} takes its planes from a road-surface map: drop --map none, or give"
@@ -192,6 +202,7 @@ def run_fleet(
                 o.interruption,
                 start,
                 map_path=road_map.resolve() if road_map is not None else None,
+                servers=o.servers,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
@@ -203,7 +214,8 @@ def run_fleet(
             if progress is not None:
                 progress(collector.epochs, n_epochs)
             if serve is None and not stop.is_set():
-                procs.stop("fusion-server")  # it publishes its final diagnostics on the way out
+                # they publish their final diagnostics on the way out
+                procs.stop_many([n for n in procs.procs if n.startswith("fusion-server")], 10.0)
                 stop.wait(0.3)
             failed = {a: rc for a in agents if (rc := procs.procs[a].returncode)}
             if failed and not stop.is_set():

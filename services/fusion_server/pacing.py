@@ -1,0 +1,115 @@
+"""When the fusion server solves an epoch: its pacing (lockstep or realtime), as a mixin of
+`FusionServer` (docs/bus.md, "Paces").
+
+Lockstep waits for every live vehicle it solves (with regions: those `RegionRole.awaited` names),
+once per silent one; realtime solves `deadline_s` after an epoch's first message and never ahead
+of the fleet's current epoch. Kept apart from `server.py` (what comes in and goes out) because it
+is the part that decides timing, and reads the server's state only.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+from coplane.gtime import GpsTime
+from coplane.messages import NodeMessage
+
+from .admission import Admission
+from .regions import RegionRole
+from .settings import FusionSettings
+
+log = logging.getLogger("coplane.fusion_server")
+
+
+class Pacing:
+    """The scheduling half of `FusionServer` (which sets these fields)."""
+
+    s: FusionSettings
+    pending: dict[GpsTime, dict[str, NodeMessage]]
+    first_arrival: dict[GpsTime, float]
+    latest: dict[str, GpsTime]
+    solved_up_to: GpsTime | None
+    live: set[str]
+    known: set[str]
+    started: float
+    waiting_since: float | None
+    admission: Admission
+    regions: RegionRole | None
+    _reject: Callable[[str | None, str, str], None]
+
+    def ready_epoch(self, now: float) -> GpsTime | None:
+        """The next epoch to solve now, or None.
+
+        Realtime never solves an epoch ahead of the fleet's current epoch (`Admission.solve_limit`):
+        a message ahead of the fleet waits for it instead of making the fleet's epochs late. Lockstep
+        waits for each silent live vehicle once (`stall_timeout_s`), then not again until it sends."""
+        self._drop_outside_window(now)
+        if self.regions is not None and now - self.started >= self.s.startup_wait_s:
+            self.regions.start_anyway()
+        if not self.pending or self._start_wait(now):
+            return None
+        t = min(self.pending)
+        if self.s.pace == "realtime":
+            limit = self.admission.solve_limit(now, self.solved_up_to)
+            if limit is not None and limit < t:
+                return None
+            return t if now - self.first_arrival[t] >= self.s.deadline_s else None
+        if now - self.started < self.s.startup_wait_s and not self.known <= self.live:
+            return None  # lockstep start: give every agent the chance to show up
+        waiting = [
+            v
+            for v in self._live_here(self.pending[t])
+            if (v not in self.latest or self.latest[v] < t) and not self.admission.is_silent(v)
+        ]
+        if not waiting:
+            self.waiting_since = None
+            return t
+        if self.waiting_since is None:
+            self.waiting_since = now
+        if now - self.waiting_since > self.s.stall_timeout_s:
+            log.warning("solving without silent vehicles", extra={"vehicles": ",".join(sorted(waiting))})
+            self.admission.mark_silent(waiting)  # e.g. a token without an agent: wait once, not every epoch
+            self.waiting_since = None
+            return t
+        return None
+
+    def _live_here(self, upcoming: dict[str, NodeMessage] | None = None) -> set[str]:
+        """The live vehicles this server solves: all of them, or with regions those it may solve
+        (`RegionRole.awaited`)."""
+        if self.regions is None:
+            return self.live
+        return self.regions.awaited(self.live, upcoming or {})
+
+    def _start_wait(self, now: float) -> bool:
+        """Start (nothing solved, no resume): wait until every vehicle of the recording has been
+        admitted, or `startup_wait_s`, so a lone first sender (its epoch could be a week ahead or
+        behind) is not taken for the fleet. A fast realtime replay with a vehicle that never speaks
+        stops waiting once two vehicles have spoken and half the pending bound is used, before
+        genuine epochs are refused."""
+        if self.solved_up_to is not None or now - self.started >= self.s.startup_wait_s:
+            return False
+        if self.regions is not None:  # the other servers' vehicles never speak to this one
+            return not self.regions.settled(now, self.live)
+        spoke = set(self.latest)
+        if self.known <= spoke:
+            return False
+        return not (len(spoke) >= 2 and len(self.pending) >= self.admission.config.pending_limit // 2)
+
+    def _drop_outside_window(self, now: float) -> None:
+        """Drop pending epochs outside the window of the fleet's current epoch (admitted before the
+        fleet's epoch was known, e.g. from a lone first sender): they would never be solved, or be
+        solved as a stray epoch far from the fleet's. Their messages are counted rejected
+        (too-far-ahead / too-far-behind), so the counters still add up."""
+        while self.pending:
+            side = None
+            for t in (max(self.pending), min(self.pending)):
+                if (side := self.admission.outside_window(t, now, self.solved_up_to)) is not None:
+                    break
+            if side is None:
+                return
+            msgs = self.pending.pop(t)
+            self.first_arrival.pop(t, None)
+            self.admission.forget(t)
+            for vid in msgs:
+                self._reject(vid, side, f"epoch {t} dropped from pending")

@@ -1,0 +1,231 @@
+"""A fusion server's part in a fleet spread over several servers by region (docs/scale.md).
+
+`RegionRole` keeps what one server needs to know and decide, with no coordinator:
+- the live servers (their liveliness tokens `alive/fusion/<id>`) and so the shards this one owns
+  (`coplane.regions.owned_shards`, rendezvous hashing: every server computes the same split);
+- the node keys to subscribe to: its shards (`wanted`); vehicles near a boundary also send a copy
+  to the regions across it, so a cluster across a boundary is seen by the servers on both sides;
+- which clusters of an epoch it solves: those whose anchor's region it owns (`select`);
+- the seeds for vehicles it takes over: their last state in another server's solution, so a
+  vehicle that crosses into this server's region continues instead of starting afresh (`seeds`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from coplane.bus import BusNode, KeySpace, Subscription
+from coplane.estimation.contract import VehicleSeed
+from coplane.gtime import GpsTime
+from coplane.messages import NodeMessage, SolutionMessage, VehicleState
+from coplane.regions import RangeGraph, RegionConfig, owned_shards, shard_of
+from coplane.steps import gps_time
+
+log = logging.getLogger("coplane.fusion_server")
+
+SETTLE_S = 1.0  # lockstep start: no new vehicle heard for this long, the fleet of this server is complete
+PEER_STATE_MAX = 100_000
+REGION_AT_MAX = 1_000_000  # pending (vehicle, epoch) regions kept (the admission bounds pending far lower)  # vehicles whose last state from another server is kept (bounded memory)
+
+
+class RegionRole:
+    """Ownership, subscriptions, cluster selection and hand-over seeds of one server."""
+
+    def __init__(
+        self, me: str, keys: KeySpace, cfg: RegionConfig, window_s: float, expected_servers: int
+    ) -> None:
+        self.me = me
+        self.keys = keys
+        self.cfg = cfg
+        self.expected_servers = max(1, expected_servers)
+        self.servers: set[str] = {me}
+        self.shards: set[int] = owned_shards(me, self.servers, cfg.shards)
+        self.region: dict[str, str] = {}  # vehicle -> its own region at its latest epoch heard
+        self.region_t: dict[str, GpsTime] = {}
+        self.graph = RangeGraph(window_s)
+        self.peer_state: dict[str, tuple[GpsTime, VehicleState]] = {}
+        self.solving: set[str] = set()  # vehicles of this server's last solved epoch
+        self.counts: Counter[str] = Counter()
+        self.ready = expected_servers <= 1  # subscribe to nodes only once the expected servers are seen
+        self.dirty = True  # the wanted subscriptions may have changed since the last sync
+        self.heard: set[str] = set()  # vehicles heard at least once
+        # the region of each pending message: servers decide an epoch by where the vehicles were
+        # then, not by a later message one of them may already have
+        self.region_at: dict[tuple[str, GpsTime], str] = {}
+        self.ready_at: float | None = None  # monotonic time the node subscriptions were made
+        self.last_new_speaker: float | None = None
+
+    # -- membership ----------------------------------------------------------------------------
+    def server_presence(self, ident: str, alive: bool) -> bool:
+        """A server's token came or went; True if this server's shards changed."""
+        if ident == self.me:
+            return False
+        (self.servers.add if alive else self.servers.discard)(ident)
+        if len(self.servers) >= self.expected_servers and not self.ready:
+            self.ready = self.dirty = True
+        new = owned_shards(self.me, self.servers, self.cfg.shards)
+        if new == self.shards:
+            return False
+        log.info(
+            "shards reassigned",
+            extra={"servers": ",".join(sorted(self.servers)), "owned": len(new), "was": len(self.shards)},
+        )
+        self.shards = new
+        self.dirty = True
+        self.counts["reassignments"] += 1
+        return True
+
+    def settled(self, now: float, live: set[str]) -> bool:
+        """Lockstep start: solve once every live agent was heard, or once no new one was heard
+        for `SETTLE_S` after the subscriptions were made (the agents of other servers' regions
+        never speak to this one; an agent's first message reaches a late subscription through
+        its cache)."""
+        if not self.ready or self.ready_at is None:
+            return False
+        if live <= self.heard:
+            return True
+        last = max(self.ready_at, self.last_new_speaker or self.ready_at)
+        return now - last >= SETTLE_S
+
+    def start_anyway(self) -> None:
+        """The expected servers did not all show up in time: go on with those that did."""
+        if not self.ready:
+            self.ready = self.dirty = True
+
+    def owns(self, region: str) -> bool:
+        return shard_of(region, self.cfg.shards) in self.shards
+
+    def own_copy(self, key: str) -> bool:
+        """A copy for a region near the vehicle's own, when this server also owns the vehicle's
+        own region: it hears the message itself on its home key, so the copy is skipped."""
+        where = KeySpace.region_of_node_key(key)
+        return where is not None and where[1] != where[2] and self.owns(where[2])
+
+    def saw_node(self, vehicle_id: str, key: str, now: float, t: GpsTime) -> None:
+        """Remember the vehicle's own region at its epoch `t` (the key names it)."""
+        if vehicle_id not in self.heard:
+            self.heard.add(vehicle_id)
+            self.last_new_speaker = now
+        where = KeySpace.region_of_node_key(key)
+        if where is None:
+            return
+        home = where[2]
+        if len(self.region_at) < REGION_AT_MAX:
+            self.region_at[vehicle_id, t] = home
+        old = self.region.get(vehicle_id)
+        if old is None or not t < self.region_t.get(vehicle_id, t):
+            self.region[vehicle_id] = home
+            self.region_t[vehicle_id] = t
+
+    # -- subscriptions -------------------------------------------------------------------------
+    def wanted(self) -> set[str]:
+        """Node key expressions to hear: every owned shard (once the expected servers are seen)."""
+        if not self.ready:
+            return set()
+        return {self.keys.shard_nodes(s) for s in self.shards}
+
+    def sync(self, node: BusNode) -> None:
+        """Make the node's node-key subscriptions what `wanted` says, with history: a server
+        taking a shard over first gets what the agents' caches hold."""
+        if not self.dirty:
+            return
+        self.dirty = False
+        if self.ready and self.ready_at is None:
+            self.ready_at = time.monotonic()
+        want = self.wanted()
+        have = {k for k in node.subscriptions if "/shard/" in k}
+        for k in sorted(have - want):
+            node.unsubscribe(k)
+        for k in sorted(want - have):
+            node.subscribe(Subscription(k, history=True))
+
+    # -- solving -------------------------------------------------------------------------------
+    def select(self, t: GpsTime, msgs: Mapping[str, NodeMessage]) -> tuple[dict[str, NodeMessage], list[str]]:
+        """(the messages of the clusters this server solves at `t`, the vehicles left to others).
+
+        Clusters are the vehicles linked by ranges within the window (`RangeGraph`), and a cluster
+        is this server's when it owns its anchor's region (`coplane.regions.clusters`)."""
+        self.graph.add(t, ((vid, r.to) for vid, m in msgs.items() for r in m.ranges if r.to in msgs))
+        keep: dict[str, NodeMessage] = {}
+        others: list[str] = []
+        for members in self.graph.clusters(msgs):
+            anchor = members[0]
+            anchor_region = self.region_at.get((anchor, t), self.region.get(anchor))
+            if anchor_region is not None and self.owns(anchor_region):
+                keep.update({v: msgs[v] for v in members})
+            else:
+                others.extend(members)
+        self.counts["left-to-other-server"] += len(others)
+        self.solving = set(keep)
+        for k in [k for k in self.region_at if not t < k[1]]:
+            del self.region_at[k]
+        return keep, others
+
+    def awaited(self, live: set[str], upcoming: Mapping[str, NodeMessage]) -> set[str]:
+        """The live vehicles a lockstep server waits for: those in its regions, and those linked
+        to them by ranges (in the window, or in the messages of the epoch to solve), whose cluster
+        it may own; a vehicle it waits for in vain is marked silent as usual."""
+        pairs = set(self.graph.last) | {
+            (vid, r.to) if vid < r.to else (r.to, vid) for vid, m in upcoming.items() for r in m.ranges
+        }
+        linked: dict[str, set[str]] = {}
+        for a, b in pairs:
+            linked.setdefault(a, set()).add(b)
+            linked.setdefault(b, set()).add(a)
+        out = self.owned_vehicles(live)
+        todo = list(out)
+        while todo:
+            for n in linked.get(todo.pop(), ()):
+                if n not in out and n in live and n in self.heard:
+                    out.add(n)
+                    todo.append(n)
+        return out
+
+    def mine(self, vehicle_id: str) -> bool:
+        """Whether this server solves the vehicle now: in its regions, or in its last epoch."""
+        return vehicle_id in self.solving or bool(self.owned_vehicles((vehicle_id,)))
+
+    def owned_vehicles(self, vehicles: Iterable[str]) -> set[str]:
+        """The vehicles among `vehicles` whose last region this server owns (lockstep waits for them)."""
+        return {v for v in vehicles if (r := self.region.get(v)) is not None and self.owns(r)}
+
+    # -- hand-over -----------------------------------------------------------------------------
+    def peer_solution(self, key: str, sol: SolutionMessage) -> None:
+        """Another server's solution: keep each vehicle's latest state as a hand-over seed."""
+        if KeySpace.server_of_solution_key(key) in ("", self.me) or sol.server == self.me:
+            return
+        t = gps_time(sol.epoch)
+        for v in sol.vehicles:
+            old = self.peer_state.get(v.vehicle_id)
+            if old is None or old[0] < t:
+                if old is None and len(self.peer_state) >= PEER_STATE_MAX:
+                    self.counts["peer-state-full"] += 1
+                    continue
+                self.peer_state[v.vehicle_id] = (t, v)
+
+    def seeds(self, vehicles: Iterable[str], tracked: Iterable[str]) -> list[VehicleSeed]:
+        """Seeds for the vehicles this server is about to solve but does not track yet."""
+        known = set(tracked)
+        out: list[VehicleSeed] = []
+        for vid in sorted(set(vehicles) - known):
+            got = self.peer_state.get(vid)
+            if got is None:
+                continue
+            t, v = got
+            cov = None if v.covariance_m2 is None else np.array(v.covariance_m2, dtype=float).reshape(3, 3)
+            out.append(VehicleSeed(vid, t, np.array(v.position_ecef_m), cov, dict(v.clocks_s)))
+        self.counts["handover-seeds"] += len(out)
+        return out
+
+    def summary(self) -> dict[str, list[str]]:
+        """Owned regions -> their vehicles (for diagnostics and the API)."""
+        out: dict[str, list[str]] = {}
+        for vid, r in sorted(self.region.items()):
+            if self.owns(r):
+                out.setdefault(r, []).append(vid)
+        return out

@@ -1,0 +1,132 @@
+"""A fusion server's region role, the region keys and the consumers' per-server gates (issue 16):
+the decisions every server must make alike, without the bus."""
+
+from __future__ import annotations
+
+from coplane.bus import KeySpace
+from coplane.bus.trust import MAX_SERVERS, GateSet
+from coplane.fusion_server.regions import RegionRole
+from coplane.gtime import GpsTime
+from coplane.messages import DiagnosticsMessage, NodeMessage, VehicleCounters, merge_diagnostics
+from coplane.regions import RegionConfig, owner, shard_of
+
+K = KeySpace("f")
+CFG = RegionConfig(size_m=1000.0, margin_m=400.0)
+T = GpsTime(2320, 1000.0)
+
+
+def _role(me: str, servers: list[str]) -> RegionRole:
+    r = RegionRole(me, K, CFG, window_s=10.0, expected_servers=len(servers))
+    for s in servers:
+        r.server_presence(s, True)
+    return r
+
+
+def _msg(vid: str, ranges_to: tuple[str, ...] = ()) -> NodeMessage:
+    """A minimal node message (only the fields region selection reads)."""
+    return NodeMessage.model_construct(
+        vehicle_id=vid, ranges=[type("R", (), {"to": to})() for to in ranges_to]
+    )
+
+
+def _regions_owned_by(servers: list[str], n: int = 2) -> dict[str, list[str]]:
+    """Some region names per server, by the rule every process applies."""
+    out: dict[str, list[str]] = {s: [] for s in servers}
+    i = 0
+    while any(len(v) < n for v in out.values()):
+        r = f"r{i}c0"
+        out[owner(shard_of(r, CFG.shards), servers) or ""].append(r)
+        i += 1
+    return out
+
+
+def test_keys_name_vehicle_region_and_home() -> None:
+    node = K.region_node(5, "r1c2", "u1")
+    copy = K.region_copy(7, "r1c3", "u1", "r1c2")
+    assert KeySpace.vehicle_of_node_key(node) == "u1" == KeySpace.vehicle_of_node_key(copy)
+    assert KeySpace.region_of_node_key(node) == (5, "r1c2", "r1c2")
+    assert KeySpace.region_of_node_key(copy) == (7, "r1c3", "r1c2")
+    assert KeySpace.region_of_node_key(K.node("u1")) is None
+    assert KeySpace.vehicle_of_node_key(f"{K.prefix}/shard/5/region/r1/vehicle/u1/near") is None
+    assert KeySpace.server_of_solution_key(K.solution) == ""
+    assert KeySpace.server_of_solution_key(K.server_solution("s2")) == "s2"
+
+
+def test_servers_agree_on_who_solves_a_cluster_across_a_boundary() -> None:
+    servers = ["s1", "s2"]
+    owned = _regions_owned_by(servers)
+    ra, rb = owned["s1"][0], owned["s2"][0]
+    roles = {s: _role(s, servers) for s in servers}
+    # u1 in s1's region, u2 in s2's, ranging with each other; u3 alone in s2's region
+    keys = {
+        "u1": K.region_node(shard_of(ra, 64), ra, "u1"),
+        "u2": K.region_node(shard_of(rb, 64), rb, "u2"),
+        "u3": K.region_node(shard_of(rb, 64), rb, "u3"),
+    }
+    msgs = {"u1": _msg("u1", ("u2",)), "u2": _msg("u2", ("u1",)), "u3": _msg("u3")}
+    kept = {}
+    for s, role in roles.items():
+        for vid, key in keys.items():
+            role.saw_node(vid, key, 0.0, T)
+        kept[s] = set(role.select(T, msgs)[0])
+    assert kept["s1"] == {"u1", "u2"}  # the anchor u1 is in s1's region
+    assert kept["s2"] == {"u3"}
+    assert kept["s1"].isdisjoint(kept["s2"]) and kept["s1"] | kept["s2"] == set(msgs)
+    # s1 waits for u2 too (linked to its own u1), s2 only for u3 and u2 (in its region)
+    assert roles["s1"].awaited({"u1", "u2", "u3"}, {}) == {"u1", "u2"}
+    # a copy for s1's region of a vehicle whose own region s1 also owns is skipped
+    assert roles["s1"].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
+    assert not roles["s2"].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
+
+
+def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
+    servers = ["s1", "s2"]
+    owned = _regions_owned_by(servers)
+    ra, rb = owned["s1"][0], owned["s2"][0]
+    role = _role("s1", servers)
+    role.saw_node("u1", K.region_node(shard_of(ra, 64), ra, "u1"), 0.0, T)
+    role.saw_node("u1", K.region_node(shard_of(rb, 64), rb, "u1"), 0.1, T + 1.0)  # next epoch, moved
+    assert set(role.select(T, {"u1": _msg("u1")})[0]) == {"u1"}
+    assert set(role.select(T + 1.0, {"u1": _msg("u1")})[0]) == set()
+
+
+def test_a_server_going_away_changes_ownership_and_subscriptions() -> None:
+    role = _role("s1", ["s1", "s2", "s3"])
+    before = set(role.shards)
+    assert role.wanted() == {K.shard_nodes(s) for s in before}
+    assert role.server_presence("s2", False)
+    assert role.shards > before and role.dirty
+    assert not role.server_presence("s1", False)  # its own token: nothing to do
+
+
+def test_gates_are_per_server_and_bounded() -> None:
+    g = GateSet("f")
+    for i in range(MAX_SERVERS):
+        assert g.gate(f"s{i}") is not None
+    assert g.gate("one-more") is None
+
+
+def test_merged_diagnostics_add_up() -> None:
+    a = DiagnosticsMessage(
+        fleet="f",
+        method="pc",
+        pace="lockstep",
+        epochs_solved=10,
+        vehicles={"u1": VehicleCounters(received=10, used=10, online=True)},
+        server="s1",
+        shards=[0, 2],
+        regions={"r1c1": ["u1"]},
+    )
+    b = DiagnosticsMessage(
+        fleet="f",
+        method="pc",
+        pace="lockstep",
+        epochs_solved=4,
+        vehicles={"u1": VehicleCounters(received=3, elsewhere=3), "u2": VehicleCounters(received=4, used=4)},
+        server="s2",
+        shards=[1],
+    )
+    m = merge_diagnostics([a, b])
+    assert m.vehicles["u1"].received == 13 and m.vehicles["u1"].used == 10 and m.vehicles["u1"].online
+    assert m.vehicles["u1"].elsewhere == 3 and m.vehicles["u2"].used == 4
+    assert m.epochs_solved == 10 and m.shards == [0, 1, 2] and m.servers == ["s1", "s2"]
