@@ -58,8 +58,8 @@ class CityParams:
     platoon_gap_m: tuple[float, float] = (12.0, 30.0)  # bumper to bumper inside a platoon
     corner_radius_m: float = 20.0
     clear_m: float = 25.0  # no building this close to a crossing street's centre
-    deep_radius: float = 0.35  # segment kind by distance from the centre / half side (+ jitter)
-    medium_radius: float = 0.75
+    deep_radius: float = 0.45  # segment kind by distance from the centre / half side (+ jitter)
+    medium_radius: float = 1.0  # beyond: open (the corners of the square)
     kind_jitter: float = 0.15
     terrain_waves: int = 3
     terrain_wavelength_m: tuple[float, float] = (900.0, 2200.0)
