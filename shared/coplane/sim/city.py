@@ -225,8 +225,9 @@ def platoon_sizes(p: CityParams, vehicles: int, rng: np.random.Generator) -> lis
     return sizes
 
 
-def draw_layout(p: CityParams, vehicles: int, n_loops: int, rng: np.random.Generator,
-                canyon_rng: np.random.Generator) -> CityLayout:  # fmt: skip
+def draw_layout(
+    p: CityParams, vehicles: int, n_loops: int, rng: np.random.Generator, canyon_rng: np.random.Generator
+) -> CityLayout:
     """Streets, their segment kinds and buildings, loop rectangles and the terrain."""
     side = city_side_m(p, vehicles)
     xs, ys = _street_coords(p, side, rng), _street_coords(p, side, rng)
@@ -261,9 +262,9 @@ def leg_streets(rect: tuple[int, int, int, int]) -> list[tuple[int, int]]:
     return [(1, rect[0]), (0, rect[3]), (1, rect[1]), (0, rect[2])]
 
 
-def loop_spans(road: Road, lay: CityLayout, rect: tuple[int, int, int, int]) -> tuple[
-    tuple[tuple[float, str], ...], dict[int, AnyArray]
-]:  # fmt: skip
+def loop_spans(
+    road: Road, lay: CityLayout, rect: tuple[int, int, int, int]
+) -> tuple[tuple[tuple[float, str], ...], dict[int, AnyArray]]:
     """A loop's sections (start s, kind) and its building rows per side (s0, s1, h, setback, depth,
     reflective), mapped from the streets under its legs; turns keep the kind of the leg before."""
     spans: list[tuple[float, str]] = []

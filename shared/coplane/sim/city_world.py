@@ -11,6 +11,7 @@ are put together in vehicle order. See docs/simulator.md (City).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,7 @@ class CityRoad(Road):
         self.profile = _CityProfile(self)
 
     def frame(self, s: AnyArray | float) -> tuple[AnyArray, AnyArray, AnyArray]:
+        """Road.frame of the loop under each city-axis position."""
         loop, local = _decode(s, self.lengths)
         p, t, k = np.zeros((*local.shape, 2)), np.zeros((*local.shape, 2)), np.zeros(local.shape)
         for i in np.unique(loop).tolist():
@@ -100,6 +102,7 @@ class CitySections(Sections):
         )
 
     def index(self, s: AnyArray | float) -> AnyArray:
+        """Section kind index; past a loop's end wraps to that loop's start, not the next loop."""
         loop, local = _decode(s, self.lengths)
         return super().index(loop * SPAN_M + local)
 
@@ -107,8 +110,14 @@ class CitySections(Sections):
 class CityCanyon(Canyon):
     """Each vehicle sees its own loop's canyon; UWB sees every building of the city."""
 
-    def __init__(self, road: CityRoad, sections: CitySections, params: CanyonParams, loops: list[Canyon],
-                 grid: FootprintGrid) -> None:  # fmt: skip
+    def __init__(
+        self,
+        road: CityRoad,
+        sections: CitySections,
+        params: CanyonParams,
+        loops: list[Canyon],
+        grid: FootprintGrid,
+    ) -> None:  # not Canyon.__init__: the buildings are the loops'
         self.road, self.sections, self.params = road, sections, params
         self.loops, self.grid = loops, grid
         self.lengths = road.lengths
@@ -118,6 +127,7 @@ class CityCanyon(Canyon):
     def visibility(
         self, s: AnyArray, y: AnyArray, h_ant: AnyArray, heading: AnyArray, az: AnyArray, el: AnyArray
     ) -> Visibility:
+        """Canyon.visibility, each vehicle against its own loop's canyon (s on the city axis)."""
         loop, local = _decode(s, self.lengths)
         shape = np.broadcast_shapes(local[:, None].shape, az.shape)
         state = np.zeros(shape, dtype=np.int8)
@@ -131,6 +141,7 @@ class CityCanyon(Canyon):
         return Visibility(state, excess, setback, sign)
 
     def facade(self, side: int, s: AnyArray) -> tuple[AnyArray, AnyArray, AnyArray]:
+        """Canyon.facade of the loop under each city-axis position."""
         loop, local = _decode(s, self.lengths)
         h, w, r = np.zeros(local.shape), np.zeros(local.shape), np.zeros(local.shape, bool)
         for i in np.unique(loop).tolist():
@@ -139,6 +150,7 @@ class CityCanyon(Canyon):
         return h, w, r
 
     def footprint_grid(self, cell_m: float = 2.0) -> FootprintGrid:
+        """The whole city's buildings (rasterised once from the street map, see `footprints`)."""
         return self.grid
 
 
@@ -178,22 +190,21 @@ def _place_platoons(
     """Loop per platoon (first one per loop, then in proportion to loop length) and start positions
     spread around each loop so that platoons on one loop do not start on top of each other."""
     n = len(lengths)
-    loops = [i % n if i < n else int(rng.choice(n, p=lengths / lengths.sum())) for i in range(len(sizes))]
+    loops = [i if i < n else int(rng.choice(n, p=lengths / lengths.sum())) for i in range(len(sizes))]
     factor = rng.uniform(*p.platoon_factor, size=len(sizes))
-    out: list[Platoon | None] = [None] * len(sizes)
     first = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+    s_front = np.zeros(len(sizes))
     for li in range(n):
         members = [k for k, lp in enumerate(loops) if lp == li]
-        if not members:
-            continue
-        slot = lengths[li] / len(members)
+        slot = lengths[li] / max(len(members), 1)
         s0 = rng.uniform(0.0, lengths[li])
         for j, k in enumerate(members):
-            room = max(0.0, slot - 45.0 * -(-sizes[k] // lanes) - 30.0)
-            out[k] = Platoon(
-                int(first[k]), sizes[k], li, float(s0 + j * slot + rng.uniform(0.0, room)), float(factor[k])
-            )
-    return [q for q in out if q is not None]
+            length = 45.0 * math.ceil(sizes[k] / lanes)  # a platoon's length, with its gaps
+            s_front[k] = s0 + j * slot + rng.uniform(0.0, max(0.0, slot - length - 30.0))
+    return [
+        Platoon(int(first[k]), sizes[k], loops[k], float(s_front[k]), float(factor[k]))
+        for k in range(len(sizes))
+    ]
 
 
 def _fleet_start(p: CityParams, platoons: list[Platoon], lanes: int, rng: np.random.Generator) -> FleetStart:
@@ -280,9 +291,16 @@ def build_city(sc: Scenario, vehicles: int, n_epochs: int, seed: int) -> City:
         idx = np.concatenate([np.arange(q.first, q.first + q.size) for q in mine])
         start = _fleet_start(p, mine, rp.lanes, rng)
         tr = simulate_motion(
-            road, secs[li], sc.motion, len(idx), n_epochs, sc.interval_s, origin,
-            component_rng(seed, "motion", li), start,
-        )  # fmt: skip
+            road,
+            secs[li],
+            sc.motion,
+            len(idx),
+            n_epochs,
+            sc.interval_s,
+            origin,
+            component_rng(seed, "motion", li),
+            start,
+        )
         parts.append((idx, tr))
         offsets.append(li * SPAN_M)
     sections = CitySections(city_road, secs)
