@@ -21,6 +21,8 @@ from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
 
+LINKED_WAIT_S = 2.0  # lockstep: how long a vehicle of another server's region, near ours, is awaited
+
 
 class Pacing:
     """The scheduling half of `FusionServer` (which sets these fields)."""
@@ -59,10 +61,10 @@ class Pacing:
             return None  # lockstep start: give every agent the chance to show up
         waiting = [
             v
-            for v in self._live_here(self.pending[t])
+            for v in self._live_here(self.pending[t], t)
             if (v not in self.latest or self.latest[v] < t) and not self.admission.is_silent(v)
         ]
-        if not waiting:
+        if not waiting or self._only_linked_overdue(waiting, t, now):
             self.waiting_since = None
             return t
         if self.waiting_since is None:
@@ -74,12 +76,24 @@ class Pacing:
             return t
         return None
 
-    def _live_here(self, upcoming: dict[str, NodeMessage] | None = None) -> set[str]:
+    def _only_linked_overdue(self, waiting: list[str], t: GpsTime, now: float) -> bool:
+        """Regions: every vehicle still awaited is in another server's region (linked by ranges to
+        this server's, or heard here lately), and the epoch's first message came `LINKED_WAIT_S`
+        ago: solve without them (their message may go only to their own server now)."""
+        if self.regions is None:
+            return False
+        if self.regions.owned_vehicles(waiting):
+            return False
+        return now - self.first_arrival.get(t, now) >= LINKED_WAIT_S
+
+    def _live_here(
+        self, upcoming: dict[str, NodeMessage] | None = None, t: GpsTime | None = None
+    ) -> set[str]:
         """The live vehicles this server solves: all of them, or with regions those it may solve
         (`RegionRole.awaited`)."""
         if self.regions is None:
             return self.live
-        return self.regions.awaited(self.live, upcoming or {})
+        return self.regions.awaited(self.live, upcoming or {}, t, self.admission.config.interval_s)
 
     def _start_wait(self, now: float) -> bool:
         """Start (nothing solved, no resume): wait until every vehicle of the recording has been

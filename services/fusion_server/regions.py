@@ -23,7 +23,7 @@ from coplane.bus import BusNode, KeySpace, Subscription
 from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
-from coplane.regions import RangeGraph, RegionConfig, owned_shards, shard_of
+from coplane.regions import RangeGraph, RegionConfig, owned_shards, regions_near, shard_of
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
@@ -49,6 +49,13 @@ class RegionRole:
         self.region_t: dict[str, GpsTime] = {}
         self.graph = RangeGraph(window_s)
         self.peer_state: dict[str, tuple[GpsTime, VehicleState]] = {}
+        self.answered_elsewhere: dict[str, GpsTime] = {}  # latest epoch another server answered
+        # vehicles whose next message will reach this server (see saw_node); the margin less one
+        # epoch of driving at 30 m/s
+        self.coming: set[str] = set()
+        self.inner = RegionConfig(cfg.size_m, cfg.shards, cfg.hysteresis_m, max(0.0, cfg.margin_m - 30.0))
+        self.version = 0  # bumped by every change `awaited` depends on (it is cached on it)
+        self._awaited: tuple[tuple[object, ...], set[str]] | None = None
         self.solving: set[str] = set()  # vehicles of this server's last solved epoch
         self.counts: Counter[str] = Counter()
         self.ready = expected_servers <= 1  # subscribe to nodes only once the expected servers are seen
@@ -77,6 +84,7 @@ class RegionRole:
         )
         self.shards = new
         self.dirty = True
+        self.version += 1
         self.counts["reassignments"] += 1
         return True
 
@@ -106,8 +114,18 @@ class RegionRole:
         where = KeySpace.region_of_node_key(key)
         return where is not None and where[1] != where[2] and self.owns(where[2])
 
-    def saw_node(self, vehicle_id: str, key: str, now: float, t: GpsTime) -> None:
-        """Remember the vehicle's own region at its epoch `t` (the key names it)."""
+    def saw_node(
+        self,
+        vehicle_id: str,
+        key: str,
+        now: float,
+        t: GpsTime,
+        position: tuple[float, float, float] | None = None,
+    ) -> None:
+        """Remember the vehicle's own region at its epoch `t` (the key names it), and whether its
+        next message will come here too: its region is ours, or its fix (`position`) is well
+        inside the copy margin of one of ours, so one more epoch of driving keeps it there."""
+        self.version += 1
         if vehicle_id not in self.heard:
             self.heard.add(vehicle_id)
             self.last_new_speaker = now
@@ -121,6 +139,10 @@ class RegionRole:
         if old is None or not t < self.region_t.get(vehicle_id, t):
             self.region[vehicle_id] = home
             self.region_t[vehicle_id] = t
+            near = self.owns(home) or (
+                position is not None and any(self.owns(r) for r in regions_near(position, home, self.inner))
+            )
+            (self.coming.add if near else self.coming.discard)(vehicle_id)
 
     # -- subscriptions -------------------------------------------------------------------------
     def wanted(self) -> set[str]:
@@ -145,12 +167,16 @@ class RegionRole:
             node.subscribe(Subscription(k, history=True))
 
     # -- solving -------------------------------------------------------------------------------
-    def select(self, t: GpsTime, msgs: Mapping[str, NodeMessage]) -> tuple[dict[str, NodeMessage], list[str]]:
+    def select(
+        self, t: GpsTime, msgs: Mapping[str, NodeMessage], pairs: Iterable[tuple[str, str]]
+    ) -> tuple[dict[str, NodeMessage], list[str]]:
         """(the messages of the clusters this server solves at `t`, the vehicles left to others).
 
         Clusters are the vehicles linked by ranges within the window (`RangeGraph`), and a cluster
-        is this server's when it owns its anchor's region (`coplane.regions.clusters`)."""
-        self.graph.add(t, ((vid, r.to) for vid, m in msgs.items() for r in m.ranges if r.to in msgs))
+        is this server's when it owns its anchor's region (`coplane.regions.clusters`). `pairs`: the
+        ranges the estimator would get at `t` (`FusionStep.epoch_ranges`), so clusters match its."""
+        self.graph.add(t, pairs)
+        self.version += 1
         keep: dict[str, NodeMessage] = {}
         others: list[str] = []
         for members in self.graph.clusters(msgs):
@@ -158,18 +184,52 @@ class RegionRole:
             anchor_region = self.region_at.get((anchor, t), self.region.get(anchor))
             if anchor_region is not None and self.owns(anchor_region):
                 keep.update({v: msgs[v] for v in members})
-            else:
-                others.extend(members)
+                continue
+            for v in members:
+                if self._unseen_by_anchor(v, t, msgs[v], anchor_region):
+                    keep[v] = msgs[v]  # the cluster is split here (docs/scale.md, "Boundaries")
+                    self.counts["kept-unseen-by-anchor"] += 1
+                else:
+                    others.append(v)
         self.counts["left-to-other-server"] += len(others)
         self.solving = set(keep)
         for k in [k for k in self.region_at if not t < k[1]]:
             del self.region_at[k]
         return keep, others
 
-    def awaited(self, live: set[str], upcoming: Mapping[str, NodeMessage]) -> set[str]:
-        """The live vehicles a lockstep server waits for: those in its regions, and those linked
-        to them by ranges (in the window, or in the messages of the epoch to solve), whose cluster
-        it may own; a vehicle it waits for in vain is marked silent as usual."""
+    def _unseen_by_anchor(self, v: str, t: GpsTime, msg: NodeMessage, anchor_region: str | None) -> bool:
+        """A vehicle of this server's region whose message at `t` did not go to the anchor's
+        region (its fix is not within the copy margin of it): the anchor's server cannot solve it,
+        so this one must, or it would go unanswered."""
+        home = self.region_at.get((v, t), self.region.get(v))
+        if home is None or not self.owns(home) or anchor_region is None:
+            return False
+        pos = msg.spp.position_ecef_m if msg.spp.ok else None
+        return pos is None or anchor_region not in regions_near(pos, home, self.cfg)
+
+    def awaited(
+        self,
+        live: set[str],
+        upcoming: Mapping[str, NodeMessage],
+        t: GpsTime | None = None,
+        interval_s: float = 1.0,
+    ) -> set[str]:
+        """The live vehicles a lockstep server waits for: those in its regions; those linked to
+        them by ranges (in the window, or in the messages of the epoch to solve), whose cluster it
+        may own; and those heard at the previous epoch whose next message will come here too (in
+        the copy margin of its regions, `saw_node`), such as a vehicle about to cross. Only the first are waited for
+        as long as any vehicle (`Pacing`); the others briefly, as their message may go elsewhere,
+        and not at all once another server answered them at `t` (they moved on)."""
+        key = (self.version, len(live), len(upcoming), t)
+        if self._awaited is not None and self._awaited[0] == key:
+            return self._awaited[1]  # unchanged since the last call (the server asks every loop)
+        out = self._awaited_now(live, upcoming, t, interval_s)
+        self._awaited = (key, out)
+        return out
+
+    def _awaited_now(
+        self, live: set[str], upcoming: Mapping[str, NodeMessage], t: GpsTime | None, interval_s: float
+    ) -> set[str]:
         pairs = set(self.graph.last) | {
             (vid, r.to) if vid < r.to else (r.to, vid) for vid, m in upcoming.items() for r in m.ranges
         }
@@ -181,9 +241,15 @@ class RegionRole:
         todo = list(out)
         while todo:
             for n in linked.get(todo.pop(), ()):
-                if n not in out and n in live and n in self.heard:
+                if n not in out and n in live and n in self.coming:
                     out.add(n)
                     todo.append(n)
+        if t is not None:
+            since = t + (-1.5 * interval_s)
+            out |= {
+                v for v in self.coming & live if (tv := self.region_t.get(v)) is not None and not tv < since
+            }
+            out = {v for v in out if (ta := self.answered_elsewhere.get(v)) is None or ta < t}
         return out
 
     def mine(self, vehicle_id: str) -> bool:
@@ -200,6 +266,12 @@ class RegionRole:
         if KeySpace.server_of_solution_key(key) in ("", self.me) or sol.server == self.me:
             return
         t = gps_time(sol.epoch)
+        self.version += 1
+        for vid in sol.answered:
+            if len(self.answered_elsewhere) < PEER_STATE_MAX or vid in self.answered_elsewhere:
+                old_t = self.answered_elsewhere.get(vid)
+                if old_t is None or old_t < t:
+                    self.answered_elsewhere[vid] = t
         for v in sol.vehicles:
             old = self.peer_state.get(v.vehicle_id)
             if old is None or old[0] < t:

@@ -200,7 +200,8 @@ class FusionServer(Pacing):
             self._reject(vid, exc.kind, str(exc))
             return
         if self.regions is not None:
-            self.regions.saw_node(vid, key, now, gps_time(msg.epoch))  # where it is, even if late
+            # where it is, even if this epoch is late
+            self.regions.saw_node(vid, key, now, gps_time(msg.epoch), msg.spp.position_ecef_m)
         t = gps_time(msg.epoch)
         digest = hashlib.blake2b(payload, digest_size=16).digest()
         v = self.admission.check(
@@ -275,7 +276,7 @@ class FusionServer(Pacing):
         self.first_arrival.pop(t, None)
         self.admission.solved(t)
         if self.regions is not None:
-            msgs, others = self.regions.select(t, msgs)
+            msgs, others = self.regions.select(t, msgs, self.step.epoch_ranges(t, msgs))
             for v in others:
                 self.counters[v]["elsewhere"] += 1
             if not msgs:

@@ -83,4 +83,9 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
     epoch_timeout_s: float = Field(
         default=30.0, gt=0.0, description="Lockstep: give up on an epoch's answers"
     )
+    settle_s: float = Field(
+        default=3.0,
+        gt=0.0,
+        description="Lockstep: go on once no answer came for this long (the rest were late)",
+    )
     lease_ms: int = Field(default=2000, ge=500)

@@ -3,12 +3,17 @@ the decisions every server must make alike, without the bus."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from coplane.bus import KeySpace
 from coplane.bus.trust import MAX_SERVERS, GateSet
 from coplane.fusion_server.regions import RegionRole
+from coplane.geo import geodetic_to_ecef
 from coplane.gtime import GpsTime
-from coplane.messages import DiagnosticsMessage, NodeMessage, VehicleCounters, merge_diagnostics
-from coplane.regions import RegionConfig, owner, shard_of
+from coplane.messages import DiagnosticsMessage, NodeMessage, SppReport, VehicleCounters, merge_diagnostics
+from coplane.regions import RegionConfig, owner, region_of_ecef, shard_of
 
 K = KeySpace("f")
 CFG = RegionConfig(size_m=1000.0, margin_m=400.0)
@@ -22,11 +27,27 @@ def _role(me: str, servers: list[str]) -> RegionRole:
     return r
 
 
-def _msg(vid: str, ranges_to: tuple[str, ...] = ()) -> NodeMessage:
+def _msg(vid: str, ranges_to: tuple[str, ...] = (), at: np.ndarray | None = None) -> NodeMessage:
     """A minimal node message (only the fields region selection reads)."""
+    spp = SppReport.model_construct(ok=at is not None, position_ecef_m=None if at is None else tuple(at))
     return NodeMessage.model_construct(
-        vehicle_id=vid, ranges=[type("R", (), {"to": to})() for to in ranges_to]
+        vehicle_id=vid, ranges=[type("R", (), {"to": to})() for to in ranges_to], spp=spp
     )
+
+
+def _east(m: float) -> np.ndarray:
+    lat, lon = math.radians(39.98), math.radians(116.31)
+    return geodetic_to_ecef(lat, lon + m / (6371000.0 * math.cos(lat)), 50.0)
+
+
+def _boundary_between(servers: list[str]) -> float:
+    """An east offset (m) where the region changes and the two regions have different owners."""
+    e = 0.0
+    while True:
+        a, b = region_of_ecef(_east(e), CFG), region_of_ecef(_east(e + 1.0), CFG)
+        if a != b and owner(shard_of(a, 64), servers) != owner(shard_of(b, 64), servers):
+            return e
+        e += 1.0
 
 
 def _regions_owned_by(servers: list[str], n: int = 2) -> dict[str, list[str]]:
@@ -54,29 +75,40 @@ def test_keys_name_vehicle_region_and_home() -> None:
 
 def test_servers_agree_on_who_solves_a_cluster_across_a_boundary() -> None:
     servers = ["s1", "s2"]
-    owned = _regions_owned_by(servers)
-    ra, rb = owned["s1"][0], owned["s2"][0]
+    e = _boundary_between(servers)
+    pos = {"u1": _east(e - 100.0), "u2": _east(e + 100.0), "u3": _east(e + 900.0), "u4": _east(e + 300.0)}
+    ra, rb = region_of_ecef(pos["u1"], CFG), region_of_ecef(pos["u2"], CFG)
+    s_a = owner(shard_of(ra, 64), servers)
     roles = {s: _role(s, servers) for s in servers}
-    # u1 in s1's region, u2 in s2's, ranging with each other; u3 alone in s2's region
+    # u1 in A, u2 in B 200 m away, ranging with each other; u3 alone deep in B
     keys = {
         "u1": K.region_node(shard_of(ra, 64), ra, "u1"),
         "u2": K.region_node(shard_of(rb, 64), rb, "u2"),
         "u3": K.region_node(shard_of(rb, 64), rb, "u3"),
     }
-    msgs = {"u1": _msg("u1", ("u2",)), "u2": _msg("u2", ("u1",)), "u3": _msg("u3")}
+    msgs = {
+        "u1": _msg("u1", ("u2",), pos["u1"]),
+        "u2": _msg("u2", ("u1",), pos["u2"]),
+        "u3": _msg("u3", (), pos["u3"]),
+    }
+    s_b = "s2" if s_a == "s1" else "s1"
     kept = {}
     for s, role in roles.items():
         for vid, key in keys.items():
-            role.saw_node(vid, key, 0.0, T)
-        kept[s] = set(role.select(T, msgs)[0])
-    assert kept["s1"] == {"u1", "u2"}  # the anchor u1 is in s1's region
-    assert kept["s2"] == {"u3"}
-    assert kept["s1"].isdisjoint(kept["s2"]) and kept["s1"] | kept["s2"] == set(msgs)
-    # s1 waits for u2 too (linked to its own u1), s2 only for u3 and u2 (in its region)
-    assert roles["s1"].awaited({"u1", "u2", "u3"}, {}) == {"u1", "u2"}
-    # a copy for s1's region of a vehicle whose own region s1 also owns is skipped
-    assert roles["s1"].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
-    assert not roles["s2"].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
+            role.saw_node(vid, key, 0.0, T, tuple(pos[vid]))
+        kept[s] = set(role.select(T, msgs, [("u1", "u2")])[0])
+    assert kept[s_a] == {"u1", "u2"}  # the anchor u1 is in A
+    assert kept[s_b] == {"u3"}
+    assert kept[s_a].isdisjoint(kept[s_b]) and kept[s_a] | kept[s_b] == set(msgs)
+    # A's server waits for u2 too (linked to its u1 and within the margin of A)
+    assert roles[s_a].awaited({"u1", "u2", "u3"}, {}) == {"u1", "u2"}
+    # a copy for A of a vehicle whose own region A's server also owns is skipped
+    assert roles[s_a].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
+    assert not roles[s_b].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
+    # a vehicle of B beyond A's margin, in a cluster anchored in A, stays with B's server: A's
+    # server never gets its message
+    far = {"u1": msgs["u1"], "u3": _msg("u3", ("u1",), pos["u3"])}
+    assert set(roles[s_b].select(T + 1.0, far, [("u1", "u3")])[0]) == {"u3"}
 
 
 def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
@@ -86,8 +118,8 @@ def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
     role = _role("s1", servers)
     role.saw_node("u1", K.region_node(shard_of(ra, 64), ra, "u1"), 0.0, T)
     role.saw_node("u1", K.region_node(shard_of(rb, 64), rb, "u1"), 0.1, T + 1.0)  # next epoch, moved
-    assert set(role.select(T, {"u1": _msg("u1")})[0]) == {"u1"}
-    assert set(role.select(T + 1.0, {"u1": _msg("u1")})[0]) == set()
+    assert set(role.select(T, {"u1": _msg("u1")}, [])[0]) == {"u1"}
+    assert set(role.select(T + 1.0, {"u1": _msg("u1")}, [])[0]) == set()
 
 
 def test_a_server_going_away_changes_ownership_and_subscriptions() -> None:

@@ -26,6 +26,7 @@ from coplane.cli.compose import compose
 from coplane.cli.convert import convert
 from coplane.cli.eval import eval_
 from coplane.cli.fleet import fleet
+from coplane.cli.loadgen import loadgen
 from coplane.cli.map import map_app
 from coplane.cli.render import err_console
 from coplane.cli.simulate import simulate_command
@@ -97,6 +98,7 @@ app.command()(spp)
 app.command("eval")(eval_)
 app.command()(fleet)
 app.command()(agent)
+app.command()(loadgen)
 app.command()(compose)
 app.command()(convert)
 app.add_typer(certs_app)

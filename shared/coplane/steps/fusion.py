@@ -34,6 +34,59 @@ class FusionStepConfig:
     interruption_rate: float = 0.0  # paper 5.3: share of ranges removed per pair (seeded)
     interruption_seed: int = 0
     interval_s: float = 1.0  # the epoch index for interruption comes from time, not a counter
+    # at most this many ranges per vehicle and epoch, the shortest kept: in a dense city every
+    # vehicle hears dozens within UWB reach, and a cluster whose range graph is that dense costs
+    # the smoother time and memory that grow faster than its size (docs/performance-scale.md)
+    max_ranges_per_vehicle: int = 8
+    max_cluster_vehicles: int = 16  # and no cluster of ranged vehicles beyond this (bounded_ranges)
+
+
+def bounded_ranges(
+    ranges: dict[tuple[str, str], RangeObs], per_vehicle: int, cluster_max: int
+) -> dict[tuple[str, str], RangeObs]:
+    """The pairs kept so that each vehicle has at most `per_vehicle` ranges and no cluster of
+    vehicles linked by kept ranges has more than `cluster_max` members (0: no bound).
+
+    Why: in a dense city every vehicle hears dozens of others within UWB reach and the range graph
+    joins the whole fleet into one cluster, whose solve costs time and memory that grow much
+    faster than its size (docs/performance-scale.md). Cooperation is local: the nearest few peers
+    carry almost all of the benefit. Pairs are taken like Kruskal's algorithm, shortest first, ties
+    by pair: a function of the epoch's ranges alone (fusion servers that see the same vehicles
+    agree), and a fleet within both bounds keeps every range. The estimator's clusters join the
+    ranges of its whole window, so one can still grow past `cluster_max` when the nearest peers
+    change within it."""
+    degree: dict[str, int] = {}
+    for a, b in ranges:
+        degree[a] = degree.get(a, 0) + 1
+        degree[b] = degree.get(b, 0) + 1
+    small = per_vehicle <= 0 or all(n <= per_vehicle for n in degree.values())
+    if small and (cluster_max <= 0 or len(degree) <= cluster_max):
+        return ranges
+    parent: dict[str, str] = {v: v for v in degree}
+    size: dict[str, int] = dict.fromkeys(degree, 1)
+
+    def root(v: str) -> str:
+        while parent[v] != v:
+            parent[v] = parent[parent[v]]
+            v = parent[v]
+        return v
+
+    used: dict[str, int] = {}
+    out: dict[tuple[str, str], RangeObs] = {}
+    for pair, r in sorted(ranges.items(), key=lambda kv: (kv[1].range_m, kv[0])):
+        a, b = pair
+        if per_vehicle > 0 and (used.get(a, 0) >= per_vehicle or used.get(b, 0) >= per_vehicle):
+            continue
+        ra, rb = root(a), root(b)
+        if ra != rb:
+            if cluster_max > 0 and size[ra] + size[rb] > cluster_max:
+                continue
+            parent[rb] = ra
+            size[ra] += size[rb]
+        out[pair] = r
+        used[a] = used.get(a, 0) + 1
+        used[b] = used.get(b, 0) + 1
+    return out
 
 
 class FusionStep:
@@ -50,6 +103,16 @@ class FusionStep:
         vehicles: dict[str, VehicleEpochInput] = {}
         for vid in sorted(messages):
             vehicles[vid] = self._vehicle_input(t, messages[vid])
+        kept = self.epoch_ranges(t, messages)
+        return EpochInput(t, vehicles, tuple(kept[k] for k in sorted(kept)))
+
+    def epoch_ranges(
+        self, t: GpsTime, messages: Mapping[str, NodeMessage]
+    ) -> dict[tuple[str, str], RangeObs]:
+        """The ranges the estimator gets at `t`: one per pair of reporting vehicles, the
+        ranging-interruption experiment applied, bounded per vehicle and per cluster
+        (`bounded_ranges`). A function of the messages alone, so two fusion servers that see the
+        same vehicles pick the same ranges (regions: docs/scale.md)."""
         ranges: dict[tuple[str, str], RangeObs] = {}
         for vid in sorted(messages):
             for r in messages[vid].ranges:
@@ -62,7 +125,7 @@ class FusionStep:
                 if interrupt_range(pair, k, self.config.interruption_rate, self.config.interruption_seed):
                     continue
                 ranges[pair] = RangeObs(pair[0], pair[1], r.range_m, r.sigma_m)
-        return EpochInput(t, vehicles, tuple(ranges[k] for k in sorted(ranges)))
+        return bounded_ranges(ranges, self.config.max_ranges_per_vehicle, self.config.max_cluster_vehicles)
 
     def _vehicle_input(self, t: GpsTime, m: NodeMessage) -> VehicleEpochInput:
         prs = tuple(

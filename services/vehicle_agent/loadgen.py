@@ -1,0 +1,233 @@
+"""`coplane loadgen`: many vehicle agents in one process, for load tests (docs/scale.md, "Load").
+
+Each vehicle keeps its own `VehicleStep` (SPP with FDE, Doppler velocity, the plane fit from the
+solutions it receives) and puts its node messages on its own keys with its own liveliness token,
+as a `VehicleAgent` does; they share one Zenoh session and one thread, so a 1000-vehicle test needs
+one process instead of 1000. Real deployments keep one agent per vehicle, each with its own
+certificate: a load generator speaks for every vehicle, so it runs only on an insecure test bus.
+
+Lockstep: every vehicle's epoch t is put, then the generator waits until a solution answered each
+of them (re-sending the unanswered every `resend_s`, giving up after `epoch_timeout_s`), then
+t+1. Realtime: epochs are put on the wall clock (`speed`), solutions ingested as they come.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from coplane.bus import BusNode, KeySpace, Payload, Publication, Subscription, decode, encode, session_config
+from coplane.bus.codec import BadMessage
+from coplane.bus.trust import GateSet
+from coplane.gtime import GpsTime
+from coplane.messages import SolutionMessage
+from coplane.recording.model import ObsEpoch, UwbRange
+from coplane.recording.reader import open_recording
+from coplane.replay import BaseCorrections, replay_setup, uwb_for_vehicle, vehicle_schedule
+from coplane.steps import VehicleStep, gps_time
+
+from .region import RegionKeys
+from .settings import LoadgenSettings
+
+log = logging.getLogger("coplane.vehicle_agent.loadgen")
+
+NODE_HISTORY = 8  # cached node messages per vehicle (1000 vehicles x 120 would be ~400 MB)
+
+
+@dataclass
+class LoadStats:
+    """What a load run measured (printed by `coplane loadgen`, read by bench/bench_scale.py)."""
+
+    vehicles: int = 0
+    epochs: int = 0
+    published: int = 0
+    answered: int = 0
+    unanswered: int = 0
+    wall_s: float = 0.0
+    front_end_cpu_s: float = 0.0  # SPP, Doppler, planes and encoding of every node message
+    ingest_cpu_s: float = 0.0  # solutions into every vehicle's plane history
+    latencies_s: list[float] = field(default_factory=list)  # publish -> answering solution
+    rejected: Counter[str] = field(default_factory=Counter)
+
+    def summary(self) -> dict[str, Any]:
+        lat = sorted(self.latencies_s)
+
+        def q(p: float) -> float | None:
+            return round(lat[min(len(lat) - 1, int(p * len(lat)))], 4) if lat else None
+
+        return {
+            "vehicles": self.vehicles,
+            "epochs": self.epochs,
+            "published": self.published,
+            "answered": self.answered,
+            "unanswered": self.unanswered,
+            "wall_s": round(self.wall_s, 2),
+            "vehicle_epochs_per_s": round(self.answered / self.wall_s, 1) if self.wall_s > 0 else None,
+            "front_end_ms_per_vehicle_epoch": round(1e3 * self.front_end_cpu_s / max(1, self.published), 3),
+            "ingest_ms_per_vehicle_epoch": round(1e3 * self.ingest_cpu_s / max(1, self.published), 3),
+            "latency_p50_s": q(0.5),
+            "latency_p99_s": q(0.99),
+            "rejected": dict(self.rejected),
+        }
+
+
+@dataclass
+class _Vehicle:
+    step: VehicleStep
+    schedule: dict[GpsTime, ObsEpoch | None]
+    uwb: dict[GpsTime, list[UwbRange]]
+    region: RegionKeys | None
+    keys: list[str] = field(default_factory=list)  # where its current epoch went
+    payload: bytes = b""
+    sent_at: float = 0.0
+
+
+class LoadGenerator:
+    """Every vehicle of a recording (or the first `vehicles`) on one bus session."""
+
+    def __init__(self, settings: LoadgenSettings, stop: threading.Event | None = None) -> None:
+        self.s = settings
+        self.stop = stop or threading.Event()
+        rec = open_recording(settings.recording)
+        man = rec.manifest
+        setup = replay_setup(man, settings.method, seed=settings.seed, fleet=settings.fleet)
+        self.fleet = setup.fleet
+        self.keys = KeySpace(self.fleet)
+        self.interval = man.interval_s
+        ids = [v.id for v in man.vehicles][: settings.vehicles or None]
+        self.corrections = BaseCorrections.of(rec, setup.use_dgnss)
+        uwb = rec.uwb()
+        base = man.base.position_ecef_m if man.base is not None else None
+        self.vehicles: dict[str, _Vehicle] = {}
+        for vid in ids:
+            sched = vehicle_schedule(rec.vehicle_epochs(vid), man.interval_s)
+            self.vehicles[vid] = _Vehicle(
+                setup.vehicle_step(rec, vid),
+                dict(sched),
+                uwb_for_vehicle(uwb, vid, (t for t, _ in sched), man.interval_s),
+                RegionKeys(self.keys, vid, settings.region_config(), base) if settings.regions else None,
+            )
+        self.times = sorted({t for v in self.vehicles.values() for t in v.schedule})
+        self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=ids)
+        self.stats = LoadStats(vehicles=len(ids))
+        self._tokens: list[Any] = []
+
+    def node(self) -> BusNode:
+        """One session for every vehicle: their node publishers (or, with regions, added as they
+        move), the solutions in."""
+        publish = []
+        if not self.s.regions:
+            publish = [
+                Publication(self.keys.node(v), must_deliver=True, history=NODE_HISTORY) for v in self.vehicles
+            ]
+        return BusNode(
+            session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
+            publish=publish,
+            subscribe=[Subscription(self.keys.all_solutions)],
+            history_later=self.s.regions,
+        )
+
+    def run(self) -> LoadStats:
+        """Replay every vehicle's schedule; returns what was measured."""
+        with self.node() as node:
+            self._tokens = [
+                node.session.liveliness().declare_token(self.keys.alive("agent", v)) for v in self.vehicles
+            ]
+            t0 = time.perf_counter()
+            start = time.time()
+            try:
+                for t in self.times:
+                    if self.stop.is_set():
+                        break
+                    if self.s.pace == "realtime":
+                        due = start + (t - self.times[0]) / self.s.speed
+                        if self.stop.wait(max(0.0, due - time.time())):
+                            break
+                    self._ingest(node.drain())
+                    sent = self._publish(node, t)
+                    self.stats.epochs += 1
+                    if self.s.pace == "lockstep":
+                        self._await(node, t, sent)
+                if self.s.pace == "realtime" and not self.stop.is_set():
+                    self._await(node, self.times[-1], set(), quiet_s=2.0)
+            finally:
+                self.stats.wall_s = time.perf_counter() - t0
+                for tok in self._tokens:
+                    tok.undeclare()
+        return self.stats
+
+    def _publish(self, node: BusNode, t: GpsTime) -> set[str]:
+        sent: set[str] = set()
+        c0 = time.process_time()
+        for vid, v in self.vehicles.items():
+            if t not in v.schedule:
+                continue
+            msg = v.step.process(t, v.schedule[t], self.corrections.at(t), v.uwb.get(t, ()))
+            msg = msg.model_copy(update={"sent_unix_s": time.time()})
+            v.keys = v.region.keys_for(msg, node) if v.region is not None else [self.keys.node(vid)]
+            if not v.keys:
+                continue
+            v.payload, v.sent_at = encode(msg), time.monotonic()
+            for key in v.keys:
+                node.put(key, v.payload)
+            sent.add(vid)
+        self.stats.front_end_cpu_s += time.process_time() - c0
+        self.stats.published += len(sent)
+        return sent
+
+    def _await(self, node: BusNode, t: GpsTime, waiting: set[str], quiet_s: float | None = None) -> None:
+        """Lockstep: until every vehicle of `waiting` is answered at `t` (or later), re-sending the
+        unanswered every `resend_s`; realtime end (`quiet_s`): until nothing came for that long."""
+        deadline = time.monotonic() + (quiet_s if quiet_s is not None else self.s.epoch_timeout_s)
+        last_send = last_answer = time.monotonic()
+        while (waiting or quiet_s is not None) and not self.stop.is_set() and time.monotonic() < deadline:
+            ev = node.get(timeout=0.05)
+            if ev is None:
+                if quiet_s is None and time.monotonic() - last_answer > self.s.settle_s:
+                    break  # answers stopped coming: the rest were late at their server, count them
+                if waiting and time.monotonic() - last_send > self.s.resend_s:
+                    for vid in sorted(waiting):
+                        for key in self.vehicles[vid].keys:
+                            node.put(key, self.vehicles[vid].payload)
+                    last_send = time.monotonic()
+                continue
+            if quiet_s is not None:
+                deadline = time.monotonic() + quiet_s
+            for sol in self._ingest([ev]):
+                if not gps_time(sol.epoch) < t:
+                    last_answer = time.monotonic()
+                    waiting -= {v for v in waiting if sol.answers(v)}
+        self.stats.unanswered += len(waiting)
+
+    def _ingest(self, events: list[Any]) -> list[SolutionMessage]:
+        """Gate each solution and feed it to every vehicle's plane history (as each agent would)."""
+        taken: list[SolutionMessage] = []
+        c0 = time.process_time()
+        now = time.monotonic()
+        for ev in events:
+            if not isinstance(ev, Payload):
+                continue
+            try:
+                sol = decode(SolutionMessage, ev.data)
+            except BadMessage as exc:
+                self.stats.rejected[exc.kind] += 1
+                continue
+            ok = self.gate.check(KeySpace.server_of_solution_key(ev.key), sol, time.time()).solution
+            if ok is None:
+                self.stats.rejected[self.gate.last_reason or "untrusted"] += 1
+                continue
+            for v in self.vehicles.values():
+                v.step.ingest(ok)
+            t = gps_time(ok.epoch)
+            for vid in ok.answered or [s.vehicle_id for s in ok.vehicles]:
+                w = self.vehicles.get(vid)
+                if w is not None and w.keys and t in w.schedule:
+                    self.stats.latencies_s.append(now - w.sent_at)
+            self.stats.answered += len(ok.answered or ok.vehicles)
+            taken.append(ok)
+        self.stats.ingest_cpu_s += time.process_time() - c0
+        return taken
