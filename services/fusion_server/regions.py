@@ -23,7 +23,7 @@ from coplane.bus import BusNode, KeySpace, Subscription
 from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
-from coplane.regions import RangeGraph, RegionConfig, owned_shards, regions_near, shard_of
+from coplane.regions import RangeGraph, RegionConfig, owned_shards, owner, regions_near, shard_of
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
@@ -198,14 +198,23 @@ class RegionRole:
         return keep, others
 
     def _unseen_by_anchor(self, v: str, t: GpsTime, msg: NodeMessage, anchor_region: str | None) -> bool:
-        """A vehicle of this server's region whose message at `t` did not go to the anchor's
-        region (its fix is not within the copy margin of it): the anchor's server cannot solve it,
-        so this one must, or it would go unanswered."""
+        """A vehicle of this server's region whose message at `t` reached no region of the anchor's
+        server (its fix is not within the copy margin of one): that server cannot solve it, so this
+        one must, or it would go unanswered."""
         home = self.region_at.get((v, t), self.region.get(v))
         if home is None or not self.owns(home) or anchor_region is None:
             return False
         pos = msg.spp.position_ecef_m if msg.spp.ok else None
-        return pos is None or anchor_region not in regions_near(pos, home, self.cfg)
+        if pos is None:
+            return True
+        # its copies went to every region within the margin: the anchor's server hears it if it
+        # owns any of them (not only the anchor's own region)
+        anchor_server = self.owner_of(anchor_region)
+        return all(self.owner_of(r) != anchor_server for r in regions_near(pos, home, self.cfg))
+
+    def owner_of(self, region: str) -> str | None:
+        """The live server owning `region`, as this server sees the live servers."""
+        return owner(shard_of(region, self.cfg.shards), self.servers)
 
     def awaited(
         self,

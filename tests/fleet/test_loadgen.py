@@ -14,7 +14,15 @@ from typer.testing import CliRunner
 from coplane.bus import BusSecurity, use_security
 from coplane.cli import app
 from coplane.evaluate.runner import run_method
-from coplane.fleet import Collector, FleetProcesses, fleet_of, fleet_services, free_port, router_spec, wait_for_port
+from coplane.fleet import (
+    Collector,
+    FleetProcesses,
+    fleet_of,
+    fleet_services,
+    free_port,
+    router_spec,
+    wait_for_port,
+)
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import run_simulation, write_recording
 from coplane.vehicle_agent.loadgen import LoadGenerator
@@ -49,7 +57,9 @@ def test_loadgen_equals_the_in_process_replay(tmp_path: Path, servers: int) -> N
                     region_margin_m=250.0,
                 )
                 stats = LoadGenerator(settings).run()
-                wait_until(lambda: c.epochs > 0 and all(len(p) == 20 for p in c.run.positions.values()), 10, "all")
+                wait_until(
+                    lambda: c.epochs > 0 and all(len(p) == 20 for p in c.run.positions.values()), 10, "all"
+                )
                 got = {v: dict(p) for v, p in c.run.positions.items()}
         finally:
             procs.stop_all()

@@ -13,7 +13,7 @@ from coplane.fusion_server.regions import RegionRole
 from coplane.geo import geodetic_to_ecef
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SppReport, VehicleCounters, merge_diagnostics
-from coplane.regions import RegionConfig, owner, region_of_ecef, shard_of
+from coplane.regions import RegionConfig, owner, region_of_ecef, regions_near, shard_of
 
 K = KeySpace("f")
 CFG = RegionConfig(size_m=1000.0, margin_m=400.0)
@@ -107,8 +107,16 @@ def test_servers_agree_on_who_solves_a_cluster_across_a_boundary() -> None:
     assert not roles[s_b].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
     # a vehicle of B beyond A's margin, in a cluster anchored in A, stays with B's server: A's
     # server never gets its message
-    far = {"u1": msgs["u1"], "u3": _msg("u3", ("u1",), pos["u3"])}
+    off = next(
+        d
+        for d in range(450, 1000, 10)
+        if region_of_ecef(_east(e + d), CFG) == rb
+        and all(owner(shard_of(r, 64), servers) != s_a for r in regions_near(_east(e + d), rb, CFG))
+    )
+    far = {"u1": msgs["u1"], "u3": _msg("u3", ("u1",), _east(e + off))}
     assert set(roles[s_b].select(T + 1.0, far, [("u1", "u3")])[0]) == {"u3"}
+    # the same vehicle near a region of A's server: its copy reaches that server, which solves it
+    assert set(roles[s_b].select(T + 2.0, {"u1": msgs["u1"], "u2": msgs["u2"]}, [("u1", "u2")])[0]) == set()
 
 
 def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
