@@ -21,6 +21,7 @@ LAYERS: dict[str, int] = {
     "typing": 0,
     "errors": 0,
     "ids": 0,
+    "components": 0,  # union-find for clusters of ranged vehicles
     "gtime": 1,
     "geo": 1,
     # data and models

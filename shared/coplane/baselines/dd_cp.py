@@ -38,6 +38,7 @@ from coplane.baselines.measurements import VehicleMeasurements, vehicle_measurem
 from coplane.baselines.non_cp import gate_pseudoranges, vehicle_estimate
 from coplane.baselines.rows import Rows
 from coplane.baselines.skeleton import BaselineEstimator, EpochOutcome
+from coplane.components import UnionFind
 from coplane.estimation.validate import ValidEpoch
 from coplane.typing import Mat, Vec
 
@@ -130,21 +131,8 @@ def spanning_pairs(
         d = float(np.linalg.norm(positions[a] - positions[b]))
         if d <= max_baseline_m:
             edges.append((d, a, b))
-    parent = {v: v for v in positions}
-
-    def find(v: str) -> str:
-        while parent[v] != v:
-            parent[v] = parent[parent[v]]
-            v = parent[v]
-        return v
-
-    out = []
-    for _, a, b in sorted(edges):
-        ra, rb = find(a), find(b)
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-            out.append((a, b))
-    return sorted(out)
+    uf = UnionFind(positions)
+    return sorted((a, b) for _, a, b in sorted(edges) if uf.union(a, b))
 
 
 class DdCpEkf(BaselineEstimator):

@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
@@ -166,25 +167,15 @@ class Window:
         vids = sorted(self.by_vehicle)
         if not vids:
             return []
-        parent = {v: v for v in vids}
-
-        def find(v: str) -> str:
-            while parent[v] != v:
-                parent[v] = parent[parent[v]]
-                v = parent[v]
-            return v
-
+        uf = UnionFind(vids)
         if split:
             for rec in self.steps:
                 for r in rec.ranges:
-                    ra, rb = find(r.a), find(r.b)
-                    if ra != rb:
-                        if rb < ra:
-                            ra, rb = rb, ra
-                        parent[rb] = ra
+                    uf.union(r.a, r.b)
         else:
-            for v in vids:
-                parent[v] = vids[0]
+            for v in vids[1:]:
+                uf.union(vids[0], v)
+        find = uf.find
         views: dict[str, ClusterView] = {}
         for v in vids:
             root = find(v)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 
+from coplane.components import UnionFind
 from coplane.gtime import GpsTime
 
 
@@ -37,23 +38,11 @@ class RangeGraph:
     def clusters(self, vehicles: Iterable[str]) -> list[list[str]]:
         """Connected components of `vehicles` under the recorded pairs, each sorted, sorted by
         their first member (the anchor)."""
-        parent = {v: v for v in vehicles}
-
-        def find(v: str) -> str:
-            while parent[v] != v:
-                parent[v] = parent[parent[v]]
-                v = parent[v]
-            return v
-
+        uf = UnionFind(vehicles)
         for a, b in self.last:
-            if a in parent and b in parent:
-                ra, rb = find(a), find(b)
-                if ra != rb:
-                    parent[max(ra, rb)] = min(ra, rb)
-        groups: dict[str, list[str]] = {}
-        for v in parent:
-            groups.setdefault(find(v), []).append(v)
-        return sorted((sorted(g) for g in groups.values()), key=lambda g: g[0])
+            if a in uf.parent and b in uf.parent:
+                uf.union(a, b)
+        return uf.groups()
 
 
 def cluster_owner(

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coplane.components import UnionFind
 from coplane.estimation.contract import (
     EpochInput,
     PlaneObs,
@@ -62,27 +63,17 @@ def bounded_ranges(
     small = per_vehicle <= 0 or all(n <= per_vehicle for n in degree.values())
     if small and (cluster_max <= 0 or len(degree) <= cluster_max):
         return ranges
-    parent: dict[str, str] = {v: v for v in degree}
-    size: dict[str, int] = dict.fromkeys(degree, 1)
-
-    def root(v: str) -> str:
-        while parent[v] != v:
-            parent[v] = parent[parent[v]]
-            v = parent[v]
-        return v
-
+    uf = UnionFind(degree)
     used: dict[str, int] = {}
     out: dict[tuple[str, str], RangeObs] = {}
     for pair, r in sorted(ranges.items(), key=lambda kv: (kv[1].range_m, kv[0])):
         a, b = pair
         if per_vehicle > 0 and (used.get(a, 0) >= per_vehicle or used.get(b, 0) >= per_vehicle):
             continue
-        ra, rb = root(a), root(b)
-        if ra != rb:
-            if cluster_max > 0 and size[ra] + size[rb] > cluster_max:
+        if uf.find(a) != uf.find(b):
+            if cluster_max > 0 and uf.set_size(a) + uf.set_size(b) > cluster_max:
                 continue
-            parent[rb] = ra
-            size[ra] += size[rb]
+            uf.union(a, b)
         out[pair] = r
         used[a] = used.get(a, 0) + 1
         used[b] = used.get(b, 0) + 1
