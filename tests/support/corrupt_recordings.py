@@ -182,6 +182,19 @@ def command_args(command: str, recording: Path, out: Path, strict: bool = False)
     raise ValueError(f"unknown command {command!r}")
 
 
+# fork the command, wait for it, write "<peak RSS kB> <exit code>" to the fd in argv[1]
+_WRAPPER = (
+    "import os, sys\n"
+    "fd = int(sys.argv[1])\n"
+    "pid = os.fork()\n"
+    "if pid == 0:\n"
+    "    os.close(fd)\n"
+    "    os.execvp(sys.argv[2], sys.argv[2:])\n"
+    "_, status, usage = os.wait4(pid, 0)\n"
+    "os.write(fd, f'{usage.ru_maxrss} {os.waitstatus_to_exitcode(status)}'.encode())\n"
+)
+
+
 def run_one(
     coplane: str,
     command: str,
@@ -191,26 +204,44 @@ def run_one(
     strict: bool = False,
     timeout: float = 120.0,
 ) -> CorpusRun:
-    """Run the command in a child process; wall time, and the child's peak RSS from wait4 (the
-    child is reaped here, not by Popen, so its resource usage is ours to read)."""
+    """Run the command in a child process; wall time, and the child's peak RSS from wait4.
+
+    The command is started by a small Python wrapper that forks it and reports its `wait4` usage on
+    a pipe: a child forked straight from the test process would count the test process's own
+    resident pages (inherited at fork) in its peak RSS, so a test session that grew would make
+    every command look large."""
     import os
+    import signal
     import subprocess
+    import sys
     import tempfile
     import threading
     import time
 
     args = [coplane, *command_args(command, recording, out, strict)]
     env = {**os.environ, "COLUMNS": "200", "NO_COLOR": "1"}
+    r, w = os.pipe()
     with tempfile.TemporaryFile() as log:
         t0 = time.monotonic()
-        p = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env)
-        killer = threading.Timer(timeout, p.kill)
+        p = subprocess.Popen(
+            [sys.executable, "-c", _WRAPPER, str(w), *args],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+            pass_fds=(w,),
+            start_new_session=True,
+        )
+        os.close(w)
+        killer = threading.Timer(timeout, lambda: os.killpg(p.pid, signal.SIGKILL))
         killer.start()
         try:
-            _, status, usage = os.wait4(p.pid, 0)
+            with os.fdopen(r) as pipe:
+                reported = pipe.read().split()
+            p.wait()
         finally:
             killer.cancel()
-        p.returncode = os.waitstatus_to_exitcode(status)  # reaped here: tell Popen
+        maxrss_kb, code = (int(reported[0]), int(reported[1])) if len(reported) == 2 else (0, -9)
+        p.returncode = code
         wall = time.monotonic() - t0
         log.seek(0)
         text = log.read().decode(errors="replace")
@@ -220,7 +251,7 @@ def run_one(
         command=command,
         exit_code=p.returncode,
         wall_s=wall,
-        peak_rss_mb=usage.ru_maxrss / 1024,
+        peak_rss_mb=maxrss_kb / 1024,
         traceback="Traceback (most recent call last)" in text,
         names_file=any(name in text for name in files) or str(recording) in text,
         problem_count=re.search(r"\d+ input problems", text) is not None,
