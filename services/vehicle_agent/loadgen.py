@@ -1,8 +1,8 @@
 """`coplane loadgen`: many vehicle agents in one process, for load tests (docs/scale.md, "Load").
 
 Each vehicle keeps its own `VehicleStep` (SPP with FDE, Doppler velocity, the plane fit from the
-solutions it receives) and puts its node messages on its own keys with its own liveliness token,
-as a `VehicleAgent` does; they share one Zenoh session and one thread, so a 1000-vehicle test needs
+solutions it receives; the history behind the fits is one `SharedHistory`, stored once) and puts
+its node messages on its own keys with its own liveliness token, as a `VehicleAgent` does; they share one Zenoh session and one thread, so a 1000-vehicle test needs
 one process instead of 1000. Real deployments keep one agent per vehicle, each with its own
 certificate: a load generator speaks for every vehicle, so it runs only on an insecure test bus.
 
@@ -28,7 +28,7 @@ from coplane.messages import SolutionMessage
 from coplane.recording.model import ObsEpoch, UwbRange
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, replay_setup, uwb_for_vehicle, vehicle_schedule
-from coplane.steps import VehicleStep, gps_time
+from coplane.steps import SharedHistory, VehicleStep, gps_time
 
 from .region import RegionKeys
 from .settings import LoadgenSettings
@@ -115,6 +115,8 @@ class LoadGenerator:
                 uwb_for_vehicle(uwb, vid, (t for t, _ in sched), man.interval_s),
                 RegionKeys(self.keys, vid, settings.region_config(), base) if settings.regions else None,
             )
+        # one plane history for every vehicle: N histories would store each solution N times
+        self.history = SharedHistory(v.step for v in self.vehicles.values())
         self.times = sorted({t for v in self.vehicles.values() for t in v.schedule})
         self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=ids)
         self.stats = LoadStats(vehicles=len(ids))
@@ -185,19 +187,31 @@ class LoadGenerator:
 
     def _await(self, node: BusNode, t: GpsTime, waiting: set[str], quiet_s: float | None = None) -> None:
         """Lockstep: until every vehicle of `waiting` is answered at `t` (or later), re-sending the
-        unanswered every `resend_s`; realtime end (`quiet_s`): until nothing came for that long."""
+        unanswered after `resend_s`, then twice as long each time; realtime end (`quiet_s`): until
+        nothing came for that long.
+
+        `settle_s` counts only once some server has answered `t`: before that the servers may
+        still be solving it (a 1000-vehicle epoch takes seconds), which is not a reason to go on.
+        The back-off keeps re-sent copies from piling up on a server that is merely busy."""
         deadline = time.monotonic() + (quiet_s if quiet_s is not None else self.s.epoch_timeout_s)
-        last_send = last_answer = time.monotonic()
+        last_send = time.monotonic()
+        last_answer: float | None = None
+        resend_after = self.s.resend_s
         while (waiting or quiet_s is not None) and not self.stop.is_set() and time.monotonic() < deadline:
             ev = node.get(timeout=0.05)
             if ev is None:
-                if quiet_s is None and time.monotonic() - last_answer > self.s.settle_s:
+                if (
+                    quiet_s is None
+                    and last_answer is not None
+                    and time.monotonic() - last_answer > self.s.settle_s
+                ):
                     break  # answers stopped coming: the rest were late at their server, count them
-                if waiting and time.monotonic() - last_send > self.s.resend_s:
+                if waiting and time.monotonic() - last_send > resend_after:
                     for vid in sorted(waiting):
                         for key in self.vehicles[vid].keys:
                             node.put(key, self.vehicles[vid].payload)
                     last_send = time.monotonic()
+                    resend_after *= 2.0
                 continue
             if quiet_s is not None:
                 deadline = time.monotonic() + quiet_s
@@ -208,7 +222,7 @@ class LoadGenerator:
         self.stats.unanswered += len(waiting)
 
     def _ingest(self, events: list[Any]) -> list[SolutionMessage]:
-        """Gate each solution and feed it to every vehicle's plane history (as each agent would)."""
+        """Gate each solution and feed it to the vehicles' plane history (once: it is shared)."""
         taken: list[SolutionMessage] = []
         c0 = time.process_time()
         now = time.monotonic()
@@ -224,8 +238,7 @@ class LoadGenerator:
             if ok is None:
                 self.stats.rejected[self.gate.last_reason or "untrusted"] += 1
                 continue
-            for v in self.vehicles.values():
-                v.step.ingest(ok)
+            self.history.ingest(ok)
             t = gps_time(ok.epoch)
             for vid in ok.answered or [s.vehicle_id for s in ok.vehicles]:
                 w = self.vehicles.get(vid)

@@ -79,13 +79,15 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
     pace: Literal["lockstep", "realtime"] = "lockstep"
     speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
     seed: int = 0
-    resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: re-send unanswered node messages")
+    resend_s: float = Field(
+        default=1.0, gt=0.0, description="Lockstep: re-send unanswered node messages after this, doubling"
+    )
     epoch_timeout_s: float = Field(
         default=30.0, gt=0.0, description="Lockstep: give up on an epoch's answers"
     )
     settle_s: float = Field(
         default=3.0,
         gt=0.0,
-        description="Lockstep: go on once no answer came for this long (the rest were late)",
+        description="Lockstep: once some server answered, go on when no answer came for this long",
     )
     lease_ms: int = Field(default=2000, ge=500)

@@ -232,8 +232,11 @@ class PositionHistory:
         before_time_s: float,
         rng: np.random.Generator,
         vehicle_ids: Iterable[str] | None = None,
+        since_time_s: float = -math.inf,
     ) -> HistorySample:
-        """`select` with the times and vehicle ids of the chosen points."""
+        """`select` with the times and vehicle ids of the chosen points. Points older than
+        `since_time_s` are left out: a vehicle that shares one history with others (the load
+        generator's) sees only what it would have stored itself since it joined."""
         cfg = self.config
         c = np.asarray(center_ecef, dtype=float)
         if c.shape != (3,) or not np.isfinite(c).all():
@@ -241,7 +244,7 @@ class PositionHistory:
         if not math.isfinite(before_time_s):
             raise ValueError(f"before_time_s is not finite: {before_time_s!r}")
         t_hi = before_time_s - cfg.time_tolerance_s
-        t_lo = before_time_s - cfg.max_history_s
+        t_lo = max(before_time_s - cfg.max_history_s, since_time_s)
         allowed: NDArray[np.int32] | None = None
         if vehicle_ids is not None:
             allowed = np.array(

@@ -5,12 +5,14 @@ server call them over the bus, so the lockstep bus replay equals the in-process 
 """
 
 from coplane.steps.fusion import FusionStep, FusionStepConfig
+from coplane.steps.shared_history import SharedHistory
 from coplane.steps.vehicle import VehicleStep, VehicleStepConfig
 from coplane.steps.wire import epoch_time, gps_time, plane_report, plane_summary
 
 __all__ = [
     "FusionStep",
     "FusionStepConfig",
+    "SharedHistory",
     "VehicleStep",
     "VehicleStepConfig",
     "epoch_time",

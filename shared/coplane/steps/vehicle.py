@@ -90,6 +90,7 @@ class VehicleStep:
             pc = replace(pc, fault_exclusion=False)
         self.plane_config = pc
         self.history = PositionHistory(pc)
+        self.history_shared = False  # True: a SharedHistory feeds `history`, ingest leaves it alone
         self.road_map = self.config.road_map
         self.seq = 0
         self.first_epoch: GpsTime | None = None
@@ -108,6 +109,11 @@ class VehicleStep:
         t = gps_time(solution.epoch)
         if self.first_epoch is None or t < self.first_epoch:
             return
+        if self.history_shared:
+            for v in solution.vehicles:
+                if v.vehicle_id == self.vehicle_id:
+                    self.note_fused(t, v.position_ecef_m)
+            return
         states = [
             v for v in solution.vehicles if self.method.planes != "self" or v.vehicle_id == self.vehicle_id
         ]
@@ -117,11 +123,15 @@ class VehicleStep:
                 t.seconds,
                 [v.position_ecef_m for v in states],
                 [v.antenna_height_m for v in states],
-                [_sigma_up(v) for v in states],
+                [vertical_sigma_m(v) for v in states],
             )
         for v in states:
             if v.vehicle_id == self.vehicle_id:
-                self._last_fused = (t, np.asarray(v.position_ecef_m, dtype=float))
+                self.note_fused(t, v.position_ecef_m)
+
+    def note_fused(self, t: GpsTime, position_ecef_m: Iterable[float]) -> None:
+        """Keep this vehicle's own fused position of `t` (the plane's centre when SPP fails)."""
+        self._last_fused = (t, np.asarray(position_ecef_m, dtype=float))
 
     # -- one epoch ---------------------------------------------------------------------------
     def front_end(
@@ -293,7 +303,8 @@ class VehicleStep:
         source: PlaneSourceName = "self" if self.method.planes == "self" else "fleet"
         rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
         only = {self.vehicle_id} if self.method.planes == "self" else None
-        sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only)
+        since = self.first_epoch.seconds if self.first_epoch is not None else -math.inf
+        sample = self.history.select_records(centre, t.seconds, rng, vehicle_ids=only, since_time_s=since)
         cfg = self.plane_config
         plane = construct_plane(sample.points, self.antenna_height_m, cfg, rng)
         if cfg.sigma_model == "covariance" and plane.available:
@@ -303,7 +314,7 @@ class VehicleStep:
         return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids), source=source)
 
 
-def _sigma_up(v: VehicleState) -> float:
+def vertical_sigma_m(v: VehicleState) -> float:
     """Vertical 1-sigma of a solved position (from its ECEF covariance), NaN when not given."""
     if v.covariance_m2 is None:
         return math.nan
