@@ -22,9 +22,11 @@ from typing import Literal
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport
 
+from .fleet_epoch import FleetEpochs
 from .plausibility import PLANE_DISTANCE_M, PLANE_TILT_DEG, SPP_RESIDUAL_M, plane_problem, spp_problem
 
 HISTORY_DEPTH = 120  # node messages an agent's publication cache replays to a restarted server
+USED_DIGEST_EPOCHS = 8  # solved epochs whose used messages' digests are kept (re-sends: duplicate)
 MAX_PACE = 100.0  # epoch seconds per wall second a fleet may advance (realtime `speed`; consumers alike)
 
 
@@ -113,7 +115,18 @@ class Admission:
     config: AdmissionConfig
     vehicles: dict[str, VehicleState] = field(default_factory=dict)
     digests: dict[GpsTime, dict[str, bytes]] = field(default_factory=dict)  # pending (epoch, vehicle)
+    # the last solved epochs' digests: a lockstep agent's re-send that crossed the solution is a
+    # duplicate of what the solve used, not a late message (its data did not miss the epoch)
+    used_digests: dict[GpsTime, dict[str, bytes]] = field(default_factory=dict)
     min_tokens: float = math.inf  # lowest bucket level a message left (measured in the tests)
+    epochs: FleetEpochs = field(init=False)  # the active vehicles' latest epochs, kept as they change
+
+    def __post_init__(self) -> None:
+        self.epochs = FleetEpochs(self.config.silent_after_s)
+
+    def _changed(self, vid: str, v: VehicleState) -> None:
+        """A vehicle's latest epoch or admit time changed: keep `epochs` in step."""
+        self.epochs.update(vid, v.latest, v.last_admit_s)
 
     def _vehicle(self, vid: str, now: float) -> VehicleState:
         v = self.vehicles.get(vid)
@@ -125,12 +138,7 @@ class Admission:
     def active(self, now: float) -> dict[str, GpsTime]:
         """Latest admitted epoch of each vehicle that admitted a message lately (`silent_after_s`):
         a vehicle that stopped sending does not hold the reference back."""
-        lim = self.config.silent_after_s
-        return {
-            vid: v.latest
-            for vid, v in self.vehicles.items()
-            if v.latest is not None and v.last_admit_s is not None and now - v.last_admit_s <= lim
-        }
+        return self.epochs.active(now)
 
     def reference(
         self, now: float, solved_up_to: GpsTime | None, exclude: str | None = None, upper: bool = False
@@ -139,10 +147,9 @@ class Admission:
         vehicle far ahead cannot raise it; `upper`: the upper median, which one vehicle far behind
         cannot lower), never below the last solved epoch; None if no vehicle (other than
         `exclude`) is active."""
-        lat = sorted(t for vid, t in self.active(now).items() if vid != exclude)
-        if not lat:
+        med = self.epochs.median(now, exclude=exclude, upper=upper)
+        if med is None:
             return None
-        med = lat[len(lat) // 2] if upper else lat[(len(lat) - 1) // 2]
         return med if solved_up_to is None or solved_up_to < med else solved_up_to
 
     def solve_limit(self, now: float, solved_up_to: GpsTime | None) -> GpsTime | None:
@@ -165,7 +172,7 @@ class Admission:
         epoch behind is late or between the last solved epoch and the fleet's (a resume's replay).
         Two vehicles that disagree at the start cannot be told apart: nothing is dropped."""
         tol = self.config.grid_tolerance_s
-        n = len(self.active(now))
+        n = self.epochs.count(now)
         if solved_up_to is not None or n >= 3:
             ref = self.reference(now, solved_up_to)
             if ref is not None and t - ref > self.config.max_ahead_s + tol:
@@ -212,12 +219,15 @@ class Admission:
         if abs(t - t.round_to(cfg.interval_s)) > cfg.grid_tolerance_s:
             return Verdict("reject", "off-grid")
         if solved_up_to is not None and not solved_up_to < t:
+            if self.used_digests.get(t, {}).get(vid) == digest:
+                return Verdict("duplicate")  # a re-send of what the solve used
             return Verdict("late")  # not evidence of life for lockstep: anyone can send an old epoch
         prior = self.digests.get(t, {}).get(vid)
         if prior is not None:
             if prior != digest:
                 return Verdict("reject", "conflict")
             v.last_admit_s = v.seen_s = now  # a lockstep agent waiting for its solution is still active
+            self._changed(vid, v)
             return Verdict("duplicate")
         # ahead of the others' current epoch: only once an epoch was solved (before, one vehicle
         # far behind could make a genuine epoch look ahead; `outside_window` cleans up the start)
@@ -285,12 +295,18 @@ class Admission:
             v.first = t
         v.last_admit_s = v.seen_s = now
         v.silent = False
+        self._changed(vid, v)
 
     # -- server events -------------------------------------------------------------------------
     def solved(self, t: GpsTime) -> None:
-        """An epoch was solved (or dropped): forget its digests, and give every vehicle the tokens
-        of one epoch (a lockstep fleet runs as fast as the solver: its rate is per epoch)."""
-        self.digests.pop(t, None)
+        """An epoch was solved: its digests move to `used_digests` (the last few epochs), and every
+        vehicle gets the tokens of one epoch (a lockstep fleet runs as fast as the solver: its rate
+        is per epoch)."""
+        used = self.digests.pop(t, None)
+        if used:
+            self.used_digests[t] = used
+            while len(self.used_digests) > USED_DIGEST_EPOCHS:
+                del self.used_digests[min(self.used_digests)]
         for v in self.vehicles.values():
             v.bucket.tokens = min(self.config.burst, v.bucket.tokens + self.config.rate_per_epoch)
 
@@ -300,6 +316,7 @@ class Admission:
         if v is not None:
             v.latest = v.latest_seq = v.last_admit_s = v.first = None
             v.silent = False
+            self._changed(vid, v)
 
     def forget(self, t: GpsTime) -> None:
         """An epoch was dropped unsolved: forget its digests."""

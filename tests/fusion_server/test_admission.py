@@ -339,7 +339,11 @@ def test_past_epoch_is_late_and_changes_nothing(bundled: Genuine) -> None:
     m = bundled.epochs[1]["u3"]
     for dt in (0.0, -1.0, -WEEK_S):
         _put(s, _at(m, gps_time(m.epoch) + dt), 1.0)
-    assert s.counters["u3"]["late"] == 3 and not s.pending
+    # the identical message the solve of epoch 1 used is a duplicate (a lockstep re-send that
+    # crossed the solution), the others are late
+    assert s.counters["u3"]["late"] == 2 and s.counters["u3"]["duplicate"] == 1 and not s.pending
+    _put(s, _at(m, gps_time(m.epoch), seq=m.seq + 1000), 1.0)  # other bytes for that epoch: late
+    assert s.counters["u3"]["late"] == 3
     _invariant(s)
 
 
