@@ -1,11 +1,13 @@
 """Scale-out benchmark (issue 16): a simulated city through 1, 2 and 4 fusion servers by region.
 
     .venv/bin/python bench/bench_scale.py [--vehicles 256] [--duration 60] [--servers 1,2,4]
-                                          [--region-size 1000] [--out docs/performance-scale.md]
+                                          [--region-size 1000] [--pace lockstep|realtime]
+                                          [--out docs/performance-scale.md [--block NAME]]
 
 For each server count: a Zenoh router, that many fusion servers (`--regions` when more than one)
-and one `coplane loadgen` process carrying every vehicle (lockstep, insecure test bus), all plain
-processes on this machine. Measured in the same run: wall time, solved vehicle-epochs per second,
+and one `coplane loadgen` process carrying every vehicle (lockstep or realtime at 1 Hz, insecure
+test bus), all plain processes on this machine. `--block` names the generated block of the page
+that the table replaces (one per configuration). Measured in the same run: wall time, solved vehicle-epochs per second,
 each server's CPU seconds and peak RSS (/proc, read before it is stopped) and the vehicle-epochs it
 solved, the load generator's front-end and ingest CPU per vehicle-epoch, and the latency from a
 node message's publish to the solution that answers it (p50 / p99). Every process shares the
@@ -25,6 +27,7 @@ import platform
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -43,6 +46,12 @@ def _cpu_rss(pid: int) -> tuple[float, float]:
     return cpu, int(hwm.split()[1]) / 1024.0
 
 
+def _rss_mb(pid: int) -> float:
+    """Current resident set (VmRSS) of a live process, MB."""
+    line = next(x for x in Path(f"/proc/{pid}/status").read_text().splitlines() if x.startswith("VmRSS"))
+    return int(line.split()[1]) / 1024.0
+
+
 def _free_port() -> int:
     import socket
 
@@ -51,7 +60,10 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def run_one(rec: Path, servers: int, region_size: float, logs: Path) -> dict:
+def run_one(
+    rec: Path, servers: int, region_size: float, logs: Path, pace: str = "lockstep", sample_s: float = 0.0
+) -> dict:
+    """One configuration; `sample_s` > 0 also samples every server's RSS that often (`rss_series`)."""
     env = {**os.environ, "COPLANE_BUS_INSECURE": "1", "OPENBLAS_CORETYPE": "Haswell"}
     port = _free_port()
     ep = f"tcp/127.0.0.1:{port}"
@@ -86,7 +98,7 @@ def run_one(rec: Path, servers: int, region_size: float, logs: Path) -> dict:
                         "--method",
                         "pc",
                         "--pace",
-                        "lockstep",
+                        pace,
                         "--connect",
                         f'["{ep}"]',
                         "--map",
@@ -108,6 +120,17 @@ def run_one(rec: Path, servers: int, region_size: float, logs: Path) -> dict:
             if servers > 1
             else []
         )
+        series: list[tuple[float, list[float]]] = []
+        done = threading.Event()
+
+        def sample() -> None:
+            t0 = time.perf_counter()
+            while not done.wait(sample_s):
+                series.append((time.perf_counter() - t0, [_rss_mb(p.pid) for p in fusion]))
+
+        sampler = threading.Thread(target=sample, daemon=True)
+        if sample_s > 0:
+            sampler.start()
         lg = subprocess.run(
             [
                 PY,
@@ -118,6 +141,8 @@ def run_one(rec: Path, servers: int, region_size: float, logs: Path) -> dict:
                 "--insecure",
                 "--connect",
                 ep,
+                "--pace",
+                pace,
                 *reg,
                 "--json",
                 str(out),
@@ -127,11 +152,13 @@ def run_one(rec: Path, servers: int, region_size: float, logs: Path) -> dict:
             capture_output=True,
             timeout=7200,
         )
+        done.set()
         if lg.returncode != 0:
             raise RuntimeError(f"loadgen failed: {lg.stderr.decode()[-2000:]}")
         summary = json.loads(out.read_text())
         per_server = [(c - b, m) for (c, m), b in zip((_cpu_rss(p.pid) for p in fusion), before, strict=True)]
         summary["servers"] = servers
+        summary["rss_series"] = series
         summary["server_cpu_s"] = [round(c, 1) for c, _ in per_server]
         summary["server_peak_rss_mb"] = [round(m) for _, m in per_server]
         return summary
@@ -183,6 +210,32 @@ def cluster_table(rec: Path, vehicles: int, duration: float) -> str:
     return "\n".join(lines)
 
 
+def memory_table(r: dict, args: argparse.Namespace) -> str:
+    """One server's resident memory over a long run: ten evenly spaced samples, and the growth of
+    the second half (after the window, the histories and the caches have filled)."""
+    series = r["rss_series"]
+    if len(series) < 4:
+        return "too few samples: run longer or sample more often"
+    lines = [
+        f"machine: {platform.machine()}, {os.cpu_count()} CPUs; city {args.vehicles} vehicles x "
+        f"{args.duration:.0f} s, one server, method pc, {args.pace}; {r['solved']} vehicle-epochs solved in "
+        f"{r['wall_s']} s, server peak RSS {r['server_peak_rss_mb'][0]} MB",
+        "",
+        "| wall s | share of the run | server RSS MB |",
+        "|---|---|---|",
+    ]
+    n = len(series)
+    for k in sorted({round(i * (n - 1) / 9) for i in range(10)}):
+        t, rss = series[k]
+        lines.append(f"| {t:.0f} | {(k + 1) / n:.0%} | {rss[0]:.0f} |")
+    half = [x[1][0] for x in series[n // 2 :]]
+    lines += [
+        "",
+        f"second half: {min(half):.0f} .. {max(half):.0f} MB, last - first {half[-1] - half[0]:+.0f} MB",
+    ]
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--vehicles", type=int, default=256)
@@ -192,6 +245,11 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--clusters", action="store_true", help="the range-bounds table instead")
+    ap.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep")
+    ap.add_argument(
+        "--memory", type=float, default=0.0, help="one server, its RSS sampled every this many seconds"
+    )
+    ap.add_argument("--block", default="bench_scale", help="the generated block of --out to replace")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="coplane-scale-"))
     rec = work / "city"
@@ -208,17 +266,26 @@ def main() -> int:
         if args.out is not None:
             _write_doc(args.out, table, args, "bench_scale_clusters", "--clusters ")
         return 0
+    if args.memory > 0:
+        logs = work / "memory"
+        logs.mkdir()
+        r = run_one(rec, 1, args.region_size, logs, args.pace, sample_s=args.memory)
+        table = memory_table(r, args)
+        print(table)
+        if args.out is not None:
+            _write_doc(args.out, table, args, "bench_scale_memory", f"--memory {args.memory:g} ")
+        return 0
     rows = []
     for n in (int(x) for x in args.servers.split(",")):
         logs = work / f"servers-{n}"
         logs.mkdir()
-        rows.append(run_one(rec, n, args.region_size, logs))
+        rows.append(run_one(rec, n, args.region_size, logs, args.pace))
         print(json.dumps(rows[-1]), flush=True)
     base = rows[0]["vehicle_epochs_per_s"] or 1.0
     lines = [
         f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
         f"city {args.vehicles} vehicles x {args.duration:.0f} s (seed {args.seed}, simulated in {sim_s:.0f} s), "
-        f"regions {args.region_size:.0f} m, method pc, lockstep",
+        f"regions {args.region_size:.0f} m, method pc, {args.pace}",
         "",
         "| fusion servers | wall s | solved vehicle-epochs/s | vs 1 server | fusion CPU ms per vehicle-epoch (all servers) "
         "| server CPU s (each) | server peak RSS MB (each) | loadgen front end ms / vehicle-epoch | loadgen ingest ms / "
@@ -238,7 +305,7 @@ def main() -> int:
     table = "\n".join(lines)
     print(table)
     if args.out is not None:
-        _write_doc(args.out, table, args, "bench_scale", "")
+        _write_doc(args.out, table, args, args.block, "")
     return 0
 
 
@@ -246,7 +313,11 @@ def _write_doc(path: Path, table: str, args: argparse.Namespace, marker: str, fl
     """Replace the generated block `marker` of the performance page with `table`."""
     start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
     text = path.read_text()
-    servers = "" if flag else f"--servers {args.servers} --region-size {args.region_size:.0f} "
+    servers = (
+        "" if flag else f"--servers {args.servers} --region-size {args.region_size:.0f} --pace {args.pace} "
+    )
+    if marker != "bench_scale" and not flag:
+        servers += f"--block {marker} "
     cmd = (
         f"python bench/bench_scale.py {flag}--vehicles {args.vehicles} --duration {args.duration:.0f} "
         f"{servers}--out {path}"

@@ -35,6 +35,7 @@ from .settings import LoadgenSettings
 
 log = logging.getLogger("coplane.vehicle_agent.loadgen")
 
+SENT_KEPT = 16  # epochs whose send time a vehicle keeps (an answer later than that is not timed)
 NODE_HISTORY = 8  # cached node messages per vehicle (1000 vehicles x 120 would be ~400 MB)
 
 
@@ -46,7 +47,9 @@ class LoadStats:
     epochs: int = 0
     published: int = 0
     answered: int = 0  # vehicles named as answered in the solutions taken (duplicates included)
-    unanswered: int = 0
+    answered_once: int = 0  # published vehicle-epochs answered at least once
+    unanswered: int = 0  # lockstep: given up on (realtime: published - answered_once)
+    pace: str = "lockstep"
     wall_s: float = 0.0
     front_end_cpu_s: float = 0.0  # SPP, Doppler, planes and encoding of every node message
     ingest_cpu_s: float = 0.0  # solutions into every vehicle's plane history
@@ -59,6 +62,8 @@ class LoadStats:
         def q(p: float) -> float | None:
             return round(lat[min(len(lat) - 1, int(p * len(lat)))], 4) if lat else None
 
+        if self.pace == "realtime":  # nobody waits: an epoch solved without a vehicle is unanswered
+            self.unanswered = self.published - self.answered_once
         solved = self.published - self.unanswered
         return {
             "vehicles": self.vehicles,
@@ -87,7 +92,8 @@ class _Vehicle:
     region: RegionKeys | None
     keys: list[str] = field(default_factory=list)  # where its current epoch went
     payload: bytes = b""
-    sent_at: float = 0.0
+    sent: dict[GpsTime, float] = field(default_factory=dict)  # its last epochs' send times
+    answered_t: GpsTime | None = None  # the latest of its epochs a solution answered
 
 
 class LoadGenerator:
@@ -119,7 +125,7 @@ class LoadGenerator:
         self.history = SharedHistory(v.step for v in self.vehicles.values())
         self.times = sorted({t for v in self.vehicles.values() for t in v.schedule})
         self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=ids)
-        self.stats = LoadStats(vehicles=len(ids))
+        self.stats = LoadStats(vehicles=len(ids), pace=settings.pace)
         self._tokens: list[Any] = []
 
     def node(self) -> BusNode:
@@ -177,7 +183,10 @@ class LoadGenerator:
             v.keys = v.region.keys_for(msg, node) if v.region is not None else [self.keys.node(vid)]
             if not v.keys:
                 continue
-            v.payload, v.sent_at = encode(msg), time.monotonic()
+            v.payload = encode(msg)
+            v.sent[t] = time.monotonic()
+            if len(v.sent) > SENT_KEPT:
+                del v.sent[min(v.sent)]
             for key in v.keys:
                 node.put(key, v.payload)
             sent.add(vid)
@@ -242,8 +251,11 @@ class LoadGenerator:
             t = gps_time(ok.epoch)
             for vid in ok.answered or [s.vehicle_id for s in ok.vehicles]:
                 w = self.vehicles.get(vid)
-                if w is not None and w.keys and t in w.schedule:
-                    self.stats.latencies_s.append(now - w.sent_at)
+                sent_at = w.sent.get(t) if w is not None else None
+                if w is not None and sent_at is not None and (w.answered_t is None or w.answered_t < t):
+                    w.answered_t = t  # its first answer for t (a later one is a duplicate)
+                    self.stats.answered_once += 1
+                    self.stats.latencies_s.append(now - sent_at)
             self.stats.answered += len(ok.answered or ok.vehicles)
             taken.append(ok)
         self.stats.ingest_cpu_s += time.process_time() - c0
