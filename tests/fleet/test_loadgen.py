@@ -76,3 +76,14 @@ def test_loadgen_equals_the_in_process_replay(tmp_path: Path, servers: int) -> N
 def test_loadgen_refuses_a_secure_bus() -> None:
     out = CliRunner().invoke(app, ["loadgen"])
     assert out.exit_code != 0 and "--insecure" in out.output
+
+
+def test_realtime_counts_vehicle_epochs_without_an_answer() -> None:
+    """Realtime: nobody waits, so a vehicle-epoch no solution answered is unanswered, not solved;
+    lockstep counts what it gave up on."""
+    from coplane.vehicle_agent.loadgen import LoadStats
+
+    rt = LoadStats(vehicles=2, published=10, answered=9, answered_once=7, pace="realtime").summary()
+    assert (rt["solved"], rt["unanswered"], rt["extra_answers"]) == (7, 3, 2)
+    ls = LoadStats(vehicles=2, published=10, answered=10, answered_once=9, unanswered=1).summary()
+    assert (ls["solved"], ls["unanswered"]) == (9, 1)
