@@ -17,7 +17,7 @@ from dataclasses import replace
 
 from coplane.messages import SolutionMessage
 from coplane.plane.history import PositionHistory
-from coplane.steps.vehicle import VehicleStep, vertical_sigma_m
+from coplane.steps.vehicle import VehicleStep, store_states
 from coplane.steps.wire import gps_time
 
 
@@ -42,13 +42,7 @@ class SharedHistory:
         t = gps_time(solution.epoch)
         states = solution.vehicles
         if states and self.keeps_points:
-            self.history.add_many(
-                [v.vehicle_id for v in states],
-                t.seconds,
-                [v.position_ecef_m for v in states],
-                [v.antenna_height_m for v in states],
-                [vertical_sigma_m(v) for v in states],
-            )
+            store_states(self.history, t, states)
         for v in states:
             step = self.steps.get(v.vehicle_id)
             if step is not None and step.first_epoch is not None and not t < step.first_epoch:

@@ -10,7 +10,7 @@ positions (docs/architecture.md).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -118,13 +118,7 @@ class VehicleStep:
             v for v in solution.vehicles if self.method.planes != "self" or v.vehicle_id == self.vehicle_id
         ]
         if states and self.method.planes != "none":  # no plane, no history to keep
-            self.history.add_many(
-                [v.vehicle_id for v in states],
-                t.seconds,
-                [v.position_ecef_m for v in states],
-                [v.antenna_height_m for v in states],
-                [vertical_sigma_m(v) for v in states],
-            )
+            store_states(self.history, t, states)
         for v in states:
             if v.vehicle_id == self.vehicle_id:
                 self.note_fused(t, v.position_ecef_m)
@@ -312,6 +306,17 @@ class VehicleStep:
             u = plane_uncertainty(plane, sample.sigmas_up_m, sample.vehicle_ids, sample.times_s, cfg)
             return plane_report(plane, u.offset_sigma_m, u.sigma_at(centre), u.tilt_sigma_rad, source)
         return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids), source=source)
+
+
+def store_states(history: PositionHistory, t: GpsTime, states: Sequence[VehicleState]) -> None:
+    """Put solved vehicle states of epoch `t` into a plane history (paper eq. 2)."""
+    history.add_many(
+        [v.vehicle_id for v in states],
+        t.seconds,
+        [v.position_ecef_m for v in states],
+        [v.antenna_height_m for v in states],
+        [vertical_sigma_m(v) for v in states],
+    )
 
 
 def vertical_sigma_m(v: VehicleState) -> float:
