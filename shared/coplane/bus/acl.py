@@ -11,7 +11,7 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 | `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`) | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
-| `router` | nothing (it is the server side of TLS only) | nothing |
+| `router` | everything under `P` (another router of the mesh, docs/scale.md) | everything under `P` |
 
 A Zenoh client's publisher sends only while it knows of a matching subscriber, so the publishers
 also receive the subscriber declarations on their keys (measured: without them a publisher declared
@@ -28,11 +28,15 @@ from collections.abc import Sequence
 from typing import Any
 
 from coplane.bus.keys import KeySpace
-from coplane.bus.security import API, FUSION, MONITOR, vehicle_identity
+from coplane.bus.security import API, FUSION, MONITOR, ROUTER, vehicle_identity
 
 Grant = tuple[str, tuple[str, ...], tuple[str, ...]]  # (flow, messages, key expressions)
 
 SUBSCRIBE_LIVELINESS = ("declare_liveliness_subscriber", "liveliness_query")
+ALL_MESSAGES = (
+    "put", "delete", "declare_subscriber", "query", "declare_queryable", "reply", "liveliness_token",
+    *SUBSCRIBE_LIVELINESS,
+)  # fmt: skip
 
 
 def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
@@ -104,6 +108,10 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     ]
     out[API] = [*readers, ("ingress", ("liveliness_token",), (k.all_alive("api"),))]
     out[MONITOR] = list(readers)
+    # another router of the mesh forwards every client's traffic, already checked by its own ACL
+    # at the client's link: everything under P both ways, the caches' verbatim @adv chunks too
+    mesh = (f"{p}/**", f"{p}/**/@adv/**")
+    out[ROUTER] = [("ingress", ALL_MESSAGES, mesh), ("egress", ALL_MESSAGES, mesh)]
     return out
 
 

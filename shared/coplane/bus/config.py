@@ -106,17 +106,26 @@ def router_config(
     security: BusSecurity | None = None,
     vehicles: Sequence[str] | None = None,
     fleet: str = "*",
+    connect: Sequence[str] = (),
 ) -> zenoh.Config:
     """A router listening on `listen` (what `python -m coplane.bus.router` opens).
 
     Secure: TLS listeners with the `router` certificate, client certificates required, and the
     access control of coplane.bus.acl for `vehicles` (default: every vehicle certificate in the
-    certificates folder) in `fleet` (default: any).
+    certificates folder) in `fleet` (default: any). `connect`: other routers to form a mesh with,
+    retried until they are up, over mutual TLS with the same `router` certificate.
     """
     sec = security if security is not None else current_security()
     if sec.secure:
         sec = sec.as_identity(ROUTER)
     c = session_config("router", listen=listen, security=sec)
+    if connect:
+        c.insert_json5("connect/endpoints", json.dumps(_endpoints(connect, sec)))
+        c.insert_json5("connect/timeout_ms", "-1")
+        c.insert_json5("connect/exit_on_failure", "false")
+        if sec.secure:
+            both = {**tls_section(*sec.files(), "listen"), **tls_section(*sec.files(), "connect")}
+            c.insert_json5("transport/link/tls", json.dumps(both))
     if sec.secure:
         assert sec.certs is not None
         names = list(vehicles) if vehicles is not None else vehicles_in(sec.certs)

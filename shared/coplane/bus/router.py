@@ -20,9 +20,12 @@ from coplane.runtime import exit_code, setup_logging, stop_event
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 
-def open_router(listen: list[str], security: BusSecurity | None = None, fleet: str = "*") -> zenoh.Session:
-    """A Zenoh router inside this Python process (secure per `security`, default the environment)."""
-    return zenoh.open(router_config(listen, security, fleet=fleet))
+def open_router(
+    listen: list[str], security: BusSecurity | None = None, fleet: str = "*", connect: list[str] | None = None
+) -> zenoh.Session:
+    """A Zenoh router inside this Python process (secure per `security`, default the environment),
+    meshed with the routers at `connect`."""
+    return zenoh.open(router_config(listen, security, fleet=fleet, connect=connect or []))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
         "--listen", action="append", default=None, help=f"endpoint, repeatable (default {DEFAULT_LISTEN})"
     )
     ap.add_argument("--fleet", default="*", help="grant keys of this fleet only (default: any fleet)")
+    ap.add_argument("--connect", action="append", default=[], help="another router to mesh with, repeatable")
     args = ap.parse_args(argv)
     log = setup_logging("router")
     stop = stop_event()
@@ -38,8 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     if not security.secure:
         warn_insecure("router")
     listen = args.listen or [DEFAULT_LISTEN]
-    session = open_router(listen, security, args.fleet)
-    log.info("router up", extra={"listen": ",".join(listen), "secure": security.secure})
+    session = open_router(listen, security, args.fleet, args.connect)
+    log.info(
+        "router up",
+        extra={"listen": ",".join(listen), "mesh": ",".join(args.connect), "secure": security.secure},
+    )
     stop.wait()
     session.close()
     return exit_code()

@@ -62,6 +62,15 @@ def fleet(
             help="Fusion servers sharing the fleet by region (docs/scale.md); 1: one server for all.",
         ),
     ] = 1,
+    routers: Annotated[
+        int,
+        typer.Option(
+            "--routers",
+            min=1,
+            max=4,
+            help="Zenoh routers in a mesh (the others join the first); servers and agents take them in turn.",
+        ),
+    ] = 1,
     nmea_port: Annotated[
         int | None,
         typer.Option(
@@ -103,6 +112,7 @@ def fleet(
         map=map_file,
         nmea_port=nmea_port,
         servers=servers,
+        routers=routers,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

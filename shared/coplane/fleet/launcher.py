@@ -69,13 +69,19 @@ def fleet_of(recording: Path) -> tuple[str, list[str]]:
     return fleet_id(man.name), [v.id for v in man.vehicles]
 
 
-def router_spec(port: int, secure: bool = False, fleet: str | None = None) -> ServiceSpec:
+def router_spec(
+    port: int, secure: bool = False, fleet: str | None = None, mesh: Sequence[int] = (), index: int = 1
+) -> ServiceSpec:
     """The Python router on 127.0.0.1:`port`; `secure`: TLS (its ACL then comes from the certificates
-    folder in its environment), `fleet`: grant only that fleet's keys."""
-    args = ["--listen", f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"]
+    folder in its environment), `fleet`: grant only that fleet's keys; `mesh`: the ports of the
+    routers it connects to; `index` > 1 names the mesh's further routers zenoh-router-2, ..."""
+    scheme = "tls" if secure else "tcp"
+    args = ["--listen", f"{scheme}/127.0.0.1:{port}"]
     if fleet is not None:
         args += ["--fleet", fleet]
-    return ServiceSpec("zenoh-router", ROUTER_MODULE, args, ROUTER)
+    for p in mesh:
+        args += ["--connect", f"{scheme}/127.0.0.1:{p}"]
+    return ServiceSpec("zenoh-router" if index == 1 else f"zenoh-router-{index}", ROUTER_MODULE, args, ROUTER)
 
 
 def fusion_name(i: int, servers: int) -> str:
@@ -97,12 +103,20 @@ def fleet_services(
     start_unix_s: float | None = None,
     map_path: Path | None = None,
     servers: int = 1,
+    routers: Sequence[str] = (),
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
     agents of a map method take it from (they need no access to the file). `servers` > 1: that
-    many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N."""
+    many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N.
+    `routers`: the endpoints of a router mesh; the servers and the agents take them in turn (the
+    API takes `connect`)."""
     rec = str(recording)
+    mesh = list(routers) or [connect]
+
+    def via(k: int) -> str:
+        return f'["{mesh[k % len(mesh)]}"]'
+
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
     road_map = ["--map", str(map_path)] if map_path is not None else []
     if servers > 1 and not road_map:
@@ -120,7 +134,7 @@ def fleet_services(
                 "--pace",
                 pace,
                 "--connect",
-                f'["{connect}"]',
+                via(i - 1),
                 "--seed",
                 str(seed),
                 "--interruption_rate",
@@ -138,7 +152,7 @@ def fleet_services(
         )
         for i in range(1, servers + 1)
     ]
-    for vid in vehicles:
+    for j, vid in enumerate(vehicles):
         out.append(
             ServiceSpec(
                 f"agent-{vid}",
@@ -155,7 +169,7 @@ def fleet_services(
                     "--speed",
                     str(speed),
                     "--connect",
-                    f'["{connect}"]',
+                    via(j + 1),  # agent 1 on another router than server 1: traffic crosses the mesh
                     "--seed",
                     str(seed),
                     *start,

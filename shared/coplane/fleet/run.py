@@ -74,9 +74,11 @@ class FleetOptions:
     # fleet's map in the state directory (store.map_path "auto"), Path("none"): no map
     nmea_port: int | None = None  # NMEA 0183 GGA + RMC per vehicle on this port and the next ones
     servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
+    routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
+MAX_FLEET_ROUTERS = 4  # Zenoh routers it meshes
 
 
 def default_certs_dir() -> Path:
@@ -151,6 +153,8 @@ def run_fleet(
     fleet_name, vehicles = fleet_of(path)
     if not 1 <= o.servers <= MAX_FLEET_SERVERS:
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
+    if not 1 <= o.routers <= MAX_FLEET_ROUTERS:
+        raise ConfigError(f"--routers must be in 1..{MAX_FLEET_ROUTERS}, got {o.routers}")
     if o.servers > 1 and (method.plane_map or (o.map is not None and str(o.map) != "none")):
         # one writer per map file, and servers do not share a map yet (docs/scale.md, "Not yet")
         raise ConfigError("--servers > 1 runs without a road-surface map for now: drop --map and map methods")
@@ -173,6 +177,12 @@ def run_fleet(
     try:
         procs.start(router_spec(port, security.secure, fleet_name))
         wait_for_port(port)
+        mesh = [connect]
+        for k in range(2, o.routers + 1):  # each further router joins the first: a star of links
+            extra = free_port()
+            procs.start(router_spec(extra, security.secure, fleet_name, mesh=[port], index=k))
+            wait_for_port(extra)
+            mesh.append(f"{connect.split('/', 1)[0]}/127.0.0.1:{extra}")
         if o.nmea_port is not None:
             nmea = NmeaServer(vehicles, o.nmea_port, dgnss=rec.manifest.base is not None)
             log.info("NMEA output", extra={"ports": ", ".join(f"{v}:{p}" for v, p in nmea.ports.items())})
@@ -203,6 +213,7 @@ def run_fleet(
                 start,
                 map_path=road_map.resolve() if road_map is not None else None,
                 servers=o.servers,
+                routers=mesh,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
