@@ -252,6 +252,7 @@ def main() -> int:
     ap.add_argument("--block", default="bench_scale", help="the generated block of --out to replace")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="coplane-scale-"))
+    print(f"city and every process's log kept in {work} (delete it when done)", file=sys.stderr)
     rec = work / "city"
     t0 = time.perf_counter()
     subprocess.run(

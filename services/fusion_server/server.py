@@ -44,9 +44,8 @@ from .road_map import LiveRoadMap
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
-EVENT_BATCH = (
-    256  # bus events handled before the pacing looks again (a lockstep epoch of 1000 vehicles: 4 looks)
-)
+# bus events handled before the pacing looks again (a lockstep epoch of 1000 vehicles: 4 looks)
+EVENT_BATCH = 256
 
 
 class FusionServer(Pacing):

@@ -8,6 +8,9 @@ vehicle on the second router."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -81,3 +84,15 @@ def test_the_second_router_applies_the_access_control(tmp_path: Path) -> None:
     finally:
         for s in (vehicle, monitor, fusion, rb, ra):
             s.close()
+
+
+def test_a_malformed_mesh_endpoint_is_a_clear_error() -> None:
+    """`python -m coplane.bus.router --connect garbage`: one error line naming the endpoints, exit 2."""
+    out = subprocess.run(
+        [sys.executable, "-m", "coplane.bus.router", "--listen", f"tcp/127.0.0.1:{free_port()}",
+         "--connect", "garbage"],
+        capture_output=True, text=True, timeout=30, env={**os.environ, "COPLANE_BUS_INSECURE": "1"},
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "router could not start" in out.stderr + out.stdout and "garbage" in out.stderr + out.stdout
+    assert "Traceback" not in out.stderr

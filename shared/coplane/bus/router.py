@@ -42,7 +42,18 @@ def main(argv: list[str] | None = None) -> int:
     if not security.secure:
         warn_insecure("router")
     listen = args.listen or [DEFAULT_LISTEN]
-    session = open_router(listen, security, args.fleet, args.connect)
+    try:
+        session = open_router(listen, security, args.fleet, args.connect)
+    except zenoh.ZError as exc:  # a malformed --listen / --connect endpoint, a port in use
+        log.error(
+            "router could not start",
+            extra={
+                "listen": ",".join(listen),
+                "mesh": ",".join(args.connect),
+                "error": str(exc).split(" at /")[0],
+            },
+        )
+        return 2
     log.info(
         "router up",
         extra={"listen": ",".join(listen), "mesh": ",".join(args.connect), "secure": security.secure},

@@ -169,7 +169,8 @@ def run_fleet(
     n_epochs = len({t for v in vehicles for t, _ in vehicle_schedule(rec.vehicle_epochs(v), interval)})
     security = fleet_security(o, vehicles)
     port = o.port or free_port()
-    connect = f"{'tls' if security.secure else 'tcp'}/127.0.0.1:{port}"
+    scheme = "tls" if security.secure else "tcp"
+    connect = f"{scheme}/127.0.0.1:{port}"
     procs = procs if procs is not None else FleetProcesses()
     nmea: NmeaServer | None = None
     procs.log_dir, procs.security = o.logs, security
@@ -182,7 +183,7 @@ def run_fleet(
             extra = free_port()
             procs.start(router_spec(extra, security.secure, fleet_name, mesh=[port], index=k))
             wait_for_port(extra)
-            mesh.append(f"{connect.split('/', 1)[0]}/127.0.0.1:{extra}")
+            mesh.append(f"{scheme}/127.0.0.1:{extra}")
         if o.nmea_port is not None:
             nmea = NmeaServer(vehicles, o.nmea_port, dgnss=rec.manifest.base is not None)
             log.info("NMEA output", extra={"ports": ", ".join(f"{v}:{p}" for v, p in nmea.ports.items())})

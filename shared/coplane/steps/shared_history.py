@@ -34,8 +34,7 @@ class SharedHistory:
         self.history = PositionHistory(first.plane_config if first is not None else None)
         self.keeps_points = any(s.method.planes != "none" for s in self.steps.values())
         for s in self.steps.values():
-            s.history = self.history
-            s.history_shared = True
+            s.share_history(self.history)
 
     def ingest(self, solution: SolutionMessage) -> None:
         """Store the solution once; each step that has started notes its own fused position."""

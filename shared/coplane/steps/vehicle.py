@@ -109,19 +109,20 @@ class VehicleStep:
         t = gps_time(solution.epoch)
         if self.first_epoch is None or t < self.first_epoch:
             return
-        if self.history_shared:
-            for v in solution.vehicles:
-                if v.vehicle_id == self.vehicle_id:
-                    self.note_fused(t, v.position_ecef_m)
-            return
         states = [
             v for v in solution.vehicles if self.method.planes != "self" or v.vehicle_id == self.vehicle_id
         ]
-        if states and self.method.planes != "none":  # no plane, no history to keep
+        # no plane, no history to keep; a shared history is fed once by its SharedHistory
+        if states and self.method.planes != "none" and not self.history_shared:
             store_states(self.history, t, states)
         for v in states:
             if v.vehicle_id == self.vehicle_id:
                 self.note_fused(t, v.position_ecef_m)
+
+    def share_history(self, history: PositionHistory) -> None:
+        """Take its plane points from `history`, which a `SharedHistory` fills (not `ingest`)."""
+        self.history = history
+        self.history_shared = True
 
     def note_fused(self, t: GpsTime, position_ecef_m: Iterable[float]) -> None:
         """Keep this vehicle's own fused position of `t` (the plane's centre when SPP fails)."""
