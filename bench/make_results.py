@@ -24,6 +24,7 @@ from pathlib import Path
 from coplane.evaluate.benchmark import (
     BASELINES,
     HELD_OUT,
+    HELD_OUT_DURATION_S,
     TRAINING,
     TailEpoch,
     acceptance,
@@ -46,7 +47,6 @@ from roadmap_acceptance import report as road_map_section
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 FGO = ["non-cp", "mci", "pc", "pc-no-ir", "pc-no-ir-no-fe", "pc-self"]
 RATES = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
-HELD_OUT_DURATION_S = 200.0
 
 
 def _run(name: str, rec_path: Path, methods: list[str], rates: list[float], vehicles: list[str]) -> str:

@@ -17,10 +17,16 @@ import dataclasses
 import datetime as dt
 from pathlib import Path
 
-from real_data_regression import set_sections
+import numpy as np
+from real_data_regression import REAL, STATIC, set_sections
 from tune_fgo import VARIANTS
 
+from coplane.evaluate.real_data import truth_of
+from coplane.evaluate.runner import run_method
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.messages import NodeMessage, SolutionMessage
 from coplane.methods import MethodSpec, get_method
+from coplane.recording.reader import open_recording
 
 BASE = "non-cp"  # one receiver per set: the single-vehicle factor graph
 SEP = "@"  # "non-cp@pr-sigma-x2": the method with a tune_fgo variant applied
@@ -35,11 +41,49 @@ def variant_method(name: str) -> MethodSpec:
     return dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **VARIANTS[variant]))  # type: ignore[arg-type]
 
 
+def doppler_section() -> list[str]:
+    """How good the front end's Doppler velocity really is: a static receiver's true velocity is
+    zero, so every node message's velocity is its error. The Doppler links' sigma_v is chosen
+    against this (docs/fgo.md, round of 2026-11-25), not against the simulator's Doppler."""
+    rows = [
+        "## Doppler velocity error of the static sets\n",
+        "The node messages' Doppler velocity (standalone front end) in the local ENU frame against zero; "
+        "`2-epoch mean` is what a Doppler link uses (the mean of both epochs' velocities).\n",
+        "| set | epochs with velocity | RMS E / N / U (m/s) | 2-epoch mean RMS E / N / U (m/s) | max abs E / N / U (m/s) |",
+        "|---|---|---|---|---|",
+    ]
+    for folder, _, _ in STATIC:
+        rec = open_recording(REAL / folder)
+        vid = rec.manifest.vehicles[0].id
+        vel: list[tuple[float, float, float]] = []
+
+        def keep(
+            _sol: SolutionMessage, msgs: dict[str, NodeMessage], vid: str = vid, vel: list = vel
+        ) -> None:
+            m = msgs.get(vid)
+            if m is not None and m.velocity is not None:
+                vel.append(m.velocity.velocity_ecef_mps)
+
+        run_method(rec, BASE, dgnss=False, vehicles=[vid], jobs=1, on_solution=keep)
+        truth = next(iter(truth_of(rec, vid).values()))
+        e = np.asarray(vel) @ enu_rotation(*ecef_to_geodetic(truth)[:2]).T
+        mean2 = (e[1:] + e[:-1]) / 2.0
+
+        def f(x: np.ndarray) -> str:
+            return " / ".join(f"{v:.3f}" for v in x)
+
+        rows.append(
+            f"| `{folder}` | {len(e)} | {f(np.sqrt(np.mean(e**2, axis=0)))} "
+            f"| {f(np.sqrt(np.mean(mean2**2, axis=0)))} | {f(np.abs(e).max(axis=0))} |"
+        )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--variants",
-        default="default,sigma-v-0.2,adaptive-sigma,pr-sigma-x2",
+        default="default,sigma-v-0.3,sigma-v-0.2,sigma-v-0.05,pr-sigma-x2",
         help="comma-separated bench/tune_fgo.py variants",
     )
     ap.add_argument("--out", type=Path, default=None, help="also write the tables here")
@@ -55,6 +99,7 @@ def main() -> None:
         "divergence indicators of docs/results.md (largest 3-D step, largest height excursion).\n",
     ]
     parts += set_sections(names, 1, level="##", resolve=variant_method, rtklib=False)
+    parts += doppler_section()
     print("\n".join(parts), flush=True)
     if args.out is not None:
         args.out.write_text("\n".join(parts) + "\n")

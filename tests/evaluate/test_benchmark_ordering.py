@@ -1,9 +1,11 @@
-"""The methods' orderings on held-out seeds, with margins (docs/results.md, "Held-out benchmark").
+"""The methods' orderings on the held-out seeds, with margins (docs/results.md, "Held-out benchmark").
 
-The defaults were chosen on `TRAINING` seeds; these tests run the first held-out seed of each
-scenario, shortened to keep CI fast, so they check the orderings on data nobody tuned on. The
-margins come from the values printed with -s (measured in the docstrings) and leave room for
-the shorter run, not for a different conclusion.
+The defaults were chosen on `TRAINING` seeds; these tests run exactly the benchmark of
+docs/results.md (every `HELD_OUT` seed of each scenario, 4 vehicles x 200 s, about 1.5 min per
+scenario), so they check the orderings on data nobody tuned on, and the numbers they see are the
+numbers the docs print. Limits are the issue's targets where they hold, else the measured value
+plus a margin for another CPU's last bits (docs/fgo.md, "Numerical sensitivity"); measured values
+are in the docstrings and printed with -s.
 """
 
 from __future__ import annotations
@@ -12,18 +14,25 @@ from pathlib import Path
 
 import pytest
 
-from coplane.evaluate.benchmark import HELD_OUT, TRAINING, Consistency, make_recordings, pooled_by_environment
+from coplane.evaluate.benchmark import (
+    BASELINES,
+    HELD_OUT,
+    HELD_OUT_DURATION_S,
+    TRAINING,
+    Consistency,
+    make_recordings,
+    pooled_by_environment,
+)
 from coplane.evaluate.metrics import PooledStats
 
 pytestmark = pytest.mark.slow
 
-DURATION_S = 120.0
-# pc / best EKF baseline (H, V RMSE) per scenario: measured on these runs urban-loop 0.82, 0.77 and
-# dense-urban 0.75, 0.86 (pc 0.75 / 1.10 m and 6.25 / 5.06 m); limits = measured + margin. The
-# issue's targets (0.85, 0.6) are printed, held or not, in docs/results.md.
-H_VS_BASELINE = {"urban-loop": 0.9, "dense-urban": 0.85}
-V_VS_BASELINE = {"urban-loop": 0.85, "dense-urban": 0.95}
-METHODS = ("non-cp", "mci", "pc", "non-cp-ekf", "gamp-cp")
+# pc / best EKF baseline, H and V RMSE, measured 2026-11-25: urban-loop 0.75, 0.81; dense-urban
+# 0.65, 0.89. H: the issue's 0.85. V: the issue's 0.6 does not hold (docs/planes.md, "How much a
+# fleet plane can add"); the limits keep pc ahead of every baseline with a margin.
+H_VS_BASELINE = {"urban-loop": 0.85, "dense-urban": 0.85}
+V_VS_BASELINE = {"urban-loop": 0.9, "dense-urban": 0.95}
+METHODS = ("non-cp", "mci", "pc", *BASELINES)
 
 
 @pytest.fixture(scope="module", params=sorted(HELD_OUT))
@@ -31,9 +40,9 @@ def scenario_stats(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[str, dict[str, tuple[dict[str, PooledStats], Consistency]]]:
     scenario = request.param
-    seed = HELD_OUT[scenario][0]
-    assert seed not in TRAINING[scenario]
-    recs = make_recordings(scenario, (seed,), Path(tmp_path_factory.mktemp(scenario)), 4, DURATION_S)
+    seeds = HELD_OUT[scenario]
+    assert not set(seeds) & set(TRAINING[scenario])
+    recs = make_recordings(scenario, seeds, Path(tmp_path_factory.mktemp(scenario)), 4, HELD_OUT_DURATION_S)
     out = {m: pooled_by_environment(recs, m) for m in METHODS}
     for m, (st, c) in out.items():
         a = st["all"]
@@ -47,37 +56,37 @@ def _all(stats: dict[str, tuple[dict[str, PooledStats], Consistency]], method: s
 
 def test_pc_beats_every_baseline_horizontally(scenario_stats: tuple) -> None:
     scenario, stats = scenario_stats
-    best = min(_all(stats, m).h_rmse_m for m in ("non-cp-ekf", "gamp-cp"))
+    best = min(_all(stats, m).h_rmse_m for m in BASELINES)
     assert _all(stats, "pc").h_rmse_m <= H_VS_BASELINE[scenario] * best
 
 
 def test_pc_beats_every_baseline_vertically(scenario_stats: tuple) -> None:
     scenario, stats = scenario_stats
-    best = min(_all(stats, m).v_rmse_m for m in ("non-cp-ekf", "gamp-cp"))
+    best = min(_all(stats, m).v_rmse_m for m in BASELINES)
     assert _all(stats, "pc").v_rmse_m <= V_VS_BASELINE[scenario] * best
 
 
 def test_pc_is_not_worse_than_mci(scenario_stats: tuple) -> None:
     """The planes add little on top of ranging here (docs/results.md): a tie within 3 % (measured
-    pc / mci H 0.99-1.00, V 0.85-0.98)."""
+    pc / mci H 1.00 in both scenarios, V 0.90 urban-loop, 0.98 dense-urban)."""
     _, stats = scenario_stats
     assert _all(stats, "pc").h_rmse_m <= 1.03 * _all(stats, "mci").h_rmse_m
     assert _all(stats, "pc").v_rmse_m <= 1.03 * _all(stats, "mci").v_rmse_m
 
 
 def test_graph_non_cp_is_no_worse_than_the_ekf(scenario_stats: tuple) -> None:
-    """Measured non-cp / non-cp-ekf H, V: urban-loop 1.04, 0.79 on this short run (0.96, 0.87 over
-    the five held-out seeds of docs/results.md), dense-urban 0.52, 0.75."""
+    """The issue's limit (1.0). Measured non-cp / non-cp-ekf H, V: urban-loop 0.90, 0.91,
+    dense-urban 0.55, 0.74."""
     _, stats = scenario_stats
-    assert _all(stats, "non-cp").h_rmse_m <= 1.1 * _all(stats, "non-cp-ekf").h_rmse_m
-    assert _all(stats, "non-cp").v_rmse_m <= 1.1 * _all(stats, "non-cp-ekf").v_rmse_m
+    assert _all(stats, "non-cp").h_rmse_m <= _all(stats, "non-cp-ekf").h_rmse_m
+    assert _all(stats, "non-cp").v_rmse_m <= _all(stats, "non-cp-ekf").v_rmse_m
 
 
 def test_reported_covariances_hold_the_errors(scenario_stats: tuple) -> None:
-    """An honest 95 % region holds 95 % of the errors. One scale (3.5, chosen on the training seeds)
-    for every sky: measured 1.00 on urban-loop (conservative), 0.82-0.93 on dense-urban; the EKF
-    baselines hold 0.39-0.71."""
+    """An honest 95 % region holds 95 % of the errors. One scale (4.5, chosen on the training seeds)
+    for every sky: measured 1.00 on urban-loop (conservative), 0.94-0.98 on dense-urban; the EKF
+    baselines hold 0.36-0.69."""
     _, stats = scenario_stats
     for m in ("non-cp", "mci", "pc"):
         c = stats[m][1]
-        assert 0.8 <= c.h_in95 <= 1.0 and 0.8 <= c.v_in95 <= 1.0, (m, c)
+        assert 0.9 <= c.h_in95 <= 1.0 and 0.9 <= c.v_in95 <= 1.0, (m, c)

@@ -292,8 +292,9 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
         "isam2-fixed-lag": (1e-9, 1e-9),
         "lm-window": (1e-3, 1e-3),
         # LM to convergence inside each smoother: the split and joint problems stop at slightly
-        # different points (measured up to 11 mm and 1e-3 m^2)
-        "batch-fixed-lag": (2e-2, 1e-2),
+        # different points (measured up to 22 mm with the methods' 0.1 m/s Doppler links, and
+        # 1.4e-3 m^2: 0.3 % of the largest variance)
+        "batch-fixed-lag": (3e-2, 1e-2),
     }[solver]
     for a, b in zip(split, joint, strict=True):
         assert sorted(a.estimates) == sorted(b.estimates)
@@ -301,11 +302,13 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
             np.testing.assert_allclose(
                 a.estimates[vid].position_m, b.estimates[vid].position_m, atol=atol, rtol=0
             )
+            # off-diagonal terms are compared on the scale of the variances, not their own
+            cov_b = b.estimates[vid].covariance_m2
             np.testing.assert_allclose(
                 a.estimates[vid].covariance_m2,
-                b.estimates[vid].covariance_m2,
+                cov_b,
                 rtol=cov_rtol,
-                atol=cov_rtol * 0.1,
+                atol=cov_rtol * float(np.max(np.diag(cov_b))),
             )
 
 
