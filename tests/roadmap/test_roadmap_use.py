@@ -3,13 +3,14 @@ a map built from one drive makes a later drive over the same roads better in hei
 
 Build seed 111 (600 s), use seed 112 (300 s, 45 min later: another sky, independent errors), as
 bench/roadmap_acceptance.py --training. Measured with the defaults of 2026-11-25 (Doppler links
-0.1 m/s): pc-map V 0.38 against pc 0.67 m, H 0.63 against 0.61 m, pc-self-map V 0.34 against
-non-cp 0.86 m. On the report seeds (docs/results.md, "Road-surface map") a one-drive map no longer
-helps `pc` in height (pc-map V 1.26 x pc's; pc-self-map 0.96 x non-cp's): with the tighter links
-the fleet's own planes became better than a map made from one other drive, whose tiles carry
-that drive's height errors. So the test asserts what the training pair holds, with margin: the
-map is used almost everywhere, pc-map is better than pc in V and within 5 % in H, pc-self-map's V
-is at most 0.8 x non-cp's.
+0.1 m/s; a `-map` method sends the more certain of the map's and the fitted plane): planes on 0.99
+of the epochs, about half from the map; pc-map V 0.39 against pc 0.67 m, H 0.60 against 0.61 m;
+pc-self-map V 0.34 against non-cp 0.86 m. On the report seeds (docs/results.md, "Road-surface
+map") a one-drive map does not help `pc` in height (pc-map V 1.18 x pc's; pc-self-map 0.96 x
+non-cp's): the tighter links made the fleet's own planes about as good as a map made from one
+other drive. So the test asserts what the training pair holds, with margin: a plane almost
+everywhere and the map behind a good share of them, pc-map better than pc in V and no worse in H
+(2 % for another CPU's last bits), pc-self-map's V at most 0.8 x non-cp's.
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ def test_a_map_from_one_drive_improves_the_next_drives_heights(tmp_path: Path) -
         runs[m] = run_method(use, m, road_map=road_map if m.endswith("-map") else None)
         rmse[m] = _rmse(runs[m], use)
     src = plane_sources(runs["pc-map"])
-    assert src["map"] >= 0.9 * sum(src.values()), src
+    assert src["map"] + src["fleet"] >= 0.95 * sum(src.values()), src
+    assert src["map"] >= 0.3 * sum(src.values()), src
     assert rmse["pc-map"][1] <= 0.95 * rmse["pc"][1], rmse
-    assert rmse["pc-map"][0] <= 1.05 * rmse["pc"][0], rmse
+    assert rmse["pc-map"][0] <= 1.02 * rmse["pc"][0], rmse
     assert rmse["pc-self-map"][1] <= 0.8 * rmse["non-cp"][1], rmse
     assert plane_sources(runs["pc"])["map"] == 0  # the map is only read by the -map methods

@@ -291,10 +291,15 @@ class VehicleStep:
     def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
         if centre is None:
             return PlaneReport(status="unavailable", reason="no position to centre the fitting region")
+        fitted = self._fitted_plane(t, centre)
         if self.method.plane_map and self.road_map is not None:
             mapped = self.road_map.plane_at(centre, self.antenna_height_m)
             if mapped is not None:
-                return map_plane_report(mapped)
+                return more_certain_plane(map_plane_report(mapped), fitted)
+        return fitted
+
+    def _fitted_plane(self, t: GpsTime, centre: Vec) -> PlaneReport:
+        """The paper's plane: fitted from the history's points around `centre` (Sec. III)."""
         source: PlaneSourceName = "self" if self.method.planes == "self" else "fleet"
         rng = np.random.default_rng(stable_seed(self.config.seed, self.vehicle_id, round(t.seconds * 1000)))
         only = {self.vehicle_id} if self.method.planes == "self" else None
@@ -307,6 +312,18 @@ class VehicleStep:
             u = plane_uncertainty(plane, sample.sigmas_up_m, sample.vehicle_ids, sample.times_s, cfg)
             return plane_report(plane, u.offset_sigma_m, u.sigma_at(centre), u.tilt_sigma_rad, source)
         return plane_report(plane, offset_sigma_m(sample.sigmas_up_m, sample.vehicle_ids), source=source)
+
+
+def more_certain_plane(mapped: PlaneReport, fitted: PlaneReport) -> PlaneReport:
+    """The map's plane unless the history's fit is more certain at the vehicle (smaller sigma).
+
+    A tile made from one drive carries that drive's height errors (sigma ~0.7 m, docs/results.md
+    "Road-surface map"), where a plane fitted from this minute's fleet may know the road better; a
+    tile sharpened by many passes wins. The two are not combined: both come from the same fleet's
+    positions on the same road, so their errors are not independent."""
+    if fitted.status == "unavailable" or fitted.sigma_m is None or mapped.sigma_m is None:
+        return mapped
+    return fitted if fitted.sigma_m < mapped.sigma_m else mapped
 
 
 def store_states(history: PositionHistory, t: GpsTime, states: Sequence[VehicleState]) -> None:
