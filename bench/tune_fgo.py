@@ -48,6 +48,8 @@ VARIANTS: dict[str, dict[str, object]] = {
     "pr-sigma-x2": {"pseudorange_sigma_scale": 2.0},
     "adaptive-sigma": {"fde_max_sigma_scale": 5.0},
     "fde-prior-floor-1m": {"fde_prior_floor_m": 1.0},
+    "fde-warmup-10": {"fde_warmup_epochs": 10},  # a new track's first epochs: the reported covariance
+    "fde-warmup-10-snapshot": {"fde_warmup_epochs": 10, "fde_warmup_prior": "snapshot"},
     "no-range-warmup": {"range_warmup_epochs": 0},
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},

@@ -121,3 +121,26 @@ def test_clock_offsets_per_system_do_not_count_as_faults() -> None:
     )
     res = screen_pseudoranges(prs, RX, np.eye(3) * 4.0, 3.29)
     assert bool(res.keep.all())
+
+
+def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
+    """`fde_warmup_epochs` (off by default, docs/fgo.md): a track started 12 m off, with the
+    graph's 2 m covariance, loses clean satellites to the w-test; its first epochs are
+    screened against the honest (reported, x covariance_scale^2) covariance instead, or without
+    a prior, and keep them."""
+    from coplane.fgo.config import FgoConfig
+    from coplane.fgo.prepare import screen
+    from coplane.fgo.state import StepStats
+
+    rng = np.random.default_rng(5)
+    prs = _epoch(5, 1.0, rng)  # too few to reject the prediction: the w-test runs against it
+    off = RX + np.array([12.0, 0.0, 0.0])
+    cov = np.eye(3) * 4.0
+    base = FgoConfig(fde_k=3.29, fde_snapshot_fallback=True, covariance_scale=4.5, fde_warmup_epochs=10)
+    old = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
+    assert len(old) < len(prs)
+    for prior in ("reported", "snapshot"):
+        cfg = FgoConfig(**{**base.__dict__, "fde_warmup_prior": prior})
+        assert len(screen(prs, off, cov, 0.1, cfg, StepStats(), young=True)) == len(prs), prior
+    with pytest.raises(ValueError, match="fde_warmup_epochs"):
+        FgoConfig(fde_warmup_epochs=-1)

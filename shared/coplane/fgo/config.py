@@ -77,6 +77,13 @@ class FgoConfig:
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).
     fde_max_sigma_scale: float | None = None
+    # A new track starts at its SPP fix, whose graph covariance (a few metres) says nothing of the
+    # NLOS that may have pulled it 20 m off in a deep canyon; screened against it, the next epochs'
+    # good pseudoranges fail and the track stays wrong for tens of seconds. For this many epochs
+    # after a track starts, the FDE's prior is the *reported* covariance (x covariance_scale^2,
+    # the honest one) instead of the graph's; "snapshot": no prior at all (RAIM on the epoch alone).
+    fde_warmup_epochs: int = 0
+    fde_warmup_prior: Literal["reported", "snapshot"] = "reported"
     # Receiver clock: random walk around the Doppler clock drift (m/sqrt(s)); converted to seconds
     # for GTSAM, whose PseudorangeFactor keys the clock in seconds.
     clock_rw_sigma: float = 1.0
@@ -161,6 +168,12 @@ class FgoConfig:
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if self.fde_warmup_epochs < 0:
+            raise ValueError(f"fde_warmup_epochs must be >= 0, got {self.fde_warmup_epochs!r}")
+        if self.fde_warmup_prior not in ("reported", "snapshot"):
+            raise ValueError(
+                f"fde_warmup_prior must be 'reported' or 'snapshot', got {self.fde_warmup_prior!r}"
+            )
         if self.range_warmup_epochs < 0:
             raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
         if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:

@@ -98,7 +98,16 @@ def prepare_vehicle(
     if hist and cfg.gate_k is not None and len(prs):
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
-        prs = screen(prs, init, state.cov.get(hist[-1].pos_key), link.sigma, cfg, stats)
+        age = state.step - state.track_start.get(v.vehicle_id, state.step)
+        prs = screen(
+            prs,
+            init,
+            state.cov.get(hist[-1].pos_key),
+            link.sigma,
+            cfg,
+            stats,
+            young=age < cfg.fde_warmup_epochs,
+        )
     systems = sorted(set(prs.systems))
     # initial clock per system: median residual at the initial position (robust to NLOS)
     clock_init: dict[str, float] = {}
@@ -159,9 +168,13 @@ def screen(
     link_sigma: float,
     cfg: FgoConfig,
     stats: StepStats,
+    young: bool = False,
 ) -> ValidPseudoranges:
-    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position."""
+    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position;
+    `young`: the track started less than `fde_warmup_epochs` ago (a looser prior, see FgoConfig)."""
     assert cfg.fde_k is not None
+    if young and last_cov is not None:
+        last_cov = last_cov * (cfg.covariance_scale**2 if cfg.fde_warmup_prior == "reported" else 1e12)
     p_pred = F.floored_covariance(
         None if last_cov is None else last_cov + np.eye(3) * link_sigma**2, cfg.fde_prior_floor_m
     )
