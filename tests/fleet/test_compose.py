@@ -113,3 +113,45 @@ def test_compose_file_validates_with_docker_compose() -> None:
 def test_router_config_parses_with_zenoh() -> None:
     cfg = zenoh.Config.from_file(str(REPO / "deploy" / "zenoh" / "router.json5"))
     assert '"router"' in cfg.get_json("mode")
+
+
+def test_compose_scales_to_a_router_mesh_and_several_servers(tmp_path: Path) -> None:
+    """`coplane compose --servers 2 --routers 3` (issue 16): the further routers connect to the
+    first over mutual TLS with the same ACL, the router certificate names every router, the
+    servers share the fleet by region and keep their logs on the state volume, the agents take
+    the routers in turn; docker-compose and Zenoh accept what is written."""
+    from coplane.fleet import write_compose
+
+    out = tmp_path / "docker-compose.yml"
+    write_compose(out, servers=2, routers=3)
+    doc = yaml.safe_load(out.read_text())
+    svc = doc["services"]
+    routers = ["zenoh-router", "zenoh-router-2", "zenoh-router-3"]
+    assert all(r in svc for r in routers) and "fusion-server" not in svc
+    assert svc["certs"]["command"][-2:] == ["--dns", "zenoh-router-2,zenoh-router-3"]
+    assert "ports" in svc["zenoh-router"] and "ports" not in svc["zenoh-router-2"]
+    for r in routers[1:]:
+        assert (
+            svc[r]["volumes"][0]
+            == f"./deploy/zenoh/{r.removeprefix('zenoh-')}.json5:/etc/zenoh/router.json5:ro"
+        )
+        cfg = zenoh.Config.from_file(str(tmp_path / "deploy" / "zenoh" / f"{r.removeprefix('zenoh-')}.json5"))
+        assert "tls/zenoh-router:7447" in cfg.get_json("connect/endpoints")
+        assert "connect_certificate" in cfg.get_json("transport/link/tls")
+        assert cfg.get_json("access_control") == zenoh.Config.from_file(
+            str(tmp_path / "deploy" / "zenoh" / "router.json5")
+        ).get_json("access_control")
+    for k in (1, 2):
+        s = svc[f"fusion-server-{k}"]
+        assert "--regions" in s["command"] and s["environment"]["COPLANE_STATE_DIR"] == "/state"
+        assert all(r in s["depends_on"] for r in routers)
+    connects = {
+        svc[f"agent-{v}"]["command"][svc[f"agent-{v}"]["command"].index("--connect") + 1]
+        for v in ("u1", "u2", "u3", "u4")
+    }
+    assert len(connects) > 1  # the agents are spread over the mesh
+    exe = shutil.which("docker-compose")
+    if exe is None:
+        pytest.fail("docker-compose not installed (scripts/setup.sh installs Debian's docker-compose)")
+    r = subprocess.run([exe, "-f", str(out), "config", "-q"], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

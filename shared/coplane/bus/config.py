@@ -134,21 +134,31 @@ def router_config(
 
 
 def router_document(
-    listen: Sequence[str], certs: str, vehicles: Sequence[str], fleet: str = "*"
+    listen: Sequence[str],
+    certs: str,
+    vehicles: Sequence[str],
+    fleet: str = "*",
+    connect: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """A zenohd configuration file's content (docker-compose's router): the same TLS listener and
-    access control as `router_config`, with the certificates at `certs` inside the container."""
-    return {
+    """A zenohd configuration file's content (docker-compose's routers): the same TLS listener and
+    access control as `router_config`, with the certificates at `certs` inside the container.
+    `connect`: routers to form a mesh with, as `router_config` does (mutual TLS, retried forever)."""
+    files = (f"{certs}/ca.crt", f"{certs}/{ROUTER}.crt", f"{certs}/{ROUTER}.key")
+    tls = tls_section(*files, "listen")
+    doc: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": [secure_endpoint(e) for e in listen]},
+    }
+    if connect:
+        doc["connect"] = {
+            "endpoints": [secure_endpoint(e) for e in connect],
+            "timeout_ms": -1,
+            "exit_on_failure": False,
+        }
+        tls = {**tls, **tls_section(*files, "connect")}
+    doc |= {
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {
-            "link": {
-                "rx": {"max_message_size": MAX_TRANSPORT_MESSAGE_BYTES},
-                "tls": tls_section(
-                    f"{certs}/ca.crt", f"{certs}/{ROUTER}.crt", f"{certs}/{ROUTER}.key", "listen"
-                ),
-            }
-        },
+        "transport": {"link": {"rx": {"max_message_size": MAX_TRANSPORT_MESSAGE_BYTES}, "tls": tls}},
         "access_control": access_control(vehicles, fleet),
     }
+    return doc

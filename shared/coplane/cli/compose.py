@@ -20,10 +20,18 @@ def compose(
             help="Where to write the router's config; default deploy/zenoh/router.json5 beside --out."
         ),
     ] = None,
+    servers: Annotated[
+        int, typer.Option(min=1, help="Fusion servers sharing the fleet by region (docs/scale.md).")
+    ] = 1,
+    routers: Annotated[
+        int,
+        typer.Option(min=1, help="Zenoh routers in a mesh; the further ones connect to the first."),
+    ] = 1,
 ) -> None:
-    """Write docker-compose.yml (and the router's TLS + access-control config) for the bundled
-    recording from the launcher's own service list."""
+    """Write docker-compose.yml (and the routers' TLS + access-control configs) for the bundled
+    recording from the launcher's own service list. The committed file is the default (one router,
+    one server); e.g. `coplane compose --servers 2 --routers 2 --out docker-compose.scale.yml`."""
     from coplane.fleet import write_compose
 
-    result = write_compose(out, method, pace, router_config)
+    result = write_compose(out, method, pace, router_config, servers=servers, routers=routers)
     console.print(f"wrote {result.path} ({result.services} services) and {result.router_config}")

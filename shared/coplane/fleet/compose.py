@@ -71,12 +71,34 @@ def _api_healthcheck() -> dict[str, Any]:
     }
 
 
+def router_names(routers: int) -> list[str]:
+    """Service names of a router mesh: the first is `zenoh-router` (its port is published and its
+    config is deploy/zenoh/router.json5), the others `zenoh-router-2` ... connect to it."""
+    return ["zenoh-router", *(f"zenoh-router-{k}" for k in range(2, routers + 1))]
+
+
+def router_config_path(name: str) -> Path:
+    """Where the router service `name` reads its config, relative to the compose file."""
+    return ROUTER_CONFIG.with_name(name.replace("zenoh-", "") + ".json5")
+
+
 def compose_document(
-    vehicles: Sequence[str], method: str = "pc", pace: str = "realtime", speed: float = 1.0
+    vehicles: Sequence[str],
+    method: str = "pc",
+    pace: str = "realtime",
+    speed: float = 1.0,
+    servers: int = 1,
+    routers: int = 1,
 ) -> dict[str, Any]:
-    """The docker-compose.yml content for a fleet replay of the bundled recording."""
+    """The docker-compose.yml content for a fleet replay of the bundled recording: `routers` Zenoh
+    routers in a mesh and `servers` fusion servers sharing the fleet by region (docs/scale.md)."""
+    if servers < 1 or routers < 1:
+        raise ValueError(f"servers and routers must be >= 1, got {servers} and {routers}")
     certs_ro = f"{CERTS_VOLUME}:{CERTS_DIR}:ro"
     certs_done = {"certs": {"condition": "service_completed_successfully"}}
+    names = router_names(routers)
+    # the further routers are reached by their service names: the router certificate must say so
+    more_dns = ["--dns", ",".join(names[1:])] if routers > 1 else []
     services: dict[str, Any] = {
         "certs": {
             "build": ".",
@@ -91,21 +113,33 @@ def compose_document(
                 COMPOSE_RECORDING,
                 "--owner",
                 IMAGE_USER,
+                *more_dns,
             ],
             "volumes": [f"{CERTS_VOLUME}:{CERTS_DIR}"],
             "restart": "no",
         },
-        "zenoh-router": {
+    }
+    for k, name in enumerate(names):
+        services[name] = {
             "image": ZENOH_IMAGE,
             "command": ["-c", "/etc/zenoh/router.json5"],
-            "volumes": [f"./{ROUTER_CONFIG}:/etc/zenoh/router.json5:ro", certs_ro],
-            "ports": [f"{BIND}:7447:7447"],
+            "volumes": [f"./{router_config_path(name)}:/etc/zenoh/router.json5:ro", certs_ro],
+            **({"ports": [f"{BIND}:7447:7447"]} if k == 0 else {}),  # the mesh's entry from the host
             "depends_on": certs_done,
             "restart": "unless-stopped",
-        },
-    }
+        }
+    mesh = [f"tls/{n}:7447" for n in names] if routers > 1 else []
+    routers_up = {n: {"condition": "service_started"} for n in names}
     for spec in fleet_services(
-        Path(COMPOSE_RECORDING), method, pace, speed, COMPOSE_ROUTER, vehicles, api=True
+        Path(COMPOSE_RECORDING),
+        method,
+        pace,
+        speed,
+        COMPOSE_ROUTER,
+        vehicles,
+        api=True,
+        servers=servers,
+        routers=mesh,
     ):
         svc: dict[str, Any] = {
             "build": ".",
@@ -113,11 +147,11 @@ def compose_document(
             "command": ["python", "-m", spec.module, *spec.args],
             "environment": {"COPLANE_BUS_CERTS": CERTS_DIR, "COPLANE_BUS_IDENTITY": spec.identity},
             "volumes": [certs_ro],
-            "depends_on": {"zenoh-router": {"condition": "service_started"}, **certs_done},
+            "depends_on": {**routers_up, **certs_done},
             "restart": "on-failure",
             "healthcheck": _router_healthcheck(),
         }
-        if spec.name in STATEFUL:
+        if spec.name in STATEFUL or spec.name.startswith("fusion-server"):
             svc["volumes"] = [certs_ro, f"{STATE_VOLUME}:{STATE_DIR}"]
             svc["environment"]["COPLANE_STATE_DIR"] = STATE_DIR
         if spec.name == "api":
@@ -128,9 +162,10 @@ def compose_document(
     return {"services": services, "volumes": {CERTS_VOLUME: {}, STATE_VOLUME: {}}}
 
 
-def router_config_text(vehicles: Sequence[str], fleet: str) -> str:
-    """deploy/zenoh/router.json5: TLS on every interface of the container, this fleet's ACL."""
-    doc = router_document(["tls/[::]:7447"], CERTS_DIR, vehicles, fleet)
+def router_config_text(vehicles: Sequence[str], fleet: str, connect: Sequence[str] = ()) -> str:
+    """deploy/zenoh/router.json5: TLS on every interface of the container, this fleet's ACL;
+    `connect`: the mesh's first router, for the further routers' configs."""
+    doc = router_document(["tls/[::]:7447"], CERTS_DIR, vehicles, fleet, connect=connect)
     return ROUTER_HEADER + _compact_json(doc) + "\n"
 
 
@@ -161,16 +196,28 @@ def bundled_fleet() -> tuple[str, list[str]]:
 
 
 def write_compose(
-    out: Path, method: str = "pc", pace: str = "realtime", router_config: Path | None = None
+    out: Path,
+    method: str = "pc",
+    pace: str = "realtime",
+    router_config: Path | None = None,
+    servers: int = 1,
+    routers: int = 1,
 ) -> ComposeResult:
-    """Write the compose file and the router's config (default `deploy/zenoh/router.json5` beside
-    it) for the bundled recording's vehicles."""
+    """Write the compose file and the routers' configs (default `deploy/zenoh/router.json5` beside
+    it, the further routers' `router-2.json5` ... next to that) for the bundled recording's
+    vehicles."""
     import yaml
 
     fleet, vehicles = bundled_fleet()
-    doc = compose_document(vehicles, method, pace)
+    doc = compose_document(vehicles, method, pace, servers=servers, routers=routers)
     out.write_text(COMPOSE_HEADER + yaml.safe_dump(doc, sort_keys=False, width=200))
     router_path = router_config or out.parent / ROUTER_CONFIG
     router_path.parent.mkdir(parents=True, exist_ok=True)
     router_path.write_text(router_config_text(vehicles, fleet))
+    if routers > 1 and router_config is not None and router_config.name != ROUTER_CONFIG.name:
+        # the compose file mounts deploy/zenoh/router-k.json5 beside the first router's config
+        raise ValueError(f"with --routers > 1 the first router's config must be named {ROUTER_CONFIG.name}")
+    for name in router_names(routers)[1:]:
+        path = router_path.with_name(router_config_path(name).name)
+        path.write_text(router_config_text(vehicles, fleet, connect=["tls/zenoh-router:7447"]))
     return ComposeResult(out, len(doc["services"]), router_path)
