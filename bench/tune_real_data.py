@@ -13,13 +13,12 @@ changes the current defaults in one respect); RTKLIB is not rerun (docs/results.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime as dt
 from pathlib import Path
 
 import numpy as np
 from real_data_regression import REAL, STATIC, set_sections
-from tune_fgo import VARIANTS
+from tune_fgo import apply_variant
 
 from coplane.evaluate.real_data import truth_of
 from coplane.evaluate.runner import run_method
@@ -36,9 +35,7 @@ def variant_method(name: str) -> MethodSpec:
     """`non-cp@variant` as a method spec; plain names as the registry has them."""
     base, _, variant = name.partition(SEP)
     spec = get_method(base)
-    if not variant or spec.fgo is None:
-        return spec
-    return dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **VARIANTS[variant]))  # type: ignore[arg-type]
+    return apply_variant(spec, variant) if variant else spec
 
 
 def doppler_section() -> list[str]:

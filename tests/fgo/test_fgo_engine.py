@@ -593,6 +593,9 @@ def test_methods_registry() -> None:
     assert isinstance(spec, MethodSpec)
     assert spec.fgo.solver == "batch-fixed-lag" and spec.fgo.window_epochs == 8
     assert METHODS["pc"].fgo.solver == "isam2-fixed-lag"  # the registry is not mutated
+    # every method trusts the Doppler velocity equally (docs/fgo.md, round of 2026-11-25)
+    sigmas = {get_method(m).velocity_sigma_mps for m in ("non-cp", "pc", "non-cp-ekf", "dd-cp", "gamp-cp")}
+    assert sigmas == {0.1}
     with pytest.raises(ValueError, match="valid methods: non-cp, mci, pc"):
         get_method("PC-aided")
     with pytest.raises(ValueError, match="unknown solver"):

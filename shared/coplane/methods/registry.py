@@ -25,8 +25,9 @@ PlaneSource = Literal["none", "fleet", "self"]
 
 # Doppler velocity 1-sigma (m/s, per axis) the fusion step attaches to each node's velocity: the
 # factor graph's own sigma_v for FGO methods, and the same value as the FGO methods' default for
-# the baselines (chosen for them on the same training seeds: 0.1 beat the paper's 0.6 and 0.3 for
-# every EKF baseline in both scenarios, docs/fgo.md), so that no method trusts the Doppler more.
+# the baselines (chosen for them on the same training seeds: 0.1 beat the paper's 0.6 for every
+# EKF baseline in both scenarios, and 0.3 on urban-loop; docs/fgo.md), so that no method trusts
+# the Doppler more.
 DEFAULT_VELOCITY_SIGMA_MPS = 0.1
 
 
@@ -46,6 +47,8 @@ class MethodSpec:
     # the vehicle step takes its plane from the road-surface map where the map's tile is good
     # enough, and fits one from `planes` history elsewhere (docs/roadmap.md)
     plane_map: bool = False
+    # the Doppler velocity's 1-sigma given to a baseline (FGO methods use their `fgo.sigma_v`)
+    velocity_sigma: float = DEFAULT_VELOCITY_SIGMA_MPS
 
     def __post_init__(self) -> None:
         if (self.fgo is None) == (self.factory is None):
@@ -54,7 +57,7 @@ class MethodSpec:
     @property
     def velocity_sigma_mps(self) -> float:
         """The 1-sigma given to each node's Doppler velocity in the estimator's input."""
-        return self.fgo.sigma_v if self.fgo is not None else DEFAULT_VELOCITY_SIGMA_MPS
+        return self.fgo.sigma_v if self.fgo is not None else self.velocity_sigma
 
     def build_estimator(self) -> Estimator:
         """A fresh estimator for this method."""
@@ -88,8 +91,10 @@ class MethodSpec:
 #   - Doppler links much tighter than the paper's sigma_V (0.1 m/s instead of 0.6): the Doppler
 #     velocity of a real F9P in the HK TST canyon is good to 2 cm/s horizontally and 6 cm/s
 #     vertically (static, docs/tuning-real.md), and the link uses the mean of both epochs'
-#     velocities; 0.3 let NLOS-biased pseudoranges drag a canyon track sideways by metres over a few
-#     seconds, where the EKFs' velocity state held it. A motion fallback that lets a vehicle without Doppler change speed by 0.5 m/s per second, vertically 0.2;
+#     velocities; 0.3 let NLOS-biased pseudoranges drag a canyon track sideways by metres over a
+#     few seconds, where the EKFs' velocity state held it (the baselines get the same sigma);
+#   - a motion fallback that lets a vehicle without Doppler change speed by 0.5 m/s per second,
+#     vertically 0.2;
 #   - short ranges (< 15 m) wait until both vehicles have been tracked for 5 epochs, so two close
 #     vehicles whose SPP fixes are swapped do not stay swapped;
 #   - reported covariances x 4.5^2: the graph counts time-correlated multipath as white noise, and
@@ -100,7 +105,7 @@ ROBUST_FGO: dict[str, object] = {
     "robust": "huber",
     "fde_k": 3.29,
     "fde_snapshot_fallback": True,
-    "sigma_v": 0.1,
+    "sigma_v": DEFAULT_VELOCITY_SIGMA_MPS,
     "motion_sigma": 0.5,
     "motion_sigma_up": 0.2,
     "range_warmup_epochs": 5,
