@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from coplane.bus.config import router_document
+from coplane.errors import ConfigError
 from coplane.fleet.launcher import fleet_of, fleet_services
 
 COMPOSE_RECORDING = "/app/shared/coplane/data/recordings/default"  # the bundled recording in the image
@@ -28,7 +29,7 @@ CERTS_VOLUME = "coplane-certs"
 CERTS_DIR = "/certs"  # where every container sees the certificates
 STATE_VOLUME = "coplane-state"  # the fusion server's and the API's solution logs (survive `down`/`up`)
 STATE_DIR = "/state"  # COPLANE_STATE_DIR in the image (Dockerfile)
-STATEFUL = ("fusion-server", "api")  # the services that keep a solution log
+STATEFUL = ("fusion-server", "api")  # the services that keep a solution log (fusion-server-k too)
 IMAGE_USER = "65534:65534"  # `nobody`, the Dockerfile's USER: owns the identity keys
 BIND = "${COPLANE_BIND:-127.0.0.1}"  # the host address the router and API ports are published on
 ROUTER_CONFIG = Path("deploy/zenoh/router.json5")
@@ -93,7 +94,7 @@ def compose_document(
     """The docker-compose.yml content for a fleet replay of the bundled recording: `routers` Zenoh
     routers in a mesh and `servers` fusion servers sharing the fleet by region (docs/scale.md)."""
     if servers < 1 or routers < 1:
-        raise ValueError(f"servers and routers must be >= 1, got {servers} and {routers}")
+        raise ConfigError(f"--servers and --routers must be >= 1, got {servers} and {routers}")
     certs_ro = f"{CERTS_VOLUME}:{CERTS_DIR}:ro"
     certs_done = {"certs": {"condition": "service_completed_successfully"}}
     names = router_names(routers)
@@ -151,7 +152,7 @@ def compose_document(
             "restart": "on-failure",
             "healthcheck": _router_healthcheck(),
         }
-        if spec.name in STATEFUL or spec.name.startswith("fusion-server"):
+        if spec.name.rsplit("-", 1)[0] in STATEFUL or spec.name in STATEFUL:
             svc["volumes"] = [certs_ro, f"{STATE_VOLUME}:{STATE_DIR}"]
             svc["environment"]["COPLANE_STATE_DIR"] = STATE_DIR
         if spec.name == "api":
@@ -208,15 +209,17 @@ def write_compose(
     vehicles."""
     import yaml
 
+    if routers > 1 and router_config is not None and router_config.name != ROUTER_CONFIG.name:
+        # the compose file mounts deploy/zenoh/router-k.json5 beside the first router's config
+        raise ConfigError(
+            f"--router-config {router_config}: with --routers > 1 it must be named {ROUTER_CONFIG.name}"
+        )
     fleet, vehicles = bundled_fleet()
     doc = compose_document(vehicles, method, pace, servers=servers, routers=routers)
     out.write_text(COMPOSE_HEADER + yaml.safe_dump(doc, sort_keys=False, width=200))
     router_path = router_config or out.parent / ROUTER_CONFIG
     router_path.parent.mkdir(parents=True, exist_ok=True)
     router_path.write_text(router_config_text(vehicles, fleet))
-    if routers > 1 and router_config is not None and router_config.name != ROUTER_CONFIG.name:
-        # the compose file mounts deploy/zenoh/router-k.json5 beside the first router's config
-        raise ValueError(f"with --routers > 1 the first router's config must be named {ROUTER_CONFIG.name}")
     for name in router_names(routers)[1:]:
         path = router_path.with_name(router_config_path(name).name)
         path.write_text(router_config_text(vehicles, fleet, connect=["tls/zenoh-router:7447"]))
