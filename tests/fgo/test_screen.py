@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from coplane.estimation.validate import ValidPseudoranges
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.prepare import screen
 from coplane.fgo.screen import screen_pseudoranges
+from coplane.fgo.state import StepStats
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
 
@@ -128,10 +133,6 @@ def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
     graph's 2 m covariance, loses clean satellites to the w-test; its first epochs are
     screened against the honest (reported, x covariance_scale^2) covariance instead, or without
     a prior, and keep them."""
-    from coplane.fgo.config import FgoConfig
-    from coplane.fgo.prepare import screen
-    from coplane.fgo.state import StepStats
-
     rng = np.random.default_rng(5)
     prs = _epoch(5, 1.0, rng)  # too few to reject the prediction: the w-test runs against it
     off = RX + np.array([12.0, 0.0, 0.0])
@@ -140,7 +141,7 @@ def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
     old = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
     assert len(old) < len(prs)
     for prior in ("reported", "snapshot"):
-        cfg = FgoConfig(**{**base.__dict__, "fde_warmup_prior": prior})
+        cfg = dataclasses.replace(base, fde_warmup_prior=prior)
         assert len(screen(prs, off, cov, 0.1, cfg, StepStats(), young=True)) == len(prs), prior
     with pytest.raises(ValueError, match="fde_warmup_epochs"):
         FgoConfig(fde_warmup_epochs=-1)
