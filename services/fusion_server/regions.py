@@ -5,7 +5,8 @@
   (`coplane.regions.owned_shards`, rendezvous hashing: every server computes the same split);
 - the node keys to subscribe to: its shards (`wanted`); vehicles near a boundary also send a copy
   to the regions across it, so a cluster across a boundary is seen by the servers on both sides;
-- which clusters of an epoch it solves: those whose anchor's region it owns (`select`);
+- which clusters of an epoch it solves, those with a vehicle of its regions, and whom it answers
+  for, the vehicles of its regions (`select`);
 - the seeds for vehicles it takes over: their last state in another server's solution, so a
   vehicle that crosses into this server's region continues instead of starting afresh (`seeds`).
 """
@@ -16,6 +17,7 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,11 +35,26 @@ PEER_STATE_MAX = 100_000
 REGION_AT_MAX = 1_000_000  # pending (vehicle, epoch) regions kept (the admission bounds pending far lower)  # vehicles whose last state from another server is kept (bounded memory)
 
 
+@dataclass(frozen=True)
+class Selection:
+    """One epoch's decision: the messages to solve, the vehicles to answer for (those of this
+    server's regions), and the vehicles another server answers (solved here or not)."""
+
+    solve: dict[str, NodeMessage]
+    answer: set[str]
+    others: list[str]
+
+
 class RegionRole:
     """Ownership, subscriptions, cluster selection and hand-over seeds of one server."""
 
     def __init__(
-        self, me: str, keys: KeySpace, cfg: RegionConfig, window_s: float, expected_servers: int
+        self,
+        me: str,
+        keys: KeySpace,
+        cfg: RegionConfig,
+        window_s: float,
+        expected_servers: int,
     ) -> None:
         self.me = me
         self.keys = keys
@@ -169,48 +186,43 @@ class RegionRole:
     # -- solving -------------------------------------------------------------------------------
     def select(
         self, t: GpsTime, msgs: Mapping[str, NodeMessage], pairs: Iterable[tuple[str, str]]
-    ) -> tuple[dict[str, NodeMessage], list[str]]:
-        """(the messages of the clusters this server solves at `t`, the vehicles left to others).
+    ) -> Selection:
+        """What this server solves at `t` and whom it answers for (docs/scale.md, "Boundaries").
 
-        Clusters are the vehicles linked by ranges within the window (`RangeGraph`), and a cluster
-        is this server's when it owns its anchor's region (`coplane.regions.clusters`). `pairs`: the
-        ranges the estimator would get at `t` (`FusionStep.epoch_ranges`), so clusters match its."""
+        A vehicle is answered by exactly one server: the owner of the region it was in at `t`
+        (its home key names it; every server computes the same owner). Clusters are the vehicles
+        linked by ranges within the window (`RangeGraph`; `pairs`: the ranges the estimator gets at
+        `t`, `FusionStep.epoch_ranges`). Every cluster with at least one vehicle of this server's
+        regions is solved here whole, with the copies of the other regions' vehicles it heard,
+        so the ranges across a boundary are kept on both sides; a cluster with none is left to
+        the others. A boundary cluster is thus solved by each server it touches (the price of
+        needing no agreement on who owns it), and each answers only for its own vehicles.
+
+        Also tried (docs/scale.md): solving the clusters of other regions' vehicles within 150 or
+        500 m of this server's regions, so that a crossing vehicle arrives with a window here.
+        It made the hand-over worse, not better: such a track starts from a seed earlier and
+        drifts from its owner's for longer than one seeded at the crossing."""
         self.graph.add(t, pairs)
         self.version += 1
-        keep: dict[str, NodeMessage] = {}
+        solve: dict[str, NodeMessage] = {}
+        answer: set[str] = set()
         others: list[str] = []
         for members in self.graph.clusters(msgs):
-            anchor = members[0]
-            anchor_region = self.region_at.get((anchor, t), self.region.get(anchor))
-            if anchor_region is not None and self.owns(anchor_region):
-                keep.update({v: msgs[v] for v in members})
-                continue
-            for v in members:
-                if self._unseen_by_anchor(v, t, msgs[v], anchor_region):
-                    keep[v] = msgs[v]  # the cluster is split here (docs/scale.md, "Boundaries")
-                    self.counts["kept-unseen-by-anchor"] += 1
-                else:
-                    others.append(v)
+            own = {v for v in members if (r := self.home_at(v, t)) is not None and self.owns(r)}
+            if own:
+                solve.update({v: msgs[v] for v in members})
+                answer |= own
+                self.counts["solved-for-others"] += len(members) - len(own)
+            others.extend(v for v in members if v not in own)
         self.counts["left-to-other-server"] += len(others)
-        self.solving = set(keep)
+        self.solving = answer
         for k in [k for k in self.region_at if not t < k[1]]:
             del self.region_at[k]
-        return keep, others
+        return Selection(solve, answer, others)
 
-    def _unseen_by_anchor(self, v: str, t: GpsTime, msg: NodeMessage, anchor_region: str | None) -> bool:
-        """A vehicle of this server's region whose message at `t` reached no region of the anchor's
-        server (its fix is not within the copy margin of one): that server cannot solve it, so this
-        one must, or it would go unanswered."""
-        home = self.region_at.get((v, t), self.region.get(v))
-        if home is None or not self.owns(home) or anchor_region is None:
-            return False
-        pos = msg.spp.position_ecef_m if msg.spp.ok else None
-        if pos is None:
-            return True
-        # its copies went to every region within the margin: the anchor's server hears it if it
-        # owns any of them (not only the anchor's own region)
-        anchor_server = self.owner_of(anchor_region)
-        return all(self.owner_of(r) != anchor_server for r in regions_near(pos, home, self.cfg))
+    def home_at(self, vehicle_id: str, t: GpsTime) -> str | None:
+        """The vehicle's own region at its epoch `t` (else at its latest epoch heard)."""
+        return self.region_at.get((vehicle_id, t), self.region.get(vehicle_id))
 
     def owner_of(self, region: str) -> str | None:
         """The live server owning `region`, as this server sees the live servers."""
@@ -296,6 +308,7 @@ class RegionRole:
         for vid in sorted(set(vehicles) - known):
             got = self.peer_state.get(vid)
             if got is None:
+                self.counts["handover-without-seed"] += 1  # no other server solved it yet
                 continue
             t, v = got
             cov = None if v.covariance_m2 is None else np.array(v.covariance_m2, dtype=float).reshape(3, 3)

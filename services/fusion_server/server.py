@@ -277,14 +277,19 @@ class FusionServer(Pacing):
         msgs = self.pending.pop(t)
         self.first_arrival.pop(t, None)
         self.admission.solved(t)
+        answer: set[str] = set(msgs)
         if self.regions is not None:
-            msgs, others = self.regions.select(t, msgs, self.step.epoch_ranges(t, msgs))
-            for v in others:
+            chosen = self.regions.select(t, msgs, self.step.epoch_ranges(t, msgs))
+            msgs, answer = chosen.solve, chosen.answer
+            for v in chosen.others:
                 self.counters[v]["elsewhere"] += 1
-            if not msgs:
+            if not answer:
                 self.solved_up_to = t
                 return None
-            tracked = getattr(self.step.estimator, "tracked_vehicles", [])
+            est = self.step.estimator
+            tracked = (
+                est.tracked_at(t) if hasattr(est, "tracked_at") else getattr(est, "tracked_vehicles", [])
+            )
             seed_estimator(self.step.estimator, self.regions.seeds(msgs, tracked))
         missing = sorted(v for v in self._live_here() if v not in msgs)
         for v in missing:
@@ -298,24 +303,26 @@ class FusionServer(Pacing):
             self.rejected_by_reason["solve-failed"] += len(msgs)
             self.solved_up_to = t
             return None
-        for v in msgs:
+        for v in answer:
             self.counters[v]["used"] += 1
-        if self.road_map is not None:
-            self.road_map.add(sol, msgs)
         self.solved_up_to = t
-        self.epochs_solved += 1
         self.last_solve_s = sol.solve_time_s
+        self.epochs_solved += 1
         if self.regions is not None:
-            # only the vehicles this server answers for: those it solved and its own silent ones
-            # (the estimator still carries a vehicle that crossed to another server for a while)
-            mine = set(msgs) | set(missing)
+            # only the vehicles this server answers for: those of its regions and its own silent
+            # ones; the others of a boundary cluster were solved for their ranges and are
+            # answered by their own region's server (the estimator also still carries a vehicle
+            # that crossed to another server for a while)
+            mine = answer | self.regions.owned_vehicles(missing)
             sol = sol.model_copy(
                 update={
                     "server": self.s.server_id,
-                    "answered": sorted(msgs),
+                    "answered": sorted(answer),
                     "vehicles": [v for v in sol.vehicles if v.vehicle_id in mine],
                 }
             )
+        if self.road_map is not None:
+            self.road_map.add(sol, msgs)  # the vehicles it answers for: each pass once
         return sol
 
     def diagnostics(self) -> DiagnosticsMessage:
@@ -346,6 +353,7 @@ class FusionServer(Pacing):
             "servers": sorted(self.regions.servers),
             "shards": sorted(self.regions.shards),
             "regions": self.regions.summary(),
+            "region_counts": dict(sorted(self.regions.counts.items())[:64]),
         }
 
     def run(self) -> None:

@@ -299,6 +299,11 @@ class DiagnosticsMessage(_Model):
     servers: list[VehicleId] = Field(default_factory=list, max_length=256)
     shards: list[Annotated[int, Field(ge=0, le=4096)]] = Field(default_factory=list, max_length=4096)
     regions: dict[str, list[VehicleId]] = Field(default_factory=dict, max_length=4096)
+    # how its region role decided (vehicles solved for another server's answer, hand-over seeds,
+    # copies skipped, ...; `RegionRole.counts`)
+    region_counts: dict[Annotated[str, Field(max_length=64)], Annotated[int, Field(ge=0)]] = Field(
+        default_factory=dict, max_length=64
+    )
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
@@ -338,7 +343,7 @@ class MapTilesMessage(_Model):
 def merge_diagnostics(diags: list[DiagnosticsMessage]) -> DiagnosticsMessage:
     """Several fusion servers' diagnostics (regions, docs/scale.md) as one fleet-wide message:
     per-vehicle counters and rejections added (each server's add up, so the sums do too), epochs
-    as the furthest server's, live vehicles, shards and regions united."""
+    as the furthest server's, live vehicles, shards and regions united, region counts added."""
     first = diags[0]
     vehicles: dict[str, VehicleCounters] = {}
     for d in diags:
@@ -354,10 +359,13 @@ def merge_diagnostics(diags: list[DiagnosticsMessage]) -> DiagnosticsMessage:
             }
             vehicles[vid] = VehicleCounters(**counts, online=cur.online or c.online)
     rejected: dict[str, int] = {}
+    region_counts: dict[str, int] = {}
     regions: dict[str, list[str]] = {}
     for d in diags:
         for k, n in d.rejected_by_reason.items():
             rejected[k] = rejected.get(k, 0) + n
+        for k, n in d.region_counts.items():
+            region_counts[k] = region_counts.get(k, 0) + n
         for r, vs in d.regions.items():
             regions[r] = sorted(set(regions.get(r, [])) | set(vs))
     epochs = [d.last_epoch for d in diags if d.last_epoch is not None]
@@ -377,5 +385,6 @@ def merge_diagnostics(diags: list[DiagnosticsMessage]) -> DiagnosticsMessage:
             "servers": sorted({s for d in diags for s in (d.servers or ([d.server] if d.server else []))}),
             "shards": sorted({s for d in diags for s in d.shards}),
             "regions": dict(sorted(regions.items())),
+            "region_counts": dict(sorted(region_counts.items())[:64]),
         }
     )

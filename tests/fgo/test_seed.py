@@ -63,3 +63,36 @@ def test_estimators_without_seed_ignore_seeds() -> None:
             raise AssertionError("not called")
 
     assert seed_estimator(Plain(), [VehicleSeed("v01", make_fleet(1, 1).epochs[0].time, np.zeros(3))]) == 0
+
+
+def test_a_seed_carries_the_graphs_information_not_the_inflated_report() -> None:
+    """Reports are scaled by `covariance_scale` for honest error bounds; a seed made from one
+    must not weaken the track by that factor (squared) again: the hand-over between region
+    servers drifted by up to 1.5 m before (docs/scale.md)."""
+    fleet = make_fleet(n_vehicles=1, n_epochs=2, seed=6)
+    e = fleet.epochs[1]
+    cov = np.diag([4.0, 9.0, 16.0])
+    for scale in (1.0, 4.5):
+        est = FusionEstimator(FgoConfig(covariance_scale=scale))
+        est.seed(VehicleSeed("v01", e.time + (-1.0), fleet.truth[1]["v01"], cov * scale**2))
+        est.step(e)
+        seeded = est._state.window.by_vehicle["v01"][0]
+        assert seeded.counts.get("seed")
+        np.testing.assert_allclose(est._state.cov[seeded.pos_key], cov, rtol=1e-9)
+
+
+def test_the_window_is_epochs_of_time_not_calls() -> None:
+    """An estimator not called for a while (a region server whose vehicles were elsewhere) must
+    not link the next epoch to states from long ago: they leave the window as if it had been
+    stepped, and the vehicle needs a seed (or its SPP) again."""
+    fleet = make_fleet(n_vehicles=2, n_epochs=40, seed=7)
+    est = FusionEstimator(FgoConfig())
+    for e in fleet.epochs[:6]:
+        est.step(e)
+    late = fleet.epochs[30]
+    assert est.tracked_vehicles == ["v01", "v02"]
+    assert est.tracked_at(fleet.epochs[7].time) == ["v01", "v02"]  # one epoch missed: still held
+    assert est.tracked_at(late.time) == []
+    sol = est.step(late)
+    assert "velocity" not in sol.factor_counts and "motion" not in sol.factor_counts
+    assert set(sol.estimates) == {"v01", "v02"}  # started again from their SPP

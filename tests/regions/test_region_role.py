@@ -13,7 +13,7 @@ from coplane.fusion_server.regions import RegionRole
 from coplane.geo import geodetic_to_ecef
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SppReport, VehicleCounters, merge_diagnostics
-from coplane.regions import RegionConfig, owner, region_of_ecef, regions_near, shard_of
+from coplane.regions import RegionConfig, owner, region_of_ecef, shard_of
 
 K = KeySpace("f")
 CFG = RegionConfig(size_m=1000.0, margin_m=400.0)
@@ -73,7 +73,7 @@ def test_keys_name_vehicle_region_and_home() -> None:
     assert KeySpace.server_of_solution_key(K.server_solution("s2")) == "s2"
 
 
-def test_servers_agree_on_who_solves_a_cluster_across_a_boundary() -> None:
+def test_each_vehicle_is_answered_by_its_own_regions_server_and_boundary_clusters_stay_whole() -> None:
     servers = ["s1", "s2"]
     e = _boundary_between(servers)
     pos = {"u1": _east(e - 100.0), "u2": _east(e + 100.0), "u3": _east(e + 900.0), "u4": _east(e + 300.0)}
@@ -92,31 +92,25 @@ def test_servers_agree_on_who_solves_a_cluster_across_a_boundary() -> None:
         "u3": _msg("u3", (), pos["u3"]),
     }
     s_b = "s2" if s_a == "s1" else "s1"
-    kept = {}
+    chosen = {}
     for s, role in roles.items():
         for vid, key in keys.items():
             role.saw_node(vid, key, 0.0, T, tuple(pos[vid]))
-        kept[s] = set(role.select(T, msgs, [("u1", "u2")])[0])
-    assert kept[s_a] == {"u1", "u2"}  # the anchor u1 is in A
-    assert kept[s_b] == {"u3"}
-    assert kept[s_a].isdisjoint(kept[s_b]) and kept[s_a] | kept[s_b] == set(msgs)
+        chosen[s] = role.select(T, msgs, [("u1", "u2")])
+    # both sides solve the boundary cluster whole (its range kept); each answers its own vehicles
+    assert set(chosen[s_a].solve) == {"u1", "u2"} and chosen[s_a].answer == {"u1"}
+    assert set(chosen[s_b].solve) == {"u1", "u2", "u3"} and chosen[s_b].answer == {"u2", "u3"}
+    assert chosen[s_a].answer.isdisjoint(chosen[s_b].answer)
+    assert chosen[s_a].answer | chosen[s_b].answer == set(msgs)
+    assert sorted(chosen[s_a].others) == ["u2", "u3"] and sorted(chosen[s_b].others) == ["u1"]
     # A's server waits for u2 too (linked to its u1 and within the margin of A)
     assert roles[s_a].awaited({"u1", "u2", "u3"}, {}) == {"u1", "u2"}
     # a copy for A of a vehicle whose own region A's server also owns is skipped
     assert roles[s_a].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
     assert not roles[s_b].own_copy(K.region_copy(shard_of(rb, 64), rb, "u1", ra))
-    # a vehicle of B beyond A's margin, in a cluster anchored in A, stays with B's server: A's
-    # server never gets its message
-    off = next(
-        d
-        for d in range(450, 1000, 10)
-        if region_of_ecef(_east(e + d), CFG) == rb
-        and all(owner(shard_of(r, 64), servers) != s_a for r in regions_near(_east(e + d), rb, CFG))
-    )
-    far = {"u1": msgs["u1"], "u3": _msg("u3", ("u1",), _east(e + off))}
-    assert set(roles[s_b].select(T + 1.0, far, [("u1", "u3")])[0]) == {"u3"}
-    # the same vehicle near a region of A's server: its copy reaches that server, which solves it
-    assert set(roles[s_b].select(T + 2.0, {"u1": msgs["u1"], "u2": msgs["u2"]}, [("u1", "u2")])[0]) == set()
+    # a cluster of other regions' vehicles only is not solved here
+    only_a = roles[s_b].select(T, {"u1": msgs["u1"]}, [])
+    assert not only_a.solve and not only_a.answer and only_a.others == ["u1"]
 
 
 def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
@@ -126,8 +120,8 @@ def test_the_region_of_the_epoch_decides_not_a_later_message() -> None:
     role = _role("s1", servers)
     role.saw_node("u1", K.region_node(shard_of(ra, 64), ra, "u1"), 0.0, T)
     role.saw_node("u1", K.region_node(shard_of(rb, 64), rb, "u1"), 0.1, T + 1.0)  # next epoch, moved
-    assert set(role.select(T, {"u1": _msg("u1")}, [])[0]) == {"u1"}
-    assert set(role.select(T + 1.0, {"u1": _msg("u1")}, [])[0]) == set()
+    assert role.select(T, {"u1": _msg("u1")}, []).answer == {"u1"}
+    assert role.select(T + 1.0, {"u1": _msg("u1")}, []).answer == set()
 
 
 def test_a_server_going_away_changes_ownership_and_subscriptions() -> None:

@@ -15,7 +15,6 @@ from coplane.regions import (
     RangeGraph,
     RegionConfig,
     assignment,
-    cluster_owner,
     owned_shards,
     owner,
     region_of_ecef,
@@ -106,9 +105,3 @@ def test_range_graph_clusters_follow_the_window() -> None:
     assert g.clusters(["u1", "u2", "u3", "u4"]) == [["u1", "u2", "u3", "u4"]]
     g.add(t0 + 7.0, [])
     assert g.clusters(["u1", "u2", "u3", "u4"]) == [["u1"], ["u2", "u3"], ["u4"]]
-    # the owner is the owner of the anchor's region, whoever asks
-    region = {"u1": "r1c1", "u2": "r1c2", "u3": "r1c2"}
-    servers = ["a", "b", "c"]
-    got = cluster_owner(["u3", "u2"], region, lambda r: owner(shard_of(r, 64), servers))
-    assert got == owner(shard_of("r1c2", 64), servers)
-    assert cluster_owner(["u9"], region, lambda r: "a") is None

@@ -56,6 +56,7 @@ class FusionEstimator:
         self._state = GraphState(Window(self.config.window_epochs))
         self._solver = ClusterSolver(self.config, self._state)
         self._last_time: GpsTime | None = None
+        self._interval_s: float | None = None  # the smallest epoch interval seen
         self._seeds: dict[str, VehicleSeed] = {}
 
     def seed(self, seed: VehicleSeed) -> None:
@@ -67,6 +68,13 @@ class FusionEstimator:
         """Vehicles with at least one state in the window."""
         return self._state.window.vehicles()
 
+    def tracked_at(self, t: GpsTime) -> list[str]:
+        """Vehicles that will still have a state in the window at epoch `t`: the others need a
+        seed (or their SPP) to start again, even if stale states of theirs are still held."""
+        st = self._state
+        oldest = st.step + self._missed_epochs(t, learn=False) - self.config.window_epochs + 1
+        return sorted(v for v, dq in st.window.by_vehicle.items() if dq and dq[-1].step >= oldest)
+
     def step(self, epoch: EpochInput) -> FleetSolution:
         """Solve one fleet epoch; never raises on bad data (see the module docstring)."""
         t0 = time.perf_counter()
@@ -76,6 +84,7 @@ class FusionEstimator:
         reason = out_of_order_reason(epoch, self._last_time)
         if reason is not None:
             return skipped_epoch(epoch, self._last_time, reason, time.perf_counter() - t0)
+        st.step += self._missed_epochs(epoch.time)
         if self._seeds:
             self._push_seeds(epoch.time)  # takes one step index of its own
         k = st.step
@@ -146,6 +155,25 @@ class FusionEstimator:
             n_clusters=n_clusters,
         )
 
+    def _missed_epochs(self, t: GpsTime, learn: bool = True) -> int:
+        """Epochs of time since the last step that brought no call (0 normally).
+
+        The window holds the last `window_epochs` epochs of *time*: the step counter skips the
+        epochs nobody asked about, so states older than the window leave it (marginalised by the
+        smoothers) even when the estimator was not called for a while: a region's server whose
+        vehicles were elsewhere, a stream that stalled. Otherwise the next epoch would link to a
+        state from minutes ago as if it were the previous one."""
+        if self._last_time is None:
+            return 0
+        dt = t - self._last_time
+        if not dt > 0.0:
+            return 0
+        if self._interval_s is None or dt < self._interval_s:
+            if learn:
+                self._interval_s = dt
+            return 0
+        return max(0, int(dt / self._interval_s + 0.5) - 1)
+
     def _push_seeds(self, t: GpsTime) -> None:
         """Put the usable seeds into the window as one step of their own, before epoch `t`.
 
@@ -185,6 +213,10 @@ class FusionEstimator:
         pk = position_key(slot, k)
         pos = np.asarray(sd.position_m, dtype=float)
         cov = None if sd.covariance_m2 is None else np.asarray(sd.covariance_m2, dtype=float).reshape(3, 3)
+        if cov is not None:
+            # a seed is a reported state: its covariance carries `covariance_scale` (an honest
+            # error bound); the graph's own information is that divided out
+            cov = cov / self.config.covariance_scale**2
         cov = F.floored_covariance(cov, SEED_FLOOR_M if cov is not None else cfg.anchor_sigma)
         st.cov[pk] = cov
         g = gtsam.NonlinearFactorGraph()

@@ -8,7 +8,7 @@
   (vehicles near a boundary also send to the regions within `margin_m`: `regions_near`).
 """
 
-from coplane.regions.clusters import RangeGraph, cluster_owner
+from coplane.regions.clusters import RangeGraph
 from coplane.regions.config import RegionConfig
 from coplane.regions.grid import region_of_ecef, regions_near, shard_of
 from coplane.regions.ownership import assignment, owned_shards, owner
@@ -17,7 +17,6 @@ __all__ = [
     "RangeGraph",
     "RegionConfig",
     "assignment",
-    "cluster_owner",
     "owned_shards",
     "owner",
     "region_of_ecef",

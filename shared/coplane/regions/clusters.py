@@ -1,18 +1,19 @@
-"""Which server solves a cluster of vehicles that spans regions (docs/scale.md, "Boundaries").
+"""The clusters of vehicles linked by ranges, as a fusion server sees them at region boundaries
+(docs/scale.md, "Boundaries").
 
-The estimator solves vehicles linked by ranges within its window as one cluster. When such a
-cluster spans two regions owned by different servers, exactly one of them must solve it, or each
-would solve half of it with the ranges across the boundary lost. The rule: a cluster belongs to
-the owner of the shard of its *anchor*, the member with the smallest vehicle id, in the anchor's
-own region. A vehicle within `margin_m` (the UWB range) of other regions also sends its node
-message to them (`regions_near`), so both sides of a boundary see the vehicles that can range
-across it, build the same cluster and agree on its owner. A chain of ranged vehicles reaching
-further than the margin into the other region can still be seen differently by the two servers.
+The estimator solves vehicles linked by ranges within its window as one cluster. A vehicle within
+`margin_m` (the UWB range) of other regions also sends its node message to them (`regions_near`),
+so the servers on both sides of a boundary see the vehicles that can range across it. Each server
+solves every cluster that holds a vehicle of its own regions, whole, and answers only for its own
+vehicles (`coplane.fusion_server.regions.RegionRole.select`): a vehicle is answered exactly once,
+by its own region's server, with no agreement needed on who owns a cluster. A chain of ranged
+vehicles reaching further than the margin into another region is seen in part only, and solved
+without the far part there.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable
 
 from coplane.components import UnionFind
 from coplane.gtime import GpsTime
@@ -43,12 +44,3 @@ class RangeGraph:
             if a in uf.parent and b in uf.parent:
                 uf.union(a, b)
         return uf.groups()
-
-
-def cluster_owner(
-    members: Iterable[str], region: Mapping[str, str], owner_of_region: Callable[[str], str | None]
-) -> str | None:
-    """The server that solves a cluster: the owner of its anchor's region (None: unknown region)."""
-    anchor = min(members)
-    r = region.get(anchor)
-    return None if r is None else owner_of_region(r)
