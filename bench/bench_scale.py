@@ -107,6 +107,11 @@ def run_one(
                         "none",
                         "--diagnostics_period_s",
                         "5",
+                        # one load generator publishes every vehicle's epoch in turn, which takes
+                        # seconds at 1000 vehicles: a lockstep server must not take the last ones
+                        # for silent (the default 5 s is for an agent that died)
+                        "--stall_timeout_s",
+                        "60",
                         *regional,
                         *ident,
                     ],

@@ -201,10 +201,14 @@ class LoadGenerator:
 
         `settle_s` counts only once some server has answered `t`: before that the servers may
         still be solving it (a 1000-vehicle epoch takes seconds), which is not a reason to go on.
-        The back-off keeps re-sent copies from piling up on a server that is merely busy."""
-        deadline = time.monotonic() + (quiet_s if quiet_s is not None else self.s.epoch_timeout_s)
-        last_send = time.monotonic()
+        It is at least as long as the first answer took: with several servers, the others may
+        be as busy as the first one was. The back-off keeps re-sent copies from piling up on a
+        server that is merely busy."""
+        start = time.monotonic()
+        deadline = start + (quiet_s if quiet_s is not None else self.s.epoch_timeout_s)
+        last_send = start
         last_answer: float | None = None
+        settle = self.s.settle_s
         resend_after = self.s.resend_s
         while (waiting or quiet_s is not None) and not self.stop.is_set() and time.monotonic() < deadline:
             ev = node.get(timeout=0.05)
@@ -212,7 +216,7 @@ class LoadGenerator:
                 if (
                     quiet_s is None
                     and last_answer is not None
-                    and time.monotonic() - last_answer > self.s.settle_s
+                    and time.monotonic() - last_answer > settle
                 ):
                     break  # answers stopped coming: the rest were late at their server, count them
                 if waiting and time.monotonic() - last_send > resend_after:
@@ -226,6 +230,8 @@ class LoadGenerator:
                 deadline = time.monotonic() + quiet_s
             for sol in self._ingest([ev]):
                 if not gps_time(sol.epoch) < t:
+                    if last_answer is None:
+                        settle = max(settle, time.monotonic() - start)
                     last_answer = time.monotonic()
                     waiting -= {v for v in waiting if sol.answers(v)}
         self.stats.unanswered += len(waiting)
