@@ -6,9 +6,11 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 from support.fgo_synthetic import error_stats, make_fleet, run
 
 from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
 from coplane.geo import up_vector
 from coplane.methods import get_method
 
@@ -70,3 +72,24 @@ def test_reported_covariance_is_scaled_but_the_estimate_is_not() -> None:
             eb = sb.estimates[vid]
             assert np.array_equal(ea.position_m, eb.position_m)
             np.testing.assert_allclose(eb.covariance_m2, 3.5**2 * ea.covariance_m2, rtol=1e-12)
+
+
+def test_gnc_on_the_window_rejects_nlos_that_plain_least_squares_absorbs() -> None:
+    """`gnc="tls"` (GTSAM's GncLMOptimizer on the LM window, docs/fgo.md "GNC"): with the FDE and
+    the kernel off, one 20-40 m NLOS satellite per vehicle pulls plain least squares by metres;
+    GNC finds and drops it (measured: 5.7 -> 1.2 m; the defaults, FDE + Huber on the smoother,
+    0.86 m)."""
+    fleet = make_fleet(4, 20, seed=11, nlos_per_vehicle=1, nlos_bias=(20.0, 40.0))
+    base = dataclasses.replace(get_method("non-cp").fgo, solver="lm-window", robust=None, fde_k=None)
+    plain = error_stats(fleet, run(fleet, base), skip=3)
+    gnc = error_stats(fleet, run(fleet, dataclasses.replace(base, gnc="tls")), skip=3)
+    assert gnc.h_rmse < 0.5 * plain.h_rmse, (gnc.h_rmse, plain.h_rmse)
+
+
+def test_gnc_needs_the_lm_window_and_no_kernel() -> None:
+    with pytest.raises(ValueError, match="gnc needs"):
+        FgoConfig(gnc="tls", solver="isam2-fixed-lag")
+    with pytest.raises(ValueError, match="gnc needs"):
+        FgoConfig(gnc="tls", robust="huber")
+    with pytest.raises(ValueError, match="unknown gnc"):
+        FgoConfig(gnc="dcs")  # type: ignore[arg-type]

@@ -54,6 +54,12 @@ class FgoConfig:
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # Graduated non-convexity (`gtsam.GncLMOptimizer`) instead of a kernel, lm-window only: the
+    # pseudorange, plane and range factors are candidates, every link and prior a known inlier;
+    # "tls" truncated least squares, "gm" Geman-McClure; the inlier threshold is the chi-square
+    # quantile `gnc_inlier_probability` of each factor's dimension (docs/fgo.md, GNC).
+    gnc: Literal["tls", "gm"] | None = None
+    gnc_inlier_probability: float = 0.99
     # Every pseudorange sigma (the node's C/N0-elevation model) is multiplied by this: the model
     # describes white noise, while urban multipath and NLOS are correlated over seconds, which a
     # window or a marginal prior otherwise counts as independent information (over-confident
@@ -137,6 +143,17 @@ class FgoConfig:
             raise ValueError(
                 f"unknown robust kernel {self.robust!r}; valid: None, {', '.join(ROBUST_KERNELS)}"
             )
+        if self.gnc is not None:
+            if self.gnc not in ("tls", "gm"):
+                raise ValueError(f"unknown gnc loss {self.gnc!r}; valid: None, tls, gm")
+            if self.solver != "lm-window" or self.robust is not None:
+                raise ValueError(
+                    "gnc needs solver='lm-window' and robust=None (GNC weighs the factors itself)"
+                )
+            if not 0.0 < self.gnc_inlier_probability < 1.0:
+                raise ValueError(
+                    f"gnc_inlier_probability must be in (0, 1), got {self.gnc_inlier_probability!r}"
+                )
         if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
             raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
         positive = {
