@@ -287,10 +287,8 @@ class FusionServer(Pacing):
                 self.solved_up_to = t
                 return None
             est = self.step.estimator
-            tracked = (
-                est.tracked_at(t) if hasattr(est, "tracked_at") else getattr(est, "tracked_vehicles", [])
-            )
-            seed_estimator(self.step.estimator, self.regions.seeds(msgs, tracked))
+            tracked = getattr(est, "tracked_at", lambda _t: getattr(est, "tracked_vehicles", []))(t)
+            seed_estimator(est, self.regions.seeds(msgs, tracked))
         missing = sorted(v for v in self._live_here() if v not in msgs)
         for v in missing:
             self.counters[v]["missing"] += 1
@@ -309,17 +307,12 @@ class FusionServer(Pacing):
         self.last_solve_s = sol.solve_time_s
         self.epochs_solved += 1
         if self.regions is not None:
-            # only the vehicles this server answers for: those of its regions and its own silent
-            # ones; the others of a boundary cluster were solved for their ranges and are
-            # answered by their own region's server (the estimator also still carries a vehicle
-            # that crossed to another server for a while)
+            # only its regions' vehicles (and its silent ones): the rest of a boundary cluster is
+            # answered by their own region's server (docs/scale.md, "Boundaries")
             mine = answer | self.regions.owned_vehicles(missing)
+            kept = [v for v in sol.vehicles if v.vehicle_id in mine]
             sol = sol.model_copy(
-                update={
-                    "server": self.s.server_id,
-                    "answered": sorted(answer),
-                    "vehicles": [v for v in sol.vehicles if v.vehicle_id in mine],
-                }
+                update={"server": self.s.server_id, "answered": sorted(answer), "vehicles": kept}
             )
         if self.road_map is not None:
             self.road_map.add(sol, msgs)  # the vehicles it answers for: each pass once

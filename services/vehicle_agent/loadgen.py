@@ -213,11 +213,7 @@ class LoadGenerator:
         while (waiting or quiet_s is not None) and not self.stop.is_set() and time.monotonic() < deadline:
             ev = node.get(timeout=0.05)
             if ev is None:
-                if (
-                    quiet_s is None
-                    and last_answer is not None
-                    and time.monotonic() - last_answer > settle
-                ):
+                if quiet_s is None and last_answer is not None and time.monotonic() - last_answer > settle:
                     break  # answers stopped coming: the rest were late at their server, count them
                 if waiting and time.monotonic() - last_send > resend_after:
                     for vid in sorted(waiting):

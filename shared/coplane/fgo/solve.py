@@ -18,6 +18,7 @@ import numpy as np
 
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.gnc import solve_gnc_window
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import (
     ClusterResult,
@@ -131,12 +132,13 @@ class ClusterSolver:
         anchors = self._anchors(view.vehicles)
         initial = self._initial(view.blocks)
         cov_keys = self._cov_keys(view, rec)
+        solve = solve_lm_window if cfg.gnc is None else solve_gnc_window
         try:
-            res = solve_lm_window(cfg, view.blocks, view.ranges, anchors, initial, cov_keys, oldest)
+            res = solve(cfg, view.blocks, view.ranges, anchors, initial, cov_keys, oldest)
         except Exception:  # GTSAM raises RuntimeError subclasses (IndeterminantLinearSystem...)
             try:
                 priors = anchors + self._strong_priors(view.blocks)
-                res = solve_lm_window(cfg, view.blocks, view.ranges, priors, initial, cov_keys, oldest)
+                res = solve(cfg, view.blocks, view.ranges, priors, initial, cov_keys, oldest)
             except Exception as exc:
                 raise ClusterFailure(short_error(exc)) from exc
         stats.anchors += len(anchors)

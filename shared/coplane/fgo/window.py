@@ -26,7 +26,6 @@ from numpy.typing import NDArray
 
 from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.keys import POSITION_CHR
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
 
@@ -254,10 +253,6 @@ def solve_lm_window(
 ) -> ClusterResult:
     """The paper's window: one LM solve over the cluster's window graph, then its marginals."""
     graph = build_graph(blocks, ranges, priors, oldest_step)
-    if cfg.gnc is not None:
-        return _solve_gnc(
-            cfg, graph, gnc_candidates(blocks, ranges, len(priors), oldest_step), initial, cov_keys
-        )
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, lm_params(cfg))
     before = opt.error()  # the optimizer evaluates the graph at the start and at every step
     values = opt.optimize()
@@ -266,56 +261,6 @@ def solve_lm_window(
         raise RuntimeError(f"LM returned a non-finite error {after}")
     covs = marginal_covariances(gtsam.Marginals(graph, values), cov_keys) if cov_keys else {}
     return ClusterResult(values, covs, int(opt.iterations()), float(before), float(after))
-
-
-def gnc_candidates(
-    blocks: Sequence[StateBlock], ranges: Sequence[RangeEdge], n_priors: int, oldest_step: int
-) -> list[int]:
-    """Indices, in `build_graph`'s order, of the factors GNC may reject: each block's
-    pseudoranges and plane (its graph's first factors, `blocks.build_block`) and the ranges."""
-    out: list[int] = []
-    i = n_priors
-    for b in blocks:
-        n = b.counts.get("pseudorange", 0) + b.counts.get("plane", 0)
-        out.extend(range(i, i + n))
-        i += int(b.graph.size()) + sum(1 for ln in b.links if ln.prev_step >= oldest_step)
-    out.extend(range(i, i + len(ranges)))
-    return out
-
-
-def _solve_gnc(
-    cfg: FgoConfig,
-    graph: gtsam.NonlinearFactorGraph,
-    candidates: Sequence[int],
-    initial: gtsam.Values,
-    cov_keys: Sequence[int],
-) -> ClusterResult:
-    """GTSAM's graduated non-convexity over the window; the marginals of the inliers' graph."""
-    params = gtsam.GncLMParams(lm_params(cfg))
-    params.setLossType(gtsam.GncLossType.TLS if cfg.gnc == "tls" else gtsam.GncLossType.GM)
-    cand = set(candidates)
-    graph = gtsam.NonlinearFactorGraph(graph)
-    # TLS may reject every pseudorange of one system at an epoch: a loose prior (1e-5 s, 3 km) on
-    # each clock keeps that clock determined instead of making the system singular
-    loose = gtsam.noiseModel.Isotropic.Sigma(1, 1e-5)
-    for key in initial.keys():  # noqa: SIM118 (gtsam.Values is not iterable)
-        if gtsam.Symbol(key).chr() != ord(POSITION_CHR):
-            graph.add(gtsam.PriorFactorDouble(key, initial.atDouble(key), loose))
-    params.setKnownInliers([i for i in range(int(graph.size())) if i not in cand])
-    opt = gtsam.GncLMOptimizer(graph, initial, params)
-    opt.setInlierCostThresholdsAtProbability(cfg.gnc_inlier_probability)
-    before = graph.error(initial)
-    values = opt.optimize()
-    weights = np.asarray(opt.getWeights(), dtype=float)
-    inliers = gtsam.NonlinearFactorGraph()
-    for i in range(int(graph.size())):
-        if i not in cand or weights[i] >= 0.5:
-            inliers.add(graph.at(i))
-    after = inliers.error(values)
-    if not np.isfinite(after):
-        raise RuntimeError(f"GNC returned a non-finite error {after}")
-    covs = marginal_covariances(gtsam.Marginals(inliers, values), cov_keys) if cov_keys else {}
-    return ClusterResult(values, covs, 0, float(before), float(after))
 
 
 class SmootherCluster:
