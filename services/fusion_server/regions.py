@@ -25,7 +25,7 @@ from coplane.bus import BusNode, KeySpace, Subscription
 from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
-from coplane.regions import RangeGraph, RegionConfig, owned_shards, owner, regions_near, shard_of
+from coplane.regions import RangeGraph, RegionConfig, owned_shards, regions_near, shard_of
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
@@ -223,10 +223,6 @@ class RegionRole:
     def home_at(self, vehicle_id: str, t: GpsTime) -> str | None:
         """The vehicle's own region at its epoch `t` (else at its latest epoch heard)."""
         return self.region_at.get((vehicle_id, t), self.region.get(vehicle_id))
-
-    def owner_of(self, region: str) -> str | None:
-        """The live server owning `region`, as this server sees the live servers."""
-        return owner(shard_of(region, self.cfg.shards), self.servers)
 
     def awaited(
         self,

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
+from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.keys import POSITION_CHR
 from coplane.fgo.window import (
@@ -50,17 +51,14 @@ def solve_gnc_window(
     """`solve_lm_window` with GTSAM's graduated non-convexity instead of LM; the marginals of the
     inliers' graph."""
     graph = build_graph(blocks, ranges, priors, oldest_step)
-    candidates = gnc_candidates(blocks, ranges, len(priors), oldest_step)
+    cand = set(gnc_candidates(blocks, ranges, len(priors), oldest_step))
     params = gtsam.GncLMParams(lm_params(cfg))
     params.setLossType(gtsam.GncLossType.TLS if cfg.gnc == "tls" else gtsam.GncLossType.GM)
-    cand = set(candidates)
-    graph = gtsam.NonlinearFactorGraph(graph)
     # TLS may reject every pseudorange of one system at an epoch: a loose prior (1e-5 s, 3 km) on
     # each clock keeps that clock determined instead of making the system singular
-    loose = gtsam.noiseModel.Isotropic.Sigma(1, 1e-5)
     for key in initial.keys():  # noqa: SIM118 (gtsam.Values is not iterable)
         if gtsam.Symbol(key).chr() != ord(POSITION_CHR):
-            graph.add(gtsam.PriorFactorDouble(key, initial.atDouble(key), loose))
+            graph.add(F.clock_prior(key, initial.atDouble(key), 1e-5))
     params.setKnownInliers([i for i in range(int(graph.size())) if i not in cand])
     opt = gtsam.GncLMOptimizer(graph, initial, params)
     opt.setInlierCostThresholdsAtProbability(cfg.gnc_inlier_probability)
