@@ -144,6 +144,11 @@ def _same_epoch(age: float | None) -> bool:
 
 
 REALTIME_TOL_M = 1e-3  # docs/reliability.md: realtime against the lockstep replay
+# The server's realtime deadline here: an agent's first epochs (cold caches) can take longer than
+# the default 0.5 s on a slow host, and an epoch solved without a vehicle changes the window of every
+# later one (seen twice on 2-core AVX2 hosts, on a cold first run: 0.3-1.1 m from epoch 1 on; the
+# same run passed again warm). The test is about streams and faults, not about the deadline.
+DEADLINE_S = 1.5
 
 
 BASE_LEAD_EPOCHS = 2
@@ -186,7 +191,7 @@ def test_realtime_streams_with_a_caster_restart_and_a_receiver_drop(
     try:
         with live_fleet(
             ubx_recording, METHOD, pace="realtime", log_dir=tmp_path / "logs", agents=[],
-            listeners=[solutions.append],
+            listeners=[solutions.append], extra_fusion_args=["--deadline_s", str(DEADLINE_S)],
         ) as lf:  # fmt: skip
             lf.procs.start(
                 ServiceSpec(
@@ -245,6 +250,7 @@ def test_realtime_streams_with_a_caster_restart_and_a_receiver_drop(
     tows = sorted(by_epoch)
     assert tows, "no solution"
     first = tows[0]
+    print("first epochs:", [(tw - first, sorted(by_epoch[tw])) for tw in tows[:4]])
     # 1. clean epochs (before the faults, all three vehicles, same-epoch corrections, and each
     # vehicle with the replay's number of ranges: a UWB datagram that missed its epoch's
     # alignment window changes the inputs, not the estimator): the replay's
