@@ -25,7 +25,8 @@ from coplane.bus import BusNode, KeySpace, Subscription
 from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
-from coplane.regions import RangeGraph, RegionConfig, owned_shards, regions_near, shard_of
+from coplane.regions import RangeGraph, RegionConfig, owned_shards, region_of_tile, regions_near, shard_of
+from coplane.roadmap import TileKey
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
@@ -124,6 +125,10 @@ class RegionRole:
 
     def owns(self, region: str) -> bool:
         return shard_of(region, self.cfg.shards) in self.shards
+
+    def owns_tile(self, key: TileKey, tile_size_m: float) -> bool:
+        """A road-map tile is this server's to write: its region is one of this server's now."""
+        return self.owns(region_of_tile(key, tile_size_m, self.cfg))
 
     def own_copy(self, key: str) -> bool:
         """A copy for a region near the vehicle's own, when this server also owns the vehicle's

@@ -7,21 +7,30 @@ the builder as they are made; closed passes are applied and committed in one tra
 commit and never corrupts the file. A map that cannot be opened (corrupt, another schema, a file
 that is no map) is logged as an error naming the file and the server runs without one; a failure
 while learning is logged and counted; neither stops the server.
+
+With regions (docs/scale.md, "The road map across servers") each server keeps its own file, a
+whole replica: it adds evidence only to the tiles of the regions it owns (`owns_tile`; passes in
+another server's tiles are counted `foreign-tile` and dropped), publishes them, and takes the other
+servers' tiles from the bus (`take_peer`, newer versions win) into its map and file. Its file
+starts as a copy of the fleet's map file when it has none (`server_map`).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import sqlite3
 import time
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from coplane.bus import BadMessage, BusNode, decode, encode
 from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
-from coplane.roadmap import MapBuilder, RoadMap
+from coplane.roadmap import MapBuilder, RoadMap, TileKey
 from coplane.roadmap.tile import PassEvidence
 from coplane.steps.map_evidence import solution_samples
-from coplane.steps.map_tiles import CHUNK_TILES, tiles_messages
+from coplane.steps.map_tiles import CHUNK_TILES, merge_tile_states, tiles_messages
 from coplane.store.roadmap_db import RoadMapDb
 
 log = logging.getLogger("coplane.fusion_server.road_map")
@@ -37,6 +46,8 @@ class LiveRoadMap:
         commit_every_s: float = 10.0,
         fleet: str = "",
         snapshot_every_s: float = 60.0,
+        server: str = "",
+        owns_tile: Callable[[TileKey, float], bool] | None = None,
     ) -> None:
         self.db = RoadMapDb(path)
         self.map: RoadMap = self.db.load()
@@ -47,6 +58,7 @@ class LiveRoadMap:
         self.counts: Counter[str] = Counter()
         # for the bus: the whole map now and every `snapshot_every_s`, each commit's tiles between
         self.fleet = fleet
+        self.server, self.owns_tile = server, owns_tile  # regions: this server's id and tiles
         self.snapshot_every_s = snapshot_every_s
         self.snapshot = 0
         self.last_snapshot = time.monotonic()
@@ -61,10 +73,12 @@ class LiveRoadMap:
         commit_every_s: float = 10.0,
         fleet: str = "",
         snapshot_every_s: float = 60.0,
+        server: str = "",
+        owns_tile: Callable[[TileKey, float], bool] | None = None,
     ) -> LiveRoadMap | None:
         """The map at `path` (created if missing), or None with the reason logged."""
         try:
-            return cls(path, antenna_heights, commit_every_s, fleet, snapshot_every_s)
+            return cls(path, antenna_heights, commit_every_s, fleet, snapshot_every_s, server, owns_tile)
         except Exception as exc:
             log.error("road map not used: %s", exc, extra={"path": str(path)})
             return None
@@ -104,10 +118,44 @@ class LiveRoadMap:
         out, self.outbox = self.outbox, []
         return out
 
+    def publish(self, node: BusNode, key: str) -> None:
+        """Put the pending tile messages on `key` (never raises: the map is a side product)."""
+        for msg in self.take_outbox():
+            try:
+                node.put(key, encode(msg))
+            except Exception:
+                self.counts["publish-errors"] += 1
+                log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
+
+    def take_peer(self, payload: bytes) -> int:
+        """Regions: another server's tiles from the bus into this map and its file; the number
+        taken. Its own batches (which the subscription also hears) and other fleets' are skipped; a
+        bad batch or tile is counted by reason and never raises."""
+        try:
+            msg = decode(MapTilesMessage, payload)
+        except BadMessage as exc:
+            self.counts[f"peer-rejected:{exc.kind}"] += 1
+            return 0
+        if msg.server == self.server or msg.fleet != self.fleet:
+            return 0
+        if msg.tile_size_m != self.map.config.tile_size_m:
+            self.counts["peer-rejected:tile-size"] += 1
+            return 0
+        peer: Counter[str] = Counter()
+        taken = merge_tile_states(self.map, msg.tiles, peer)
+        self.counts.update({f"peer-{k}": n for k, n in peer.items()})
+        if taken:
+            try:
+                self.db.write(taken)  # the replica survives a restart of this server
+            except Exception:
+                self.counts["errors"] += 1
+                log.exception("road map: peer tiles not stored", extra={"server": msg.server})
+        return len(taken)
+
     def _snapshot(self) -> list[MapTilesMessage]:
         self.snapshot += 1
         tiles = [self.map.tiles[k] for k in sorted(self.map.tiles, key=lambda k: (k.row, k.col))]
-        return tiles_messages(self.fleet, tiles, self.map.config, self.snapshot, whole=True)
+        return tiles_messages(self.fleet, tiles, self.map.config, self.snapshot, True, self.server)
 
     def close(self) -> None:
         """Close every open pass, commit, checkpoint the file."""
@@ -119,13 +167,20 @@ class LiveRoadMap:
             self.db.close()
 
     def _commit(self, passes: list[PassEvidence]) -> None:
+        if self.owns_tile is not None:  # regions: one writer per tile, its region's owner
+            size = self.map.config.tile_size_m
+            mine = [p for p in passes if p.key is None or self.owns_tile(p.key, size)]
+            self.counts["foreign-tile"] += len(passes) - len(mine)
+            passes = mine
         if not passes:
             return
         try:
             changes = self.map.apply(passes)
             dirty = self.map.take_dirty()
             written = self.db.write(dirty, changes, mapped_until=self.map.mapped_until)
-            self.outbox += tiles_messages(self.fleet, dirty, self.map.config, self.snapshot, whole=False)
+            self.outbox += tiles_messages(
+                self.fleet, dirty, self.map.config, self.snapshot, False, self.server
+            )
         except Exception:
             self.counts["errors"] += 1
             log.exception("road map: batch not committed", extra={"passes": len(passes)})
@@ -138,3 +193,28 @@ class LiveRoadMap:
                 extra={"tile": str(c.key), "old_height_m": c.old_height_m, "new_height_m": c.new_height_m},
             )
         log.debug("road map committed", extra={"passes": len(passes), "tiles": written})
+
+
+def server_map(base: Path, server_id: str) -> Path:
+    """Regions: this server's own map file beside the fleet's (`map-x.sqlite` -> `map-x.s1.sqlite`),
+    first made as a copy of the fleet's file if that exists, so a map built beforehand (`coplane
+    map build`) feeds every server. The copy is SQLite's online backup of a file opened read-only
+    and checked as a map, written to a temporary name and renamed: a crash leaves no half copy. A
+    base that cannot be read is logged and the server starts an empty map."""
+    path = base.with_name(f"{base.stem}.{server_id}{base.suffix}")
+    if path.exists() or not base.is_file():
+        return path
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with RoadMapDb(base, readonly=True) as src:
+            dst = sqlite3.connect(tmp)
+            try:
+                src.db.backup(dst)
+            finally:
+                dst.close()
+        os.replace(tmp, path)
+        log.info("road map copied for this server", extra={"from": str(base), "path": str(path)})
+    except Exception as exc:
+        tmp.unlink(missing_ok=True)
+        log.error("road map not copied: %s", exc, extra={"from": str(base), "path": str(path)})
+    return path

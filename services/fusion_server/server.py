@@ -40,7 +40,7 @@ from .admission import Admission, AdmissionConfig
 from .durability import Durability
 from .pacing import Pacing
 from .regions import RegionRole
-from .road_map import LiveRoadMap
+from .road_map import LiveRoadMap, server_map
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
@@ -122,6 +122,8 @@ class FusionServer(Pacing):
             listen = [
                 Subscription(self.keys.all_alive("fusion"), liveliness=True),
                 Subscription(self.keys.all_solutions),  # the other servers': hand-over seeds
+                # the other servers' map tiles, their caches too (docs/scale.md)
+                *([Subscription(self.keys.map_tiles, history=True)] if self.road_map is not None else []),
             ]
         else:
             listen = [Subscription(self.keys.all_nodes, history=True)]  # agents' caches, after a restart
@@ -143,22 +145,15 @@ class FusionServer(Pacing):
             subscribe=[*listen, Subscription(self.keys.all_alive("agent"), liveliness=True)],
         )
 
-    def _put_tiles(self, node: BusNode) -> None:
-        """Publish the road map's pending tile messages (never raises: the map is a side product)."""
-        assert self.road_map is not None
-        for msg in self.road_map.take_outbox():
-            try:
-                node.put(self.keys.map_tiles, encode(msg))
-            except Exception:
-                self.road_map.counts["publish-errors"] += 1
-                log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
-
     # -- message handling ----------------------------------------------------------------------
     def handle(self, event: BusEvent) -> None:
         """The one dispatch of bus events; a bad event is logged and never stops the server."""
         try:
             if isinstance(event, Payload):
-                if self.regions is not None and KeySpace.vehicle_of_node_key(event.key) is None:
+                if event.key == self.keys.map_tiles:
+                    if self.road_map is not None:  # regions: the other servers' tiles
+                        self.road_map.take_peer(event.data)
+                elif self.regions is not None and KeySpace.vehicle_of_node_key(event.key) is None:
                     self.handle_peer_solution(event.key, event.data)
                 else:
                     self.handle_node(event.key, event.data)
@@ -351,11 +346,16 @@ class FusionServer(Pacing):
 
     def run(self) -> None:
         s = self.s
-        # regions: each server keeps its own map file for now (docs/scale.md, "Not yet")
-        path = map_path(s.map, f"{self.fleet}-{s.server_id}" if self.regions is not None else self.fleet)
+        path = map_path(s.map, self.fleet)
         if path is not None:  # before the node: its tile publisher's cache is sized by the map
+            regions = self.regions  # with regions: its own file and tiles (docs/scale.md)
             self.road_map = LiveRoadMap.open(
-                path, self.heights, s.map_commit_every_s, self.fleet, s.map_snapshot_every_s
+                path if regions is None else server_map(path, s.server_id),
+                self.heights,
+                s.map_commit_every_s,
+                self.fleet,
+                s.map_snapshot_every_s,
+                *(() if regions is None else (s.server_id, regions.owns_tile)),
             )
         with self.node() as node:
             log.info(
@@ -383,7 +383,7 @@ class FusionServer(Pacing):
                     self.durable.tick(self, node, self.solution_key)
                     if self.road_map is not None:
                         self.road_map.tick(now)
-                        self._put_tiles(node)
+                        self.road_map.publish(node, self.keys.map_tiles)
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.diagnostics_key, encode(self.diagnostics()))
                         last_diag = now
@@ -392,7 +392,7 @@ class FusionServer(Pacing):
                     self.handle(event)
                 if self.road_map is not None:
                     self.road_map.close()  # the last passes: committed, then on the bus
-                    self._put_tiles(node)
+                    self.road_map.publish(node, self.keys.map_tiles)
                 node.put(self.diagnostics_key, encode(self.diagnostics()))
                 log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
                 self.durable.close()

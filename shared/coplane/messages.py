@@ -327,10 +327,13 @@ class MapTileState(_Model):
 
 class MapTilesMessage(_Model):
     """A batch of road-map tiles from the fusion server: the whole map in `parts` messages of one
-    `snapshot` (at start and then periodically), or the tiles one commit changed (`parts` 0)."""
+    `snapshot` (at start and then periodically), or the tiles one commit changed (`parts` 0).
+    `server`: the writer's id when several servers share the fleet by region ('' for one server),
+    so a snapshot's parts are counted per server and a server skips its own batches."""
 
     schema_: Literal["coplane.map_tiles/1"] = Field(default="coplane.map_tiles/1", alias="schema")
     fleet: VehicleId
+    server: str = Field(default="", pattern=r"^[A-Za-z0-9_-]{0,32}$")
     tile_size_m: float = Field(gt=0.0, le=1000.0)
     snapshot: int = Field(ge=0)
     part: int = Field(ge=0)

@@ -5,6 +5,7 @@ equals the in-process one with the same map."""
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from coplane.errors import ConfigError
 from coplane.evaluate.map_build import extend_map, plane_sources
 from coplane.evaluate.runner import run_method
 from coplane.fleet import FleetOptions, run_fleet
+from coplane.messages import SolutionMessage
 from coplane.recording.reader import open_recording
 from coplane.roadmap import RoadMap, RoadMapConfig
 from coplane.sim.generate import run_simulation, write_recording
@@ -67,3 +69,50 @@ def test_a_map_method_with_the_map_turned_off_is_a_config_error(tmp_path: Path) 
         run_fleet(
             FleetOptions(recording=rec_path, method="pc-self-map", api=False, insecure=True, map=Path("none"))
         )
+
+
+def test_servers_by_region_share_one_map(tmp_path: Path) -> None:
+    """`--servers 2` with a map (docs/scale.md, "The road map across servers"): each server starts
+    from a copy of the fleet's map, the agents of `pc-map` take their planes from the servers'
+    tiles, each server learns on its own regions' tiles and the two files end as the same map."""
+    build = open_recording(write_recording(run_simulation("urban-loop", 4, 90.0, 5), tmp_path / "b"))
+    rec_path = write_recording(
+        run_simulation("urban-loop", 4, 60.0, 7, start_offset_s=1800.0), tmp_path / "u"
+    )
+    road_map = RoadMap(RoadMapConfig())
+    extend_map(road_map, run_method(build, "pc"), build)
+    map_file = tmp_path / "map.sqlite"
+    with RoadMapDb(map_file) as db:
+        db.write(road_map.take_dirty())
+    base = {k: t.version for k, t in road_map.tiles.items()}
+    ref = plane_sources(run_method(open_recording(rec_path), "pc-map", road_map=road_map))
+    sources: Counter[str] = Counter()
+
+    def count(sol: SolutionMessage) -> None:
+        sources.update(v.plane.source or "none" if v.plane else "none" for v in sol.vehicles)
+
+    regions = ["--region_size_m", "1100", "--region_margin_m", "500"]  # the loop spans several
+    with live_fleet(
+        rec_path, "pc-map", log_dir=tmp_path / "logs", map_path=map_file, servers=2,
+        region_args=regions, listeners=[count], extra_fusion_args=["--map_commit_every_s", "1"],
+    ) as lf:  # fmt: skip
+        wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
+        diags = dict(lf.collector.diags)
+        replicas = [tmp_path / f"map.s{i}.sqlite" for i in (1, 2)]
+
+        def versions(p: Path) -> dict:
+            with RoadMapDb(p, readonly=True) as db:
+                return {k: t.version for k, t in db.load().tiles.items()}
+
+        # the last passes close 3 s after their vehicle left the tile, then a commit, then the bus
+        wait_until(
+            lambda: versions(replicas[0]) == versions(replicas[1]) != base, 30, "the replicas to agree"
+        )
+        got = [versions(p) for p in replicas]
+    assert sum(d.epochs_solved > 0 for d in diags.values()) == 2  # both servers solved
+    # as often as in-process with the map at start (the servers' map learns during the run)
+    assert sources["map"] / sum(sources.values()) >= 0.9 * ref["map"] / sum(ref.values()) > 0, (sources, ref)
+    learned = {k for k, v in got[0].items() if v > base.get(k, 0)}
+    assert learned and got[0] == got[1]
+    logs = [(tmp_path / "logs" / f"fusion-server-{i}.log").read_text() for i in (1, 2)]
+    assert all("road map copied for this server" in log for log in logs)

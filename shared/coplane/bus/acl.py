@@ -8,7 +8,7 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 | identity | sends (ingress) | receives (egress) |
 | --- | --- | --- |
 | `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe `P/map/tiles` with history queries to its cache | `P/solution`; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
-| `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`) | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache |
+| `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`); with regions, the other servers' tiles as a vehicle subscribes to them | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache; the other servers' tiles, their caches' replies and tokens |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
 | `router` | everything under `P` (another router of the mesh, docs/scale.md) | everything under `P` |
@@ -99,6 +99,7 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
         ("ingress", ("reply",), (tiles, tiles_adv)),
         ("egress", ("query",), (tiles_adv,)),
         ("egress", ("declare_subscriber",), (tiles, tiles_adv)),
+        *tile_reader,  # regions: each server replicates the others' tiles (docs/scale.md)
     ]
     readers = [
         ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags)),

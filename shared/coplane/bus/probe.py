@@ -65,8 +65,8 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
     if operation == "subscribe":
         if key.startswith("vehicle/") or regional:
             return identity == FUSION
-        if key == "map/tiles":  # the road map's tiles, for the agents
-            return vid is not None
+        if key == "map/tiles":  # the road map's tiles, for the agents and (regions) the other servers
+            return vid is not None or identity == FUSION
         if parts[0] == "solution":  # the fusion servers hear each other's (hand-over seeds)
             return vid is not None or identity in (API, MONITOR, FUSION)
         return parts[0] == "diagnostics" and identity in (API, MONITOR)

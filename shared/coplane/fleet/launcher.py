@@ -101,13 +101,13 @@ def fleet_services(
     seed: int = 0,
     interruption: float = 0.0,
     start_unix_s: float | None = None,
-    map_path: Path | None = None,
+    map_path: Path | str | None = "auto",
     servers: int = 1,
     routers: Sequence[str] = (),
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
-    agents of a map method take it from (they need no access to the file). `servers` > 1: that
+    agents of a map method take it from (they need no access to the file); None: no map. `servers` > 1: that
     many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N.
     `routers`: the endpoints of a router mesh; the servers and the agents take them in turn (the
     API takes `connect`)."""
@@ -118,9 +118,9 @@ def fleet_services(
         return f'["{mesh[k % len(mesh)]}"]'
 
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
-    road_map = ["--map", str(map_path)] if map_path is not None else []
-    if servers > 1 and not road_map:
-        road_map = ["--map", "none"]  # servers do not share a map yet (docs/scale.md)
+    # "auto": the server's own default (its state directory); None: no map. With several servers
+    # each keeps its own replica beside the file (docs/scale.md, "The road map across servers")
+    road_map = [] if map_path == "auto" else ["--map", str(map_path) if map_path is not None else "none"]
     regional = ["--regions", "true"] if servers > 1 else []
     out = [
         ServiceSpec(

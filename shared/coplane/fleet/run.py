@@ -155,11 +155,8 @@ def run_fleet(
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
     if not 1 <= o.routers <= MAX_FLEET_ROUTERS:
         raise ConfigError(f"--routers must be in 1..{MAX_FLEET_ROUTERS}, got {o.routers}")
-    if o.servers > 1 and (method.plane_map or (o.map is not None and str(o.map) != "none")):
-        # one writer per map file, and servers do not share a map yet (docs/scale.md, "Not yet")
-        raise ConfigError("--servers > 1 runs without a road-surface map for now: drop --map and map methods")
-    default_map = "auto" if o.servers == 1 else "none"
-    road_map = map_path(o.map if o.map is not None else default_map, fleet_name)
+    # with --servers > 1 each server keeps its own replica beside this file (docs/scale.md)
+    road_map = map_path(o.map if o.map is not None else "auto", fleet_name)
     if method.plane_map and road_map is None:
         raise ConfigError(
             f"method {o.method!r} takes its planes from a road-surface map: drop --map none, or give"

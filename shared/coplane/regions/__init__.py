@@ -10,7 +10,7 @@
 
 from coplane.regions.clusters import RangeGraph
 from coplane.regions.config import RegionConfig
-from coplane.regions.grid import region_of_ecef, regions_near, shard_of
+from coplane.regions.grid import region_of_ecef, region_of_tile, regions_near, shard_of
 from coplane.regions.ownership import assignment, owned_shards, owner
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "owned_shards",
     "owner",
     "region_of_ecef",
+    "region_of_tile",
     "regions_near",
     "shard_of",
 ]

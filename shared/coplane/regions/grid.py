@@ -9,11 +9,12 @@ region is a whole number of map tiles when the sizes divide.
 from __future__ import annotations
 
 import hashlib
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from coplane.roadmap.grid import tile_of_ecef, tiles_around
+from coplane.roadmap.grid import TileKey, tile_frame, tile_of_ecef, tiles_around
 
 from .config import RegionConfig
 
@@ -27,6 +28,14 @@ def region_of_ecef(ecef: ArrayLike, cfg: RegionConfig, current: str | None = Non
         return new
     near = {str(k) for k in tiles_around(p, cfg.hysteresis_m, cfg.size_m)}
     return current if current in near else new
+
+
+@lru_cache(maxsize=1 << 16)  # a server asks for the same tiles at every commit
+def region_of_tile(key: TileKey, tile_size_m: float, cfg: RegionConfig) -> str:
+    """The region of a road-map tile: the one holding its centre (a tile is in one region when
+    the region size is a multiple of the tile size). With several servers the owner of that region
+    is the tile's one writer (docs/scale.md, "The road map across servers")."""
+    return region_of_ecef(tile_frame(key, tile_size_m)[0], cfg)
 
 
 def shard_of(region: str, shards: int) -> int:

@@ -18,7 +18,7 @@ from coplane.geo import up_vector
 from coplane.plane.fit import antenna_offset
 from coplane.plane.history import project_to_road
 from coplane.roadmap.config import RoadMapConfig
-from coplane.roadmap.grid import TileKey, tile_of_ecef
+from coplane.roadmap.grid import TileKey, tile_frame, tile_of_ecef
 from coplane.roadmap.tile import ChangeEvent, PassEvidence, TilePlane
 from coplane.typing import Vec
 
@@ -28,7 +28,9 @@ class MapPlane:
     """A tile's road plane at a vehicle, in the convention of `coplane.plane.fit`: unit upward
     `normal`, n . p + d_road = 0 on the road, d_antenna = d_road - antenna height. `sigma_m` is the
     road height's 1-sigma at the vehicle (with roughness: the factor's sigma), `offset_sigma_m` the
-    plane's own height sigma at the tile centre, `tilt_sigma_rad` its least-determined slope."""
+    plane's own height sigma at the tile centre, `tilt_sigma_rad` its least-determined slope.
+    `centroid`: the tile centre on the antenna plane, the point a check of the plane refers to (as a
+    fitted plane's centroid), so the plane can be checked when the vehicle has no SPP fix."""
 
     key: TileKey
     normal: Vec
@@ -39,6 +41,7 @@ class MapPlane:
     tilt_sigma_rad: float
     n_passes: int
     version: int
+    centroid: Vec
 
 
 class RoadMap:
@@ -126,16 +129,19 @@ class RoadMap:
         if why is not None:
             self.rejected[why] += 1
             return None
+        d_antenna = antenna_offset(d_road, antenna_height_m)
+        centre = tile_frame(tile.key, cfg.tile_size_m)[0]
         return MapPlane(
             key=tile.key,
             normal=normal,
             d_road=d_road,
-            d_antenna=antenna_offset(d_road, antenna_height_m),
+            d_antenna=d_antenna,
             sigma_m=sigma,
             offset_sigma_m=offset_sigma,
             tilt_sigma_rad=tilt_sigma,
             n_passes=tile.n_passes,
             version=version,
+            centroid=centre - (float(normal @ centre) + d_antenna) * normal,
         )
 
     def stats(self) -> dict[str, int]:

@@ -40,16 +40,23 @@ def tile_state(t: TilePlane) -> MapTileState:
 
 
 def tiles_messages(
-    fleet: str, tiles: Sequence[TilePlane], config: RoadMapConfig, snapshot: int, whole: bool
+    fleet: str,
+    tiles: Sequence[TilePlane],
+    config: RoadMapConfig,
+    snapshot: int,
+    whole: bool,
+    server: str = "",
 ) -> list[MapTilesMessage]:
     """`tiles` in messages of at most CHUNK_TILES; `whole`: they are the whole map (parts = count,
-    at least one message even for an empty map), else a commit's changes (parts = 0)."""
+    at least one message even for an empty map), else a commit's changes (parts = 0). `server`:
+    the writer's id with regions (docs/scale.md, "The road map across servers")."""
     chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)] or [[]]
     if not whole:
         chunks = [c for c in chunks if c]
     return [
         MapTilesMessage(
             fleet=fleet,
+            server=server,
             tile_size_m=config.tile_size_m,
             snapshot=snapshot,
             part=i,
@@ -84,9 +91,34 @@ def tile_of_state(s: MapTileState, config: RoadMapConfig) -> TilePlane:
     return tile
 
 
+def merge_tile_states(
+    road_map: RoadMap, states: Iterable[MapTileState], counts: Counter[str]
+) -> list[TilePlane]:
+    """Newer tile versions from the bus into `road_map`; the tiles taken. A bad tile is counted
+    by reason (`rejected:<why>`) and skipped, an older or equal version is counted and ignored: the
+    agents' and, with regions, the other servers' way in (never raises for a bad tile)."""
+    taken: list[TilePlane] = []
+    for s in states:
+        try:
+            tile = tile_of_state(s, road_map.config)
+        except ValueError as exc:
+            reason = str(exc).split(": ", 1)[-1]
+            counts[f"rejected:{reason}"] += 1
+            continue
+        old = road_map.tiles.get(tile.key)
+        if old is not None and old.version >= tile.version:
+            counts["older"] += 1
+            continue
+        road_map.tiles[tile.key] = tile
+        counts["taken"] += 1
+        taken.append(tile)
+    return taken
+
+
 class MapReceiver:
     """An agent's map from the bus: `take` each MapTilesMessage; `complete` once a whole snapshot
-    has arrived. `counts` has tiles taken, older versions ignored and rejections by reason."""
+    (of any one server) has arrived. `counts` has tiles taken, older versions ignored and
+    rejections by reason."""
 
     def __init__(
         self, fleet: str, road_map: RoadMap | None = None, config: RoadMapConfig | None = None
@@ -94,7 +126,7 @@ class MapReceiver:
         self.fleet = fleet
         self.map = road_map if road_map is not None else RoadMap(config or RoadMapConfig())
         self.counts: Counter[str] = Counter()
-        self._parts: dict[int, set[int]] = {}
+        self._parts: dict[tuple[str, int], set[int]] = {}
         self.complete = False
 
     def take(self, msg: MapTilesMessage) -> int:
@@ -105,29 +137,12 @@ class MapReceiver:
         if msg.tile_size_m != self.map.config.tile_size_m:
             self.counts["rejected:tile-size"] += 1
             return 0
-        changed = self._apply(msg.tiles)
+        changed = len(merge_tile_states(self.map, msg.tiles, self.counts))
         if msg.parts > 0 and msg.part < msg.parts:
-            seen = self._parts.setdefault(msg.snapshot, set())
+            # per server: with regions every server publishes snapshots numbered from 1
+            seen = self._parts.setdefault((msg.server, msg.snapshot), set())
             seen.add(msg.part)
             if len(seen) == msg.parts:
                 self.complete = True
                 self._parts.clear()
         return changed
-
-    def _apply(self, states: Iterable[MapTileState]) -> int:
-        n = 0
-        for s in states:
-            try:
-                tile = tile_of_state(s, self.map.config)
-            except ValueError as exc:
-                reason = str(exc).split(": ", 1)[-1]
-                self.counts[f"rejected:{reason}"] += 1
-                continue
-            old = self.map.tiles.get(tile.key)
-            if old is not None and old.version >= tile.version:
-                self.counts["older"] += 1
-                continue
-            self.map.tiles[tile.key] = tile
-            self.counts["taken"] += 1
-            n += 1
-        return n

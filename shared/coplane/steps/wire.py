@@ -108,6 +108,7 @@ def map_plane_report(p: MapPlane) -> PlaneReport:
         sigma_m=min(float(p.sigma_m), MAX_PLANE_SIGMA_M),
         offset_sigma_m=min(float(p.offset_sigma_m), MAX_OFFSET_SIGMA_M),
         tilt_sigma_rad=min(float(p.tilt_sigma_rad), math.pi),
+        centroid_ecef_m=tuple3(p.centroid),
         source="map",
         map_tile=str(p.key),
         map_passes=int(p.n_passes),

@@ -1,0 +1,111 @@
+"""The road map across fusion servers (docs/scale.md, "The road map across servers"): each server
+writes only the tiles of its own regions, keeps the others' from the bus in its own file, and
+starts from a copy of the fleet's map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from coplane.bus import encode
+from coplane.fusion_server.road_map import LiveRoadMap, server_map
+from coplane.messages import MapTilesMessage
+from coplane.roadmap import PassEvidence, RoadMapConfig, TileKey, TilePlane
+from coplane.steps.map_tiles import MapReceiver, tiles_messages
+from coplane.store.roadmap_db import RoadMapDb
+
+CFG = RoadMapConfig()
+
+
+def _tile(col: int, version: int = 3) -> TilePlane:
+    info = np.diag([40.0, 300.0, 300.0])
+    return TilePlane(
+        key=TileKey(100, col), h0_m=41.5, info=info, eta=np.array([4.0, 0.0, 0.0]),
+        n_passes=4, n_points=40, version=version, updated_s=1.4e9,
+    )  # fmt: skip
+
+
+def _pass(col: int, vid: str, t: float, dh: float) -> PassEvidence:
+    e = np.linspace(-8.0, 8.0, 9)
+    pts = np.column_stack([e, np.zeros_like(e), np.full_like(e, 0.1 + dh)])
+    return PassEvidence(vid, t, pts, np.full(len(e), 0.3), key=TileKey(100, col))
+
+
+def _even_cols(key: TileKey, _size: float) -> bool:
+    return key.col % 2 == 0
+
+
+def _odd_cols(key: TileKey, _size: float) -> bool:
+    return key.col % 2 == 1
+
+
+def _base(tmp_path: Path) -> Path:
+    base = tmp_path / "map-f1.sqlite"
+    with RoadMapDb(base) as db:
+        db.write([_tile(0), _tile(1)])
+    return base
+
+
+def test_each_server_starts_from_a_copy_of_the_fleet_map(tmp_path: Path) -> None:
+    base = _base(tmp_path)
+    p1 = server_map(base, "s1")
+    assert p1.name == "map-f1.s1.sqlite" and p1.is_file()
+    with RoadMapDb(p1, readonly=True) as db:
+        assert set(db.load().tiles) == {TileKey(100, 0), TileKey(100, 1)}
+    with RoadMapDb(p1) as db:  # the server's own file is its own from then on
+        db.write([_tile(2)])
+    assert server_map(base, "s1") == p1
+    with RoadMapDb(p1, readonly=True) as db:
+        assert len(db.load().tiles) == 3
+    # no fleet map: an empty file; a base that is no map: logged, an empty file, no exception
+    assert not server_map(tmp_path / "none.sqlite", "s1").exists()
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"not a database" * 100)
+    p = server_map(junk, "s2")
+    assert not p.exists() and not p.with_name(p.name + ".tmp").exists()
+
+
+def test_a_server_writes_its_own_tiles_and_takes_the_others(tmp_path: Path) -> None:
+    base = _base(tmp_path)
+    a = LiveRoadMap(server_map(base, "s1"), {}, fleet="f1", server="s1", owns_tile=_even_cols)
+    b = LiveRoadMap(server_map(base, "s2"), {}, fleet="f1", server="s2", owns_tile=_odd_cols)
+    a.take_outbox(), b.take_outbox()  # the start snapshots
+    a._commit([_pass(0, "v1", 1.5e9, 0.2), _pass(1, "v2", 1.5e9, 0.2)])
+    assert a.counts["foreign-tile"] == 1 and a.counts["passes_added"] == 1
+    assert a.map.tiles[TileKey(100, 0)].version == 4 and a.map.tiles[TileKey(100, 1)].version == 3
+    out = a.take_outbox()
+    assert [m.server for m in out] == ["s1"] and [t.tile for t in out[0].tiles] == ["r100c0"]
+    # b takes a's tile, in memory and in its file; a skips its own batch
+    assert b.take_peer(encode(out[0])) == 1
+    assert a.take_peer(encode(out[0])) == 0
+    assert b.map.tiles[TileKey(100, 0)].version == 4
+    assert b.take_peer(encode(out[0])) == 0 and b.counts["peer-older"] == 1  # a repeat
+    b.close()
+    with RoadMapDb(tmp_path / "map-f1.s2.sqlite", readonly=True) as db:
+        assert db.load().tiles[TileKey(100, 0)].version == 4
+    # garbage, another fleet, a bad tile: counted, nothing else happens
+    assert a.take_peer(b"{not json") == 0 and a.counts["peer-rejected:invalid-json"] == 1
+    other = tiles_messages("f2", [_tile(1, 9)], CFG, 1, False, "s2")[0]
+    assert a.take_peer(encode(other)) == 0
+    bad = _tile(1, 9)
+    bad.info[1, 1] = -500.0
+    assert a.take_peer(encode(tiles_messages("f1", [bad], CFG, 1, False, "s2")[0])) == 0
+    assert a.counts["peer-rejected:information matrix not positive definite"] == 1
+    a.close()
+
+
+def test_snapshot_parts_are_counted_per_server() -> None:
+    """Every server numbers its snapshots from 1: parts of two servers' snapshot 1 are not one."""
+
+    def part(server: str, i: int) -> MapTilesMessage:
+        return MapTilesMessage(
+            fleet="f1", server=server, tile_size_m=20.0, snapshot=1, part=i, parts=3, tiles=[]
+        )
+
+    rx = MapReceiver("f1")
+    for m in (part("s1", 0), part("s1", 1), part("s2", 2)):
+        rx.take(m)
+    assert not rx.complete
+    rx.take(part("s1", 2))
+    assert rx.complete
