@@ -8,7 +8,8 @@ Three experiments, each on simulated urban-loop drives whose errors are independ
 
 1. **Map use.** A map is built from one 600 s run (method `pc`) and the methods are evaluated on
    another run over the same roads, 45 minutes later: plane availability on mapped roads,
-   `pc-map` against `pc`, `pc-self-map` against `non-cp`.
+   `pc-map` against `pc`, `pc-self-map` against `non-cp`. (1b, bench/roadmap_build_length.py:
+   maps from other single drives, of 10, 20 and 40 minutes, on the same use drive.)
 2. **Sharpening.** A map is extended run after run; after each, the tiles' height sigma and
    their error against the simulator's true road surface where the vehicles drive; then (2b) the
    sharpened map on experiment 1's use drive.
@@ -17,7 +18,8 @@ Three experiments, each on simulated urban-loop drives whose errors are independ
    against `pc`.
 
 Seeds: the map's defaults (RoadMapConfig; max_use_sigma_m was chosen there) were checked on `--training` (build 111, use 112,
-sharpening 121-126, change 141-144); the report uses the others (511, 512, 521-526, 541-544).
+sharpening 121-126, change 141-144, build drives 113-115); the report uses the others (511, 512, 521-526,
+541-544, 513-515).
 """
 
 from __future__ import annotations
@@ -54,12 +56,14 @@ SEEDS = {
         "use": 512,
         "sharpen": (521, 522, 523, 524, 525, 526),
         "change": (541, 542, 543, 544),
+        "length": (513, 514, 515),
     },
     "training": {
         "build": 111,
         "use": 112,
         "sharpen": (121, 122, 123, 124, 125, 126),
         "change": (141, 142, 143, 144),
+        "length": (113, 114, 115),
     },
 }
 USE_OFFSET_S = 45 * 60.0  # the evaluation run is 45 minutes after the build run
@@ -362,6 +366,9 @@ def report(training: bool = False, work: Path | None = None) -> str:
     ]
     t0 = time.perf_counter()
     use, runs = experiment_use(work, seeds, lines)
+    from roadmap_build_length import experiment_build_length  # a module of its own: this one is full
+
+    experiment_build_length(work, seeds["build"], seeds["length"], use, runs, lines)
     # the training run prints only: its figure stays in the work folder
     img = work / "roadmap-sharpening-training.png" if training else DOCS / "img" / "roadmap-sharpening.png"
     road_map = experiment_sharpen(work, seeds, lines, img)
