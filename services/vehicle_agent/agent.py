@@ -1,7 +1,8 @@
 """Vehicle agent: replays one vehicle of a recording through VehicleStep and talks to the bus.
 
 Lockstep: publish epoch t, wait for the fleet solution of t (resending t every `resend_s`, so a
-restarted fusion server picks it up), ingest it, go on with t+1. Realtime: publish on the wall
+restarted fusion server picks it up), ingest it, go on with t+1; if its server went on without
+it (a solution past t), go on with the epoch after that server's. Realtime: publish on the wall
 clock (scaled by `speed`) and ingest whatever solutions have arrived; never block on the server.
 
 Only solutions the consumers' `SolutionGate` accepts (`coplane.bus.trust`: this fleet and method,
@@ -114,6 +115,7 @@ class VehicleAgent:
         self.ingested = 0
         self.bad_solutions = 0
         self.unplaced = 0  # regions: epochs not sent, no position to place them in a region yet
+        self.home_server: str | None = None  # the server whose solution last answered this vehicle
         self.warn = RateLimitedLog(log)  # forged or bad floods must not flood the log
 
     def node(self) -> BusNode:
@@ -246,9 +248,15 @@ class VehicleAgent:
             start = s.start_unix_s if s.start_unix_s is not None else time.time()
             t0 = self.t0 or self.schedule[0][0]
             interval = self.rec.manifest.interval_s
+            behind: GpsTime | None = None  # lockstep: the fleet's epoch when it went on without us
             for t, ep in self.schedule:
                 if self.stop.is_set():
                     break
+                if behind is not None and not behind < t:
+                    # its epochs up to the fleet's are solved already: sent, they would only be late,
+                    # and the agent would stay two epochs behind the fleet for good
+                    self.skipped += 1
+                    continue
                 if s.pace == "realtime":
                     due = start + (t - t0) / s.speed
                     if due < time.time() - interval / s.speed:
@@ -267,7 +275,14 @@ class VehicleAgent:
                     node.put(key, payload)
                 self.published += 1
                 if s.pace == "lockstep":
-                    self.wait_for_solution(t, node, keys, payload)
+                    behind = self.wait_for_solution(t, node, keys, payload)
+                    if behind is not None:  # rate-limited: a vehicle always rejected would repeat it
+                        self.warn.log(
+                            logging.WARNING,
+                            ("behind",),
+                            "the fleet went on without this vehicle: joining at its next epoch",
+                            {"vehicle": self.step.vehicle_id, "epoch": str(t), "fleet_epoch": str(behind)},
+                        )
             if s.pace == "realtime" and self.published and not self.stop.is_set():
                 self.await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
             log.info(
@@ -289,7 +304,10 @@ class VehicleAgent:
             if sol is not None and not (gps_time(sol.epoch) < t_last):
                 return
 
-    def wait_for_solution(self, t: GpsTime, node: BusNode, keys: list[str], payload: bytes) -> None:
+    def wait_for_solution(self, t: GpsTime, node: BusNode, keys: list[str], payload: bytes) -> GpsTime | None:
+        """Lockstep: wait until a solution answers epoch `t` (re-sending it); the epoch of the
+        solution that released this agent without answering it, if it came from the server that
+        answers this vehicle (the fleet went on without this vehicle, see `answered`), else None."""
         last_send = time.monotonic()
         while not self.stop.is_set():
             ev = node.get(timeout=0.05)
@@ -304,4 +322,11 @@ class VehicleAgent:
                     node.put(key, payload)  # the server dedups; a restarted server needs it
                 last_send = time.monotonic()
             if sol is not None and self.answered(sol, t):
-                return
+                st = gps_time(sol.epoch)
+                if st == t and sol.answers(self.step.vehicle_id):
+                    self.home_server = sol.server
+                    return None
+                # past `t` on the server that answers this vehicle: it went on without it (with
+                # regions another server's fleet may just be ahead of this one's)
+                return st if st > t and sol.server == self.home_server else None
+        return None

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from coplane.bus import Payload, encode
+from coplane.bus import Payload, decode, encode
 from coplane.evaluate.runner import run_method
 from coplane.geo import enu_to_ecef
-from coplane.messages import EpochTime, SolutionMessage, VehicleState
+from coplane.messages import EpochTime, NodeMessage, SolutionMessage, VehicleState
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import simulate
 from coplane.steps import gps_time
@@ -134,3 +134,50 @@ def test_lockstep_agent_is_not_stalled_by_a_fast_server_restart(
     assert time.monotonic() - t0 < 5.0
     assert gate.generation == "5ca1ab1e5ca1ab1e" and gate.resets == 1
     assert agent.ingested == 4
+
+
+class _LockstepNode(_QuietNode):
+    """Answers each node message with the genuine solution of its epoch, except the third: the
+    fleet goes on without the vehicle and the next solution this agent hears is two epochs later."""
+
+    def __init__(self, sols: list[SolutionMessage], key: str) -> None:
+        super().__init__([])
+        self.by_epoch = {gps_time(s.epoch): s for s in sols}
+        self.order = [gps_time(s.epoch) for s in sols]
+        self.key, self.sent = key, []  # type: ignore[var-annotated]
+
+    def __enter__(self) -> _LockstepNode:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def drain(self) -> list[Payload]:
+        out, self.events = self.events, []
+        return out
+
+    def put(self, key: str, payload: bytes) -> None:
+        super().put(key, payload)
+        t = gps_time(decode(NodeMessage, payload).epoch)
+        if t in self.sent:
+            return  # a resend
+        self.sent.append(t)
+        k = self.order.index(t)
+        answer = self.by_epoch[self.order[k + 2 if k == 2 else k]]
+        self.events.append(Payload(self.key, encode(answer)))
+
+
+def test_a_lockstep_agent_the_fleet_left_behind_joins_at_the_fleet_s_epoch(
+    genuine: tuple[Path, list[SolutionMessage]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Released by a solution past its epoch, the agent skips the epochs already solved: sent, they
+    would be late, and it would stay two epochs behind the fleet for good (seen with regions: the
+    whole lockstep fleet stalled once every vehicle was behind)."""
+    rec, sols = genuine
+    agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc", resend_s=30.0))
+    node = _LockstepNode(sols, agent.keys.solution)
+    monkeypatch.setattr(agent, "node", lambda: node)
+    published = agent.run()
+    order = node.order
+    assert node.sent == [*order[:3], *order[5:]]  # epochs 3 and 4 were solved without it
+    assert agent.skipped == 2 and published == len(order) - 2
