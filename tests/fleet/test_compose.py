@@ -155,3 +155,26 @@ def test_compose_scales_to_a_router_mesh_and_several_servers(tmp_path: Path) -> 
         pytest.fail("docker-compose not installed (scripts/setup.sh installs Debian's docker-compose)")
     r = subprocess.run([exe, "-f", str(out), "config", "-q"], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+
+
+def test_the_launcher_passes_the_map_setting_on(tmp_path: Path) -> None:
+    """`--map none` reaches the fusion servers (their own default is `auto`); `auto` is left to
+    them; a file is given to every server, each of which keeps its replica beside it."""
+    _, vehicles = fleet_of(bundled_default_path())
+
+    def map_args(map_path: Path | str | None, servers: int = 1) -> list[list[str]]:
+        specs = fleet_services(
+            bundled_default_path(), "pc", "lockstep", 1.0, "tcp/127.0.0.1:7447", vehicles, False,
+            map_path=map_path, servers=servers,
+        )  # fmt: skip
+        out = []
+        for s in specs:
+            if s.name.startswith("fusion-server"):
+                out.append(
+                    s.args[s.args.index("--map") : s.args.index("--map") + 2] if "--map" in s.args else []
+                )
+        return out
+
+    assert map_args(None) == [["--map", "none"]]
+    assert map_args("auto") == [[]]
+    assert map_args(tmp_path / "m.sqlite", servers=2) == [["--map", str(tmp_path / "m.sqlite")]] * 2
