@@ -13,7 +13,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 from prometheus_client import CollectorRegistry
 
-from coplane.store import map_path
+from coplane.store import map_path, server_map_path
 
 from .bus_client import Bus
 from .hub import StreamHub
@@ -47,8 +47,11 @@ def get_dashboard_html(request: Request) -> str:
 
 
 def get_map_path(request: Request) -> Path | None:
-    """The road map file the API serves (settings.map; auto: the fusion server's default), or None."""
-    return map_path(request.app.state.settings.map, request.app.state.fleet.fleet)
+    """The road map file the API serves (settings.map; auto: the fusion server's default; with
+    `map_server`, that server's replica of it), or None."""
+    settings = request.app.state.settings
+    path = map_path(settings.map, request.app.state.fleet.fleet)
+    return server_map_path(path, settings.map_server) if path is not None and settings.map_server else path
 
 
 def get_map_reader(request: Request) -> MapReader:

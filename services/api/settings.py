@@ -72,6 +72,12 @@ class ApiSettings(ServiceSettings):
         description="Road-surface map (SQLite, read-only) served by /map/tiles and /map/changes: auto = the"
         " fusion server's <state dir>/map-<fleet>.sqlite, none = off, or a path",
     )
+    map_server: str | None = Field(
+        default=None,
+        pattern=r"^[A-Za-z0-9_-]{1,32}$",
+        description="With several fusion servers by region: read this server's replica of the map"
+        " (<stem>.<server>.sqlite beside it; each replica is the whole map, docs/scale.md)",
+    )
     access_log: bool = False
     log_level: str = "INFO"
 

@@ -31,6 +31,7 @@ from coplane.roadmap import MapBuilder, RoadMap, TileKey
 from coplane.roadmap.tile import PassEvidence
 from coplane.steps.map_evidence import solution_samples
 from coplane.steps.map_tiles import CHUNK_TILES, merge_tile_states, tiles_messages
+from coplane.store import server_map_path
 from coplane.store.roadmap_db import RoadMapDb
 
 log = logging.getLogger("coplane.fusion_server.road_map")
@@ -201,7 +202,7 @@ def server_map(base: Path, server_id: str) -> Path:
     map build`) feeds every server. The copy is SQLite's online backup of a file opened read-only
     and checked as a map, written to a temporary name and renamed: a crash leaves no half copy. A
     base that cannot be read is logged and the server starts an empty map."""
-    path = base.with_name(f"{base.stem}.{server_id}{base.suffix}")
+    path = server_map_path(base, server_id)
     if path.exists() or not base.is_file():
         return path
     tmp = path.with_name(path.name + ".tmp")

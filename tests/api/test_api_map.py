@@ -114,6 +114,22 @@ def test_auto_serves_the_fusion_servers_default_map(
         assert r.status_code == 200 and len(r.json()["features"]) == len(map_file[1])
 
 
+def test_with_servers_by_region_a_server_s_replica_is_served(
+    map_file: tuple[Path, list[TileKey]], tmp_path: Path
+) -> None:
+    """`map_server`: the named server's replica beside the map file (docs/scale.md), not the fleet
+    file the servers only started from."""
+    base = tmp_path / "fleet-map.sqlite"
+    (tmp_path / "fleet-map.s1.sqlite").write_bytes(map_file[0].read_bytes())
+    fleet = SyntheticFleet(n_vehicles=1, n_epochs=1)
+    app = create_app(
+        ApiSettings(fleet=FLEET, map=str(base), map_server="s1"), LocalBus(), state=fleet.state(clock_now=0.0)
+    )
+    with TestClient(app) as c:
+        r = c.get("/map/tiles", params={"bbox": _box()})
+        assert r.status_code == 200 and len(r.json()["features"]) == len(map_file[1])
+
+
 def _box(d: float = 0.001) -> str:
     return f"{LON - d},{LAT - d},{LON + d},{LAT + d}"
 

@@ -183,7 +183,16 @@ def fleet_services(
             ServiceSpec(
                 "api",
                 API_MODULE,
-                ["--recording", rec, "--connect", f'["{connect}"]', "--port", str(api_port), *road_map],
+                [
+                    "--recording",
+                    rec,
+                    "--connect",
+                    f'["{connect}"]',
+                    "--port",
+                    str(api_port),
+                    *road_map,
+                    *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
+                ],
                 API,
             )
         )

@@ -9,7 +9,7 @@ from coplane.store.log import (
     StoreError,
     Synchronous,
 )
-from coplane.store.paths import default_state_dir, log_path, map_path
+from coplane.store.paths import default_state_dir, log_path, map_path, server_map_path
 
 __all__ = [
     "APPLICATION_ID",
@@ -21,4 +21,5 @@ __all__ = [
     "default_state_dir",
     "log_path",
     "map_path",
+    "server_map_path",
 ]

@@ -48,3 +48,9 @@ def map_path(setting: str | Path | None, fleet: str) -> Path | None:
     if text != "auto":
         return Path(text).expanduser()
     return default_state_dir() / f"map-{_slug(fleet)}.sqlite"
+
+
+def server_map_path(base: Path, server_id: str) -> Path:
+    """With several fusion servers by region: server `server_id`'s replica of the map `base`,
+    beside it (`map-x.sqlite` -> `map-x.s1.sqlite`; docs/scale.md, "The road map across servers")."""
+    return base.with_name(f"{base.stem}.{server_id}{base.suffix}")
