@@ -109,3 +109,34 @@ def test_snapshot_parts_are_counted_per_server() -> None:
     assert not rx.complete
     rx.take(part("s1", 2))
     assert rx.complete
+
+
+def test_a_map_plane_is_checkable_without_an_spp_fix() -> None:
+    """A map plane carries the tile centre as its centroid: the server's plausibility check can
+    test it when the vehicle has no SPP fix (before, it rejected the whole node message)."""
+    from types import SimpleNamespace
+
+    from coplane.fusion_server.plausibility import plane_problem
+    from coplane.geo import geodetic_to_ecef, up_vector
+    from coplane.roadmap import RoadMap, tile_of_ecef
+    from coplane.steps.wire import map_plane_report
+
+    road = geodetic_to_ecef(np.radians(35.0), np.radians(137.0), 41.5)
+    key = tile_of_ecef(road, CFG.tile_size_m)
+    tile = TilePlane(
+        key=key,
+        h0_m=41.5,
+        info=np.diag([40.0, 300.0, 300.0]),
+        eta=np.zeros(3),
+        n_passes=4,
+        n_points=40,
+        version=1,
+    )
+    road_map = RoadMap(CFG)
+    road_map.tiles[key] = tile
+    plane = road_map.plane_at(road + 1.5 * up_vector(road), 1.5)
+    assert plane is not None
+    report = map_plane_report(plane)
+    assert report.centroid_ecef_m is not None
+    msg = SimpleNamespace(plane=report, spp=SimpleNamespace(position_ecef_m=None))
+    assert plane_problem(msg, 10.0, 50.0) is None  # type: ignore[arg-type]
