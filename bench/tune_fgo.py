@@ -42,6 +42,11 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-keep-on-rejected-prediction": {"fde_snapshot_fallback": False},
     "gate3-no-fde": {"fde_k": None, "gate_k": 3.0},
     "cauchy": {"robust": "cauchy"},
+    "dcs-1": {"robust": "dcs", "robust_k": 1.0},  # switchable constraints in closed form
+    "dcs-4": {"robust": "dcs", "robust_k": 4.0},
+    "dcs-9": {"robust": "dcs", "robust_k": 9.0},
+    "huber-planes-links": {"robust_planes_links": True},  # the kernel on planes and Doppler links too
+    "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},
     "sigma-v-0.2": {"sigma_v": 0.2},
     "sigma-v-0.3": {"sigma_v": 0.3},  # the default before the 2026-11-25 round

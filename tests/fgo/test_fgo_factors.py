@@ -236,7 +236,7 @@ def test_robust_kernels_downweight_large_residuals_only() -> None:
     sat = F.gtsam_satellite_positions(_sat(10, 50)[None, :], RX)[0]
     r0 = float(np.linalg.norm(RX - sat)) + OMEGA_E_GPS / C * (sat[0] * RX[1] - sat[1] * RX[0])
     vals_small = _values({1: RX, 2: 0.0})
-    for kernel, k in (("huber", 1.345), ("cauchy", 2.385)):
+    for kernel, k in (("huber", 1.345), ("cauchy", 2.385), ("dcs", 4.0)):
         robust = F.robust_isotropic(1, 3.0, kernel, k)
         plain = F.isotropic(1, 3.0)
         small_r = gtsam.PseudorangeFactor(1, 2, r0 + 1.5, sat, 0.0, robust)
@@ -247,6 +247,24 @@ def test_robust_kernels_downweight_large_residuals_only() -> None:
         assert big_r.error(vals_small) < 0.5 * big_p.error(vals_small)
     with pytest.raises(ValueError):
         F.robust_isotropic(1, 3.0, "tukey", 4.0)
+
+
+def test_kernel_on_planes_and_links_leaves_small_errors_and_cuts_large_ones() -> None:
+    """`robust_planes_links`: the plane factor and the displacement link take the kernel too (on the
+    Mahalanobis length of the whole error), and only their large errors lose weight."""
+    up = RX / np.linalg.norm(RX)
+    plane = PlaneObs(up, -float(up @ RX), 0.5)
+    near, far = _values({1: RX + 0.2 * up}), _values({1: RX + 10.0 * up})
+    plain, robust = F.plane_factor(1, plane), F.plane_factor(1, plane, "huber", 1.345)
+    assert robust.error(near) == pytest.approx(plain.error(near), rel=1e-9)
+    assert robust.error(far) < 0.5 * plain.error(far)
+    still = _values({1: RX, 2: RX})
+    d_plain = F.displacement_factor(1, 2, 0.2 * up, 0.5)
+    d_robust = F.displacement_factor(1, 2, 0.2 * up, 0.5, robust="dcs", robust_k=4.0)
+    assert d_robust.error(still) == pytest.approx(d_plain.error(still), rel=1e-9)
+    jump_plain = F.displacement_factor(1, 2, 10.0 * up, 0.5, RX, 0.2)
+    jump_robust = F.displacement_factor(1, 2, 10.0 * up, 0.5, RX, 0.2, "dcs", 4.0)
+    assert jump_robust.error(still) < 0.1 * jump_plain.error(still)
 
 
 def test_floored_covariance_raises_small_eigenvalues_only() -> None:

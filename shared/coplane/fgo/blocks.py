@@ -41,13 +41,14 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         ):
             g.add(f)
         counts["pseudorange"] = len(prs)
+    link_kernel = (cfg.robust, cfg.robust_tuning) if cfg.robust_planes_links else (None, None)
     if p.plane is not None:
-        g.add(F.plane_factor(pk, p.plane))
+        g.add(F.plane_factor(pk, p.plane, *link_kernel))
         counts["plane"] = 1
     links: list[Link] = []
     if p.link is not None:
         disp = F.displacement_factor(
-            p.link.prev_key, pk, p.link.displacement, p.link.sigma, p.init_pos, p.link.sigma_up
+            p.link.prev_key, pk, p.link.displacement, p.link.sigma, p.init_pos, p.link.sigma_up, *link_kernel
         )
         links.append(Link(p.link.prev_step, p.link.kind, disp))
     for s, cl in sorted(p.clock_links.items()):

@@ -11,13 +11,15 @@ from dataclasses import dataclass
 from typing import Literal
 
 Solver = Literal["lm-window", "isam2-fixed-lag", "batch-fixed-lag"]
-Robust = Literal["huber", "cauchy"]
+Robust = Literal["huber", "cauchy", "dcs"]
 
 SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
-ROBUST_KERNELS: tuple[Robust, ...] = ("huber", "cauchy")
+ROBUST_KERNELS: tuple[Robust, ...] = ("huber", "cauchy", "dcs")
 
 # Usual 95 %-efficiency tuning constants (in whitened units, i.e. sigmas) when robust_k is None.
-DEFAULT_ROBUST_K: dict[str, float] = {"huber": 1.345, "cauchy": 2.3849}
+# DCS (dynamic covariance scaling, the closed form of switchable constraints): Phi = 1, the value
+# its authors found to work across pose graphs; weight (2 Phi / (Phi + e^2))^2 beyond e^2 = Phi.
+DEFAULT_ROBUST_K: dict[str, float] = {"huber": 1.345, "cauchy": 2.3849, "dcs": 1.0}
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,9 @@ class FgoConfig:
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # ... and on the plane factors and the velocity (Doppler / motion) links too: NLOS biases
+    # Doppler as well, and a plane fitted across a grade change is wrong for the vehicle on it.
+    robust_planes_links: bool = False
     # Graduated non-convexity (`gtsam.GncLMOptimizer`) instead of a kernel, lm-window only: the
     # pseudorange, plane and range factors are candidates, every link and prior a known inlier;
     # "tls" truncated least squares, "gm" Geman-McClure; the inlier threshold is the chi-square

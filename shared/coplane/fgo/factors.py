@@ -43,18 +43,20 @@ def isotropic(dim: int, sigma: float) -> gtsam.noiseModel.Base:
 
 @functools.lru_cache(maxsize=8)
 def m_estimator(kernel: str, k: float | None) -> gtsam.noiseModel.mEstimator.Base:
-    """The Huber or Cauchy M-estimator with threshold k (one shared instance per kernel and k)."""
+    """The Huber, Cauchy or DCS M-estimator with threshold k (one shared instance per kernel and k)."""
     if k is None or not k > 0:
         raise ValueError(f"robust kernel {kernel!r} needs a positive k, got {k!r}")
     if kernel == "huber":
         return gtsam.noiseModel.mEstimator.Huber.Create(k)
     if kernel == "cauchy":
         return gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+    if kernel == "dcs":
+        return gtsam.noiseModel.mEstimator.DCS.Create(k)
     raise ValueError(f"unknown robust kernel {kernel!r}")
 
 
 def with_kernel(base: gtsam.noiseModel.Base, kernel: str | None, k: float | None) -> gtsam.noiseModel.Base:
-    """`base` wrapped in a Huber or Cauchy M-estimator when `kernel` is set."""
+    """`base` wrapped in the M-estimator `kernel` (huber, cauchy, dcs) when it is set."""
     if kernel is None:
         return base
     return gtsam.noiseModel.Robust.Create(m_estimator(kernel, k), base)
@@ -62,7 +64,7 @@ def with_kernel(base: gtsam.noiseModel.Base, kernel: str | None, k: float | None
 
 @functools.lru_cache(maxsize=8192)
 def robust_isotropic(dim: int, sigma: float, kernel: str | None, k: float | None) -> gtsam.noiseModel.Base:
-    """Isotropic Gaussian, wrapped in a Huber or Cauchy M-estimator when `kernel` is set."""
+    """Isotropic Gaussian, wrapped in the M-estimator `kernel` when it is set."""
     return with_kernel(isotropic(dim, sigma), kernel, k)
 
 
@@ -150,7 +152,9 @@ def _floats(x: Sequence[float] | Vec) -> list[float]:
 # plane constraint (eqs. 22-24)
 
 
-def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.PriorFactorPoint3:
+def plane_factor(
+    pos_key: int, plane: PlaneObs, robust: str | None = None, robust_k: float | None = None
+) -> gtsam.PriorFactorPoint3:
     """Eq. 24: whitened error (n.p + d) / sigma (+ above the plane along the upward normal).
 
     GTSAM has no point-on-plane factor, but eq. 24 is linear in p: a prior on p0 = -d n (a point
@@ -171,7 +175,7 @@ def plane_factor(pos_key: int, plane: PlaneObs) -> gtsam.PriorFactorPoint3:
     # smart=False: always this one model (an axis-aligned normal would become a Diagonal with
     # infinite sigmas, equivalent but a second code path in GTSAM)
     noise = gtsam.noiseModel.Gaussian.SqrtInformation(r, False)
-    return gtsam.PriorFactorPoint3(pos_key, -d * n, noise)
+    return gtsam.PriorFactorPoint3(pos_key, -d * n, with_kernel(noise, robust, robust_k))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -199,19 +203,25 @@ def displacement_factor(
     sigma_m: float,
     at: Vec | None = None,
     sigma_up_m: float | None = None,
+    robust: str | None = None,
+    robust_k: float | None = None,
 ) -> gtsam.BetweenFactorPoint3:
     """Eq. 36 multiplied by dt: (p_t - p_{t-1}) - v dt with sigma_V dt per axis.
 
     With `sigma_up_m` (the motion fallback) the component along local up at `at` gets that sigma
-    instead: covariance sigma^2 (I - u u^T) + sigma_up^2 u u^T.
+    instead: covariance sigma^2 (I - u u^T) + sigma_up^2 u u^T. A `robust` kernel weighs the
+    whole 3-D link by its Mahalanobis length.
     """
     d = np.asarray(displacement_m, dtype=float)
     if sigma_up_m is None or at is None or sigma_up_m == sigma_m:
-        return gtsam.BetweenFactorPoint3(prev_key, key, d, isotropic(3, float(sigma_m)))
+        return gtsam.BetweenFactorPoint3(
+            prev_key, key, d, robust_isotropic(3, float(sigma_m), robust, robust_k)
+        )
     u = up_vector(np.asarray(at, dtype=float))
     uu = np.outer(u, u)
     cov = sigma_m * sigma_m * (np.eye(3) - uu) + sigma_up_m * sigma_up_m * uu
-    return gtsam.BetweenFactorPoint3(prev_key, key, d, gtsam.noiseModel.Gaussian.Covariance(cov))
+    noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+    return gtsam.BetweenFactorPoint3(prev_key, key, d, with_kernel(noise, robust, robust_k))
 
 
 def clock_step_sigma_m(dt_s: float, drift_known: bool, rw_sigma: float, drift_sigma: float) -> float:
