@@ -45,6 +45,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     "dcs-1": {"robust": "dcs", "robust_k": 1.0},  # switchable constraints in closed form
     "dcs-4": {"robust": "dcs", "robust_k": 4.0},
     "dcs-9": {"robust": "dcs", "robust_k": 9.0},
+    "coop-3.29": {"coop_fde_k": 3.29},  # one satellite's residuals across vehicles within 50 m
+    "coop-2.5": {"coop_fde_k": 2.5},
+    "coop-3.29-r200": {"coop_fde_k": 3.29, "coop_fde_radius_m": 200.0},
     "huber-planes-links": {"robust_planes_links": True},  # the kernel on planes and Doppler links too
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},

@@ -138,10 +138,10 @@ def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
     off = RX + np.array([12.0, 0.0, 0.0])
     cov = np.eye(3) * 4.0
     base = FgoConfig(fde_k=3.29, fde_snapshot_fallback=True, covariance_scale=4.5, fde_warmup_epochs=10)
-    old = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
+    old, _ = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
     assert len(old) < len(prs)
     for prior in ("reported", "snapshot"):
         cfg = dataclasses.replace(base, fde_warmup_prior=prior)
-        assert len(screen(prs, off, cov, 0.1, cfg, StepStats(), young=True)) == len(prs), prior
+        assert len(screen(prs, off, cov, 0.1, cfg, StepStats(), young=True)[0]) == len(prs), prior
     with pytest.raises(ValueError, match="fde_warmup_epochs"):
         FgoConfig(fde_warmup_epochs=-1)

@@ -81,6 +81,11 @@ class FgoConfig:
     # covariance + the displacement noise, eigenvalues floored at fde_prior_floor_m^2). None: off.
     fde_k: float | None = None
     fde_prior_floor_m: float = 2.0
+    # Cooperative exclusion (`cooperative.py`), after each vehicle's FDE: a satellite whose FDE
+    # residuals summed over the vehicles within coop_fde_radius_m exceed coop_fde_k sqrt(m) is
+    # excluded at all of them (NLOS that one street gives every vehicle in it). None: off.
+    coop_fde_k: float | None = None
+    coop_fde_radius_m: float = 50.0
     # When most of an epoch fails against the prediction, the prediction is rejected; then test
     # the epoch on its own (snapshot RAIM) instead of keeping every pseudorange (screen.py).
     fde_snapshot_fallback: bool = False
@@ -183,6 +188,9 @@ class FgoConfig:
             positive["robust_k"] = self.robust_k
         if self.fde_k is not None:
             positive["fde_k"] = self.fde_k
+        if self.coop_fde_k is not None:
+            positive["coop_fde_k"] = self.coop_fde_k
+        positive["coop_fde_radius_m"] = self.coop_fde_radius_m
         positive["fde_prior_floor_m"] = self.fde_prior_floor_m
         positive["pseudorange_sigma_scale"] = self.pseudorange_sigma_scale
         if self.fde_max_sigma_scale is not None:

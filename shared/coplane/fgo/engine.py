@@ -31,6 +31,7 @@ from coplane.estimation.validate import ValidRange, out_of_order_reason, skipped
 from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.cooperative import cooperative_exclusion
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.solve import ClusterSolver
@@ -105,6 +106,8 @@ class FusionEstimator:
                 stats.skipped[vid] = got
             else:
                 preps[vid] = got
+        if cfg.coop_fde_k is not None:
+            cooperative_exclusion(preps, cfg.coop_fde_k, cfg.coop_fde_radius_m, stats)
         for vid in preps:
             if not st.window.by_vehicle.get(vid):
                 st.track_start[vid] = k  # a new track, from the SPP

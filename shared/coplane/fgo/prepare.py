@@ -66,6 +66,9 @@ class Prepared:
     clock_init: dict[str, float]  # system -> seconds
     clock_links: dict[str, ClockLink]
     rank_self: int  # independent position constraints of its own (pseudoranges, clock links, plane)
+    # the FDE's signed standardised residual of each kept pseudorange (NaN: not tested); None
+    # when the FDE did not run (no prior yet) or did not pass: the cooperative check's input
+    fde_w: Vec | None = None
 
 
 def prepare_vehicle(
@@ -97,9 +100,10 @@ def prepare_vehicle(
 
     if hist and cfg.gate_k is not None and len(prs):
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
+    fde_w: Vec | None = None
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
         age = state.step - state.track_start.get(v.vehicle_id, state.step)
-        prs = screen(
+        prs, fde_w = screen(
             prs,
             init,
             state.cov.get(hist[-1].pos_key),
@@ -137,7 +141,7 @@ def prepare_vehicle(
         1 if plane is not None else 0
     )
     return Prepared(
-        v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank
+        v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank, fde_w
     )
 
 
@@ -169,8 +173,9 @@ def screen(
     cfg: FgoConfig,
     stats: StepStats,
     young: bool = False,
-) -> ValidPseudoranges:
-    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position;
+) -> tuple[ValidPseudoranges, Vec | None]:
+    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position, and
+    their signed standardised residuals (`ScreenResult.w_signed`, None if the test did not pass);
     `young`: the track started less than `fde_warmup_epochs` ago (a looser prior, see FgoConfig)."""
     assert cfg.fde_k is not None
     if young and last_cov is not None:
@@ -188,7 +193,7 @@ def screen(
     if cfg.fde_max_sigma_scale is not None and res.variance_factor > 1.0:
         scale = min(float(np.sqrt(res.variance_factor)), cfg.fde_max_sigma_scale)
         prs = dataclasses.replace(prs, sigma=prs.sigma * scale)
-    return prs
+    return prs, None if res.w_signed is None else res.w_signed[res.keep]
 
 
 def displacement(

@@ -42,6 +42,10 @@ class ScreenResult:
     # a-posteriori variance factor of the kept pseudoranges (sum of squared standardised post-fit
     # residuals over the redundancy), 1.0 when it cannot be estimated
     variance_factor: float = 1.0
+    # signed standardised post-fit residual v / sqrt(Q_v) of each input row once the test passed
+    # (positive: measured longer than the fit, as NLOS makes it); NaN where excluded or not
+    # testable; None when the test did not run to a pass. The cooperative check adds them up.
+    w_signed: np.ndarray | None = None
 
 
 def screen_pseudoranges(
@@ -113,10 +117,12 @@ def screen_pseudoranges(
         worst = int(np.argmax(w))
         if w[worst] <= k:
             redundancy = float(np.sum(q_v[ok] / var[idx][ok]))
+            signed = np.full(n, np.nan)
+            signed[idx[ok]] = v[ok] / np.sqrt(q_v[ok])
             if redundancy >= 1.0:
                 factor = float(np.sum(v[ok] ** 2 / var[idx][ok])) / redundancy
-                return ScreenResult(keep, tuple(excluded), False, factor)
-            break
+                return ScreenResult(keep, tuple(excluded), False, factor, signed)
+            return ScreenResult(keep, tuple(excluded), False, 1.0, signed)
         keep[idx[worst]] = False
         excluded.append(float(w[worst]))
     return ScreenResult(keep, tuple(excluded), False)
