@@ -25,12 +25,23 @@ from coplane.bus import BusNode, KeySpace, Subscription
 from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
-from coplane.regions import RangeGraph, RegionConfig, owned_shards, region_of_tile, regions_near, shard_of
+from coplane.regions import (
+    RangeGraph,
+    RegionConfig,
+    owned_shards,
+    owner,
+    region_of_tile,
+    regions_near,
+    shard_of,
+)
 from coplane.roadmap import TileKey
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
 
+# after a change of the live servers (and at start, while they find one another) any server's
+# tiles are taken: the old writer's last commit of a moved region is still on its way
+MOVE_GRACE_S = 30.0
 SETTLE_S = 1.0  # lockstep start: no new vehicle heard for this long, the fleet of this server is complete
 PEER_STATE_MAX = 100_000
 REGION_AT_MAX = 1_000_000  # pending (vehicle, epoch) regions kept (the admission bounds pending far lower)  # vehicles whose last state from another server is kept (bounded memory)
@@ -83,6 +94,7 @@ class RegionRole:
         # then, not by a later message one of them may already have
         self.region_at: dict[tuple[str, GpsTime], str] = {}
         self.ready_at: float | None = None  # monotonic time the node subscriptions were made
+        self.servers_changed_at = time.monotonic()  # the live servers last changed (start: now)
         self.last_new_speaker: float | None = None
 
     # -- membership ----------------------------------------------------------------------------
@@ -90,7 +102,10 @@ class RegionRole:
         """A server's token came or went; True if this server's shards changed."""
         if ident == self.me:
             return False
+        before = len(self.servers)
         (self.servers.add if alive else self.servers.discard)(ident)
+        if len(self.servers) != before:
+            self.servers_changed_at = time.monotonic()
         if len(self.servers) >= self.expected_servers and not self.ready:
             self.ready = self.dirty = True
         new = owned_shards(self.me, self.servers, self.cfg.shards)
@@ -129,6 +144,16 @@ class RegionRole:
     def owns_tile(self, key: TileKey, tile_size_m: float) -> bool:
         """A road-map tile is this server's to write: its region is one of this server's now."""
         return self.owns(region_of_tile(key, tile_size_m, self.cfg))
+
+    def tile_writers(self, key: TileKey, tile_size_m: float) -> set[str] | None:
+        """The server whose tile this is (the owner of its region among the live servers), whose
+        copies of it others take; None (anyone's) within MOVE_GRACE_S of a change of the live
+        servers or of the start, while the views of who owns what may differ."""
+        if time.monotonic() - self.servers_changed_at < MOVE_GRACE_S:
+            return None
+        shard = shard_of(region_of_tile(key, tile_size_m, self.cfg), self.cfg.shards)
+        writer = owner(shard, self.servers | {self.me})
+        return set() if writer is None else {writer}
 
     def own_copy(self, key: str) -> bool:
         """A copy for a region near the vehicle's own, when this server also owns the vehicle's

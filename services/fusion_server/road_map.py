@@ -11,7 +11,8 @@ while learning is logged and counted; neither stops the server.
 With regions (docs/scale.md, "The road map across servers") each server keeps its own file, a
 whole replica: it adds evidence only to the tiles of the regions it owns (`owns_tile`; passes in
 another server's tiles are counted `foreign-tile` and dropped), publishes them, and takes the other
-servers' tiles from the bus (`take_peer`, newer versions win) into its map and file. Its file
+servers' tiles from the bus (`take_peer`, newer versions from the tile's writer win) into its map
+and file. Its file
 starts as a copy of the fleet's map file when it has none (`server_map`).
 """
 
@@ -26,7 +27,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from coplane.bus import BadMessage, BusNode, decode, encode
-from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
+from coplane.messages import MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
 from coplane.roadmap import MapBuilder, RoadMap, TileKey
 from coplane.roadmap.tile import PassEvidence
 from coplane.steps.map_evidence import solution_samples
@@ -49,6 +50,7 @@ class LiveRoadMap:
         snapshot_every_s: float = 60.0,
         server: str = "",
         owns_tile: Callable[[TileKey, float], bool] | None = None,
+        tile_writers: Callable[[TileKey, float], set[str] | None] | None = None,
     ) -> None:
         self.db = RoadMapDb(path)
         self.map: RoadMap = self.db.load()
@@ -60,6 +62,7 @@ class LiveRoadMap:
         # for the bus: the whole map now and every `snapshot_every_s`, each commit's tiles between
         self.fleet = fleet
         self.server, self.owns_tile = server, owns_tile  # regions: this server's id and tiles
+        self.tile_writers = tile_writers  # ... and whose copy of a tile to take (None: anyone's)
         self.snapshot_every_s = snapshot_every_s
         self.snapshot = 0
         self.last_snapshot = time.monotonic()
@@ -76,10 +79,20 @@ class LiveRoadMap:
         snapshot_every_s: float = 60.0,
         server: str = "",
         owns_tile: Callable[[TileKey, float], bool] | None = None,
+        tile_writers: Callable[[TileKey, float], set[str] | None] | None = None,
     ) -> LiveRoadMap | None:
         """The map at `path` (created if missing), or None with the reason logged."""
         try:
-            return cls(path, antenna_heights, commit_every_s, fleet, snapshot_every_s, server, owns_tile)
+            return cls(
+                path,
+                antenna_heights,
+                commit_every_s,
+                fleet,
+                snapshot_every_s,
+                server,
+                owns_tile,
+                tile_writers,
+            )
         except Exception as exc:
             log.error("road map not used: %s", exc, extra={"path": str(path)})
             return None
@@ -131,7 +144,9 @@ class LiveRoadMap:
     def take_peer(self, payload: bytes) -> int:
         """Regions: another server's tiles from the bus into this map and its file; the number
         taken. Its own batches (which the subscription also hears) and other fleets' are skipped; a
-        bad batch or tile is counted by reason and never raises."""
+        bad batch or tile is counted by reason and never raises. Only a tile's writer is believed
+        about it (`tile_writers`): a server's snapshot also carries its replicas of the others'
+        tiles (skipped, `peer-not-writer`), and no server overwrites the tiles another writes."""
         try:
             msg = decode(MapTilesMessage, payload)
         except BadMessage as exc:
@@ -143,7 +158,7 @@ class LiveRoadMap:
             self.counts["peer-rejected:tile-size"] += 1
             return 0
         peer: Counter[str] = Counter()
-        taken = merge_tile_states(self.map, msg.tiles, peer)
+        taken = merge_tile_states(self.map, self._from_writer(msg, peer), peer)
         self.counts.update({f"peer-{k}": n for k, n in peer.items()})
         if taken:
             try:
@@ -152,6 +167,24 @@ class LiveRoadMap:
                 self.counts["errors"] += 1
                 log.exception("road map: peer tiles not stored", extra={"server": msg.server})
         return len(taken)
+
+    def _from_writer(self, msg: MapTilesMessage, counts: Counter[str]) -> list[MapTileState]:
+        """The tiles of `msg` its sender writes (all of them without regions or in a grace time);
+        a tile key that does not parse is left for `merge_tile_states` to reject by name."""
+        if self.tile_writers is None:
+            return list(msg.tiles)
+        size = self.map.config.tile_size_m
+        out = []
+        for s in msg.tiles:
+            try:
+                writers = self.tile_writers(TileKey.parse(s.tile), size)
+            except ValueError:
+                writers = None
+            if writers is None or msg.server in writers:
+                out.append(s)
+            else:
+                counts["not-writer"] += 1
+        return out
 
     def _snapshot(self) -> list[MapTilesMessage]:
         self.snapshot += 1

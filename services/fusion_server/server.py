@@ -355,7 +355,7 @@ class FusionServer(Pacing):
                 s.map_commit_every_s,
                 self.fleet,
                 s.map_snapshot_every_s,
-                *(() if regions is None else (s.server_id, regions.owns_tile)),
+                *(() if regions is None else (s.server_id, regions.owns_tile, regions.tile_writers)),
             )
         with self.node() as node:
             log.info(

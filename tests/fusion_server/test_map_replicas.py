@@ -140,3 +140,23 @@ def test_a_map_plane_is_checkable_without_an_spp_fix() -> None:
     assert report.centroid_ecef_m is not None
     msg = SimpleNamespace(plane=report, spp=SimpleNamespace(position_ecef_m=None))
     assert plane_problem(msg, 10.0, 50.0) is None  # type: ignore[arg-type]
+
+
+def test_only_a_tiles_writer_is_believed_about_it(tmp_path: Path) -> None:
+    """A snapshot carries the sender's replicas of others' tiles too: a server takes from it only
+    the tiles the sender writes, so no server overwrites the tiles another writes (not even with a
+    higher version); within the grace time after the servers changed (None) it takes them all."""
+
+    def writers(key: TileKey, _size: float) -> set[str] | None:
+        return {"s1"} if key.col % 2 == 0 else {"s2"}
+
+    base = _base(tmp_path)
+    b = LiveRoadMap(
+        server_map(base, "s2"), {}, fleet="f1", server="s2", owns_tile=_odd_cols, tile_writers=writers
+    )
+    snap = tiles_messages("f1", [_tile(0, 7), _tile(1, 9)], CFG, 2, True, "s1")[0]
+    assert b.take_peer(encode(snap)) == 1 and b.counts["peer-not-writer"] == 1
+    assert b.map.tiles[TileKey(100, 0)].version == 7 and b.map.tiles[TileKey(100, 1)].version == 3
+    b.tile_writers = lambda _key, _size: None  # the grace time after a change of the servers
+    assert b.take_peer(encode(snap)) == 1 and b.map.tiles[TileKey(100, 1)].version == 9
+    b.close()

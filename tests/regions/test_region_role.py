@@ -9,11 +9,12 @@ import numpy as np
 
 from coplane.bus import KeySpace
 from coplane.bus.trust import MAX_SERVERS, GateSet
-from coplane.fusion_server.regions import RegionRole
+from coplane.fusion_server.regions import MOVE_GRACE_S, RegionRole
 from coplane.geo import geodetic_to_ecef
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SppReport, VehicleCounters, merge_diagnostics
 from coplane.regions import RegionConfig, owner, region_of_ecef, shard_of
+from coplane.roadmap import TileKey, tile_of_ecef
 
 K = KeySpace("f")
 CFG = RegionConfig(size_m=1000.0, margin_m=400.0)
@@ -164,3 +165,20 @@ def test_merged_diagnostics_add_up() -> None:
     assert m.vehicles["u1"].received == 13 and m.vehicles["u1"].used == 10 and m.vehicles["u1"].online
     assert m.vehicles["u1"].elsewhere == 3 and m.vehicles["u2"].used == 4
     assert m.epochs_solved == 10 and m.shards == [0, 1, 2] and m.servers == ["s1", "s2"]
+
+
+def test_a_tile_has_one_writer_once_the_servers_have_settled() -> None:
+    """Whose copy of a road-map tile a server takes (docs/scale.md, "The road map across servers"):
+    anyone's while the live servers have just changed, then only its region's owner's."""
+    a, b = _role("s1", ["s1", "s2"]), _role("s2", ["s1", "s2"])
+    key = tile_of_ecef(_east(100.0), 20.0)
+    assert a.tile_writers(key, 20.0) is None  # just started: the others may not be seen yet
+    for r in (a, b):
+        r.servers_changed_at -= MOVE_GRACE_S + 1.0
+    writer = owner(shard_of(region_of_ecef(_east(100.0), CFG), CFG.shards), ["s1", "s2"])
+    assert a.tile_writers(key, 20.0) == b.tile_writers(key, 20.0) == {writer}
+    assert (writer == "s1") == a.owns_tile(key, 20.0)
+    a.server_presence("s2", False)  # s2 went: a grace time, then s1 writes everything
+    assert a.tile_writers(key, 20.0) is None
+    a.servers_changed_at -= MOVE_GRACE_S + 1.0
+    assert a.tile_writers(key, 20.0) == {"s1"} and a.tile_writers(TileKey(5, 7), 20.0) == {"s1"}
