@@ -158,7 +158,9 @@ class LiveRoadMap:
             self.counts["peer-rejected:tile-size"] += 1
             return 0
         peer: Counter[str] = Counter()
-        taken = merge_tile_states(self.map, self._from_writer(msg, peer), peer)
+        from_writer, unchecked = self._from_writer(msg, peer)
+        taken = merge_tile_states(self.map, from_writer, peer, writer=True)
+        taken += merge_tile_states(self.map, unchecked, peer)
         self.counts.update({f"peer-{k}": n for k, n in peer.items()})
         if taken:
             try:
@@ -168,23 +170,29 @@ class LiveRoadMap:
                 log.exception("road map: peer tiles not stored", extra={"server": msg.server})
         return len(taken)
 
-    def _from_writer(self, msg: MapTilesMessage, counts: Counter[str]) -> list[MapTileState]:
-        """The tiles of `msg` its sender writes (all of them without regions or in a grace time);
-        a tile key that does not parse is left for `merge_tile_states` to reject by name."""
+    def _from_writer(
+        self, msg: MapTilesMessage, counts: Counter[str]
+    ) -> tuple[list[MapTileState], list[MapTileState]]:
+        """The tiles of `msg` its sender writes, and those whose writer is not known now (no
+        regions, the grace time after a change); the rest is counted `not-writer`. A tile key
+        that does not parse is left for `merge_tile_states` to reject by name."""
         if self.tile_writers is None:
-            return list(msg.tiles)
+            return [], list(msg.tiles)
         size = self.map.config.tile_size_m
-        out = []
+        mine: list[MapTileState] = []
+        unknown: list[MapTileState] = []
         for s in msg.tiles:
             try:
                 writers = self.tile_writers(TileKey.parse(s.tile), size)
             except ValueError:
                 writers = None
-            if writers is None or msg.server in writers:
-                out.append(s)
+            if writers is None:
+                unknown.append(s)
+            elif msg.server in writers:
+                mine.append(s)
             else:
                 counts["not-writer"] += 1
-        return out
+        return mine, unknown
 
     def _snapshot(self) -> list[MapTilesMessage]:
         self.snapshot += 1

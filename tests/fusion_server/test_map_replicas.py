@@ -157,6 +157,14 @@ def test_only_a_tiles_writer_is_believed_about_it(tmp_path: Path) -> None:
     snap = tiles_messages("f1", [_tile(0, 7), _tile(1, 9)], CFG, 2, True, "s1")[0]
     assert b.take_peer(encode(snap)) == 1 and b.counts["peer-not-writer"] == 1
     assert b.map.tiles[TileKey(100, 0)].version == 7 and b.map.tiles[TileKey(100, 1)].version == 3
+    # both wrote tile 0 across a move and reached version 7: the writer's copy wins, a repeat of
+    # the copy it already has does not count again
+    other = _tile(0, 7)
+    other.eta[0] = 5.0
+    b.map.tiles[TileKey(100, 0)] = other
+    assert b.take_peer(encode(snap)) == 1 and b.counts["peer-conflict"] == 1
+    assert b.map.tiles[TileKey(100, 0)].eta[0] == 4.0
+    assert b.take_peer(encode(snap)) == 0 and b.counts["peer-conflict"] == 1
     b.tile_writers = lambda _key, _size: None  # the grace time after a change of the servers
     assert b.take_peer(encode(snap)) == 1 and b.map.tiles[TileKey(100, 1)].version == 9
     b.close()

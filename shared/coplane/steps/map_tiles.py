@@ -92,11 +92,15 @@ def tile_of_state(s: MapTileState, config: RoadMapConfig) -> TilePlane:
 
 
 def merge_tile_states(
-    road_map: RoadMap, states: Iterable[MapTileState], counts: Counter[str]
+    road_map: RoadMap, states: Iterable[MapTileState], counts: Counter[str], writer: bool = False
 ) -> list[TilePlane]:
     """Newer tile versions from the bus into `road_map`; the tiles taken. A bad tile is counted
     by reason (`rejected:<why>`) and skipped, an older or equal version is counted and ignored: the
-    agents' and, with regions, the other servers' way in (never raises for a bad tile)."""
+    agents' and, with regions, the other servers' way in (never raises for a bad tile).
+
+    `writer`: the states come from the tiles' writer, whose copy also wins at an equal version
+    when it differs (`conflict`): two servers that both wrote a tile across a region move reach
+    the same version with different evidence, and the writer's is the one that goes on."""
     taken: list[TilePlane] = []
     for s in states:
         try:
@@ -107,12 +111,24 @@ def merge_tile_states(
             continue
         old = road_map.tiles.get(tile.key)
         if old is not None and old.version >= tile.version:
-            counts["older"] += 1
-            continue
+            if not (writer and old.version == tile.version and _differs(old, tile)):
+                counts["older"] += 1
+                continue
+            counts["conflict"] += 1
         road_map.tiles[tile.key] = tile
         counts["taken"] += 1
         taken.append(tile)
     return taken
+
+
+def _differs(a: TilePlane, b: TilePlane) -> bool:
+    """Whether two copies of a tile hold different evidence (what the bus carries of it)."""
+    return (
+        a.h0_m != b.h0_m
+        or not np.array_equal(a.info, b.info)
+        or not np.array_equal(a.eta, b.eta)
+        or (a.n_passes, a.n_points) != (b.n_passes, b.n_points)
+    )
 
 
 class MapReceiver:
