@@ -28,11 +28,17 @@ def test_a_20_mib_put_is_dropped_by_the_transport_and_small_ones_still_arrive() 
         pub = zenoh.open(session_config("client", [endpoint], security=INSECURE))
         try:
             sub.declare_subscriber("size/**", lambda s: got.append(len(s.payload.to_bytes())))
-            time.sleep(0.5)
+            # on a loaded host the subscription reaches the publisher late: probe until it has
+            deadline = time.monotonic() + 15.0
+            while not got and time.monotonic() < deadline:
+                pub.put("size/x", b"p")
+                time.sleep(0.2)
+            time.sleep(0.3)
+            got.clear()
             for n in (1000, MAX_PAYLOAD_BYTES, 20 << 20, 2000):
                 pub.put("size/x", b"a" * n)
                 time.sleep(0.5)
-            deadline = time.monotonic() + 5.0
+            deadline = time.monotonic() + 15.0
             while 2000 not in got and time.monotonic() < deadline:
                 time.sleep(0.05)
         finally:
@@ -40,7 +46,7 @@ def test_a_20_mib_put_is_dropped_by_the_transport_and_small_ones_still_arrive() 
             sub.close()
     finally:
         router.close()
-    assert got == [1000, MAX_PAYLOAD_BYTES, 2000]
+    assert [n for n in got if n != 1] == [1000, MAX_PAYLOAD_BYTES, 2000]  # less late probes
 
 
 def test_decode_refuses_more_than_the_wire_limit_before_parsing() -> None:
