@@ -111,3 +111,19 @@ def test_every_service_exits_128_plus_the_signal(recording: Path, tmp_path: Path
             if p.poll() is None:
                 p.kill()
                 p.wait()
+
+
+def test_a_process_that_ignores_sigterm_is_killed_and_logged(caplog: pytest.LogCaptureFixture) -> None:
+    """The launcher's last resort (a router slow to stop on a loaded host): SIGKILL after the
+    timeout, logged with the service's name. Its log record once named the service `process`, a
+    LogRecord attribute, so the warning itself raised and the fleet's stop failed."""
+    from coplane.fleet import FleetProcesses
+
+    code = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('up', flush=True); time.sleep(60)"
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
+    assert p.stdout is not None and p.stdout.readline() == b"up\n"
+    procs = FleetProcesses(procs={"stubborn": p})
+    with caplog.at_level("WARNING", logger="coplane.fleet"):
+        procs.stop_many(["stubborn"], 0.2)
+    assert p.returncode == -signal.SIGKILL
+    assert [r.__dict__.get("service") for r in caplog.records] == ["stubborn"]

@@ -232,7 +232,7 @@ class FleetProcesses:
         if out is not subprocess.DEVNULL:
             out.close()  # the child has its own descriptor
         self.procs[spec.name] = p
-        log.debug("started", extra={"process": spec.name, "pid": p.pid})
+        log.debug("started", extra={"service": spec.name, "pid": p.pid})
         return p
 
     def stop(self, name: str, timeout: float = 10.0) -> None:
@@ -252,7 +252,7 @@ class FleetProcesses:
             try:
                 p.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                log.warning("did not stop, killing it", extra={"process": name, "pid": p.pid})
+                log.warning("did not stop, killing it", extra={"service": name, "pid": p.pid})
                 p.kill()
                 p.wait()
 
