@@ -93,3 +93,9 @@ def test_gnc_needs_the_lm_window_and_no_kernel() -> None:
         FgoConfig(gnc="tls", robust="huber")
     with pytest.raises(ValueError, match="unknown gnc"):
         FgoConfig(gnc="dcs")  # type: ignore[arg-type]
+
+
+def test_a_kernel_on_planes_and_links_needs_a_kernel() -> None:
+    with pytest.raises(ValueError, match="robust_planes_links needs a robust kernel"):
+        FgoConfig(robust_planes_links=True)
+    assert FgoConfig(robust="dcs", robust_planes_links=True).robust_tuning == 1.0

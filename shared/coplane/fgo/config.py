@@ -153,6 +153,8 @@ class FgoConfig:
             raise ValueError(
                 f"unknown robust kernel {self.robust!r}; valid: None, {', '.join(ROBUST_KERNELS)}"
             )
+        if self.robust_planes_links and self.robust is None:
+            raise ValueError("robust_planes_links needs a robust kernel (robust='huber', 'cauchy' or 'dcs')")
         if self.gnc is not None:
             if self.gnc not in ("tls", "gm"):
                 raise ValueError(f"unknown gnc loss {self.gnc!r}; valid: None, tls, gm")

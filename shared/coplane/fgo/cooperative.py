@@ -54,11 +54,9 @@ def cooperative_exclusion(preps: dict[str, Prepared], k: float, radius_m: float,
             out.add(sat)
         if out:
             keep = np.array([s not in out for s in p.prs.sats])
+            assert p.fde_w is not None  # `tested`
             preps[v] = dataclasses.replace(
-                p,
-                prs=p.prs.subset(keep),
-                fde_w=None if p.fde_w is None else p.fde_w[keep],
-                rank_self=p.rank_self - len(out),
+                p, prs=p.prs.subset(keep), fde_w=p.fde_w[keep], rank_self=p.rank_self - len(out)
             )
             stats.reject("coop_pseudorange", len(out))
 
