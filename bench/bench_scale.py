@@ -112,6 +112,10 @@ def run_one(
                         # for silent (the default 5 s is for an agent that died)
                         "--stall_timeout_s",
                         "60",
+                        # and its first epoch too: the start waits this long from the first
+                        # message for the servers' vehicles to have spoken
+                        "--startup_wait_s",
+                        "60",
                         *regional,
                         *ident,
                     ],
@@ -158,6 +162,7 @@ def run_one(
             timeout=7200,
         )
         done.set()
+        (logs / "loadgen.log").write_bytes(lg.stderr)  # its warnings: which epoch went unanswered
         if lg.returncode != 0:
             raise RuntimeError(f"loadgen failed: {lg.stderr.decode()[-2000:]}")
         summary = json.loads(out.read_text())

@@ -119,6 +119,7 @@ class Admission:
     # duplicate of what the solve used, not a late message (its data did not miss the epoch)
     used_digests: dict[GpsTime, dict[str, bytes]] = field(default_factory=dict)
     min_tokens: float = math.inf  # lowest bucket level a message left (measured in the tests)
+    first_admit_s: float | None = None  # when the first message was admitted: the fleet's start
     epochs: FleetEpochs = field(init=False)  # the active vehicles' latest epochs, kept as they change
 
     def __post_init__(self) -> None:
@@ -288,6 +289,8 @@ class Admission:
     def admitted(self, vid: str, t: GpsTime, seq: int, digest: bytes, now: float) -> None:
         """Record an admitted message: its digest (duplicates), the vehicle's latest epoch and seq."""
         v = self._vehicle(vid, now)
+        if self.first_admit_s is None:
+            self.first_admit_s = now
         self.digests.setdefault(t, {})[vid] = digest
         if v.latest is None or v.latest < t:
             v.latest, v.latest_seq = t, seq

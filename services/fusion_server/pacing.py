@@ -57,7 +57,7 @@ class Pacing:
             if limit is not None and limit < t:
                 return None
             return t if now - self.first_arrival[t] >= self.s.deadline_s else None
-        if now - self.started < self.s.startup_wait_s and not self.known <= self.live:
+        if not self._fleet_waited(now) and not self.known <= self.live:
             return None  # lockstep start: give every agent the chance to show up
         waiting = [
             v
@@ -95,13 +95,22 @@ class Pacing:
             return self.live
         return self.regions.awaited(self.live, upcoming or {}, t, self.admission.config.interval_s)
 
+    def _fleet_waited(self, now: float) -> bool:
+        """Whether the start has waited `startup_wait_s` for the fleet, counted from its first
+        admitted message, not from the server's start: a server started long before its fleet,
+        or a load generator that takes seconds to put the first epoch of 1000 vehicles, must not
+        have spent its patience before anyone spoke (the latecomers of the first epoch were then
+        late, and at 1000 vehicles a whole epoch went unanswered)."""
+        first = self.admission.first_admit_s
+        return first is not None and now - max(first, self.started) >= self.s.startup_wait_s
+
     def _start_wait(self, now: float) -> bool:
         """Start (nothing solved, no resume): wait until every vehicle of the recording has been
         admitted, or `startup_wait_s`, so a lone first sender (its epoch could be a week ahead or
         behind) is not taken for the fleet. A fast realtime replay with a vehicle that never speaks
         stops waiting once two vehicles have spoken and half the pending bound is used, before
         genuine epochs are refused."""
-        if self.solved_up_to is not None or now - self.started >= self.s.startup_wait_s:
+        if self.solved_up_to is not None or self._fleet_waited(now):
             return False
         if self.regions is not None:  # the other servers' vehicles never speak to this one
             return not self.regions.settled(now, self.live)
@@ -123,6 +132,7 @@ class Pacing:
             if side is None:
                 return
             msgs = self.pending.pop(t)
+            log.debug("epoch dropped", extra={"epoch": str(t), "messages": len(msgs), "side": side})
             self.first_arrival.pop(t, None)
             self.admission.forget(t)
             for vid in msgs:

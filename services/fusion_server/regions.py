@@ -18,6 +18,7 @@ import time
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -349,3 +350,13 @@ class RegionRole:
             if self.owns(r):
                 out.setdefault(r, []).append(vid)
         return out
+
+    def diagnostics(self) -> dict[str, Any]:
+        """The region fields of the server's diagnostics message: who it is, what it owns."""
+        return {
+            "server": self.me,
+            "servers": sorted(self.servers),
+            "shards": sorted(self.shards),
+            "regions": self.summary(),
+            "region_counts": dict(sorted(self.counts.items())[:64]),
+        }

@@ -12,7 +12,6 @@ import logging
 import threading
 import time
 from collections import Counter, defaultdict
-from typing import Any
 
 from coplane.bus import (
     BadMessage,
@@ -279,6 +278,7 @@ class FusionServer(Pacing):
             for v in chosen.others:
                 self.counters[v]["elsewhere"] += 1
             if not answer:
+                log.debug("epoch not ours", extra={"epoch": str(t), "messages": len(msgs)})
                 self.solved_up_to = t
                 return None
             est = self.step.estimator
@@ -301,6 +301,7 @@ class FusionServer(Pacing):
         self.solved_up_to = t
         self.last_solve_s = sol.solve_time_s
         self.epochs_solved += 1
+        log.debug("epoch solved", extra={"epoch": str(t), "messages": len(msgs), "answered": len(answer)})
         if self.regions is not None:
             # only its regions' vehicles (and its silent ones): the rest of a boundary cluster is
             # answered by their own region's server (docs/scale.md, "Boundaries")
@@ -331,18 +332,8 @@ class FusionServer(Pacing):
             pending_epochs=len(self.pending),
             pending_limit=self.admission.config.pending_limit,
             generation=self.generation,
-            **(self._region_diagnostics() if self.regions is not None else {}),
+            **(self.regions.diagnostics() if self.regions is not None else {}),
         )
-
-    def _region_diagnostics(self) -> dict[str, Any]:
-        assert self.regions is not None
-        return {
-            "server": self.s.server_id,
-            "servers": sorted(self.regions.servers),
-            "shards": sorted(self.regions.shards),
-            "regions": self.regions.summary(),
-            "region_counts": dict(sorted(self.regions.counts.items())[:64]),
-        }
 
     def run(self) -> None:
         s = self.s
@@ -394,5 +385,8 @@ class FusionServer(Pacing):
                     self.road_map.close()  # the last passes: committed, then on the bus
                     self.road_map.publish(node, self.keys.map_tiles)
                 node.put(self.diagnostics_key, encode(self.diagnostics()))
-                log.info("fusion server stopped", extra={"epochs": self.epochs_solved})
+                log.info(
+                    "fusion server stopped",
+                    extra={"epochs": self.epochs_solved, "rejected": dict(self.rejected_by_reason)},
+                )
                 self.durable.close()

@@ -24,7 +24,9 @@ class FusionSettings(ServiceSettings, RegionOptions):
         default=0.5, gt=0.0, description="Realtime: wall seconds after an epoch's first message"
     )
     startup_wait_s: float = Field(
-        default=10.0, ge=0.0, description="Lockstep: wait this long for every vehicle's agent"
+        default=10.0,
+        ge=0.0,
+        description="Start: wait this long, from the first admitted message, for every vehicle's agent",
     )
     stall_timeout_s: float = Field(
         default=5.0, gt=0.0, description="Lockstep: solve without a silent live vehicle"

@@ -55,6 +55,10 @@ class LoadStats:
     ingest_cpu_s: float = 0.0  # solutions into every vehicle's plane history
     latencies_s: list[float] = field(default_factory=list)  # publish -> answering solution
     rejected: Counter[str] = field(default_factory=Counter)
+    # lockstep: why each epoch's wait ended (answered / settled / timeout / stopped) and, for the
+    # epochs with unanswered vehicles, how many (by epoch index): where a lost epoch is, and why
+    await_ends: Counter[str] = field(default_factory=Counter)
+    unanswered_by_epoch: dict[int, int] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         lat = sorted(self.latencies_s)
@@ -81,6 +85,8 @@ class LoadStats:
             "latency_p50_s": q(0.5),
             "latency_p99_s": q(0.99),
             "rejected": dict(self.rejected),
+            "await_ends": dict(self.await_ends),
+            "unanswered_by_epoch": {str(i): n for i, n in sorted(self.unanswered_by_epoch.items())},
         }
 
 
@@ -230,6 +236,20 @@ class LoadGenerator:
                         settle = max(settle, time.monotonic() - start)
                     last_answer = time.monotonic()
                     waiting -= {v for v in waiting if sol.answers(v)}
+        if quiet_s is None:
+            if not waiting:
+                end = "answered"
+            elif self.stop.is_set():
+                end = "stopped"
+            else:
+                end = "timeout" if time.monotonic() >= deadline else "settled"
+            self.stats.await_ends[end] += 1
+            if waiting:
+                self.stats.unanswered_by_epoch[self.stats.epochs - 1] = len(waiting)
+                log.warning(
+                    "epoch left unanswered",
+                    extra={"epoch": str(t), "unanswered": len(waiting), "wait_end": end},
+                )
         self.stats.unanswered += len(waiting)
 
     def _ingest(self, events: list[Any]) -> list[SolutionMessage]:

@@ -4,6 +4,7 @@ and with several servers; and it refuses a secure bus."""
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,7 @@ def test_loadgen_equals_the_in_process_replay(tmp_path: Path, servers: int) -> N
         finally:
             procs.stop_all()
     assert stats.published == 12 * 20 and stats.unanswered == 0
+    assert stats.await_ends == {"answered": 20} and not stats.unanswered_by_epoch
     if servers == 1:  # one server: the in-process replay, bit for bit
         for vid, pos in ref.positions.items():
             for t, p in pos.items():
@@ -87,3 +89,8 @@ def test_realtime_counts_vehicle_epochs_without_an_answer() -> None:
     assert (rt["solved"], rt["unanswered"], rt["extra_answers"]) == (7, 3, 2)
     ls = LoadStats(vehicles=2, published=10, answered=10, answered_once=9, unanswered=1).summary()
     assert (ls["solved"], ls["unanswered"]) == (9, 1)
+    where = LoadStats(unanswered=3, await_ends=Counter(answered=4, timeout=1), unanswered_by_epoch={2: 3})
+    assert (where.summary()["await_ends"], where.summary()["unanswered_by_epoch"]) == (
+        {"answered": 4, "timeout": 1},
+        {"2": 3},
+    )

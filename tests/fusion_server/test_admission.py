@@ -71,7 +71,8 @@ def bundled() -> Genuine:
 def _server(g: Genuine, **kw: Any) -> FusionServer:
     s = FusionServer(FusionSettings(recording=g.recording, db="none", **kw))
     s.live = set(s.known)
-    s.started = -1e9  # past the lockstep startup wait
+    s.started = -1e9  # past the lockstep startup wait (counted from the first admitted message,
+    s.admission.first_admit_s = -1e9  # and never before the server's start)
     return s
 
 
@@ -303,6 +304,25 @@ def test_lone_first_sender_cannot_set_a_stray_epoch(bundled: Genuine, pace: str)
         solved += _solve_ready(s, 100.0)  # u4 is live but silent: one stall, then no more
     assert [sol.epoch for sol in solved] == [b.epoch for b in bundled.solutions[:20]]
     assert s.rejected_by_reason == {"too-far-ahead": 1, "too-far-behind": 2}
+    _invariant(s)
+
+
+def test_start_wait_counts_from_the_fleets_first_message(bundled: Genuine) -> None:
+    """A lockstep server up long before its fleet still gives a slow agent `startup_wait_s` from
+    the fleet's first message (a load generator putting 1000 vehicles' first epoch takes seconds):
+    counted from the server's start, the first epoch was solved without it and its message was
+    late (at 1000 vehicles a whole epoch went unanswered)."""
+    s = _server(bundled)
+    s.started, s.admission.first_admit_s = 0.0, None
+    s.live = {"u1", "u2", "u3"}  # u4's agent is not up yet
+    for vid in ("u1", "u2", "u3"):
+        _put(s, bundled.epochs[0][vid], 100.0)
+    assert not _solve_ready(s, 105.0)  # 105 s after the server's start, 5 s after the fleet's
+    s.live.add("u4")
+    _put(s, bundled.epochs[0]["u4"], 106.0)
+    sols = _solve_ready(s, 106.0)
+    assert [sorted(v.vehicle_id for v in sol.vehicles) for sol in sols] == [["u1", "u2", "u3", "u4"]]
+    assert all(c["late"] == 0 for c in s.counters.values())
     _invariant(s)
 
 
