@@ -248,7 +248,12 @@ class LoadGenerator:
                 self.stats.unanswered_by_epoch[self.stats.epochs - 1] = len(waiting)
                 log.warning(
                     "epoch left unanswered",
-                    extra={"epoch": str(t), "unanswered": len(waiting), "wait_end": end},
+                    extra={
+                        "epoch": str(t),
+                        "unanswered": len(waiting),
+                        "wait_end": end,
+                        "vehicles": ",".join(sorted(waiting)[:8]),
+                    },
                 )
         self.stats.unanswered += len(waiting)
 

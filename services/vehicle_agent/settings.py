@@ -91,3 +91,4 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
         description="Lockstep: once some server answered, go on when no answer came for this long",
     )
     lease_ms: int = Field(default=2000, ge=500)
+    log_level: str = "INFO"

@@ -43,7 +43,7 @@ def loadgen(
     """Replay every vehicle of a recording as its own VehicleStep on one bus session (docs/scale.md)."""
     from coplane.bus.security import BusSecurity, use_security
     from coplane.errors import ConfigError
-    from coplane.runtime import stop_event
+    from coplane.runtime import setup_logging, stop_event
     from coplane.vehicle_agent.loadgen import LoadGenerator
     from coplane.vehicle_agent.settings import LoadgenSettings
 
@@ -68,6 +68,7 @@ def loadgen(
         region_size_m=region_size,
         region_margin_m=region_margin,
     )
+    setup_logging("loadgen", settings.log_level)  # its warnings (an epoch left unanswered) as JSON lines
     with use_security(BusSecurity(insecure=True)):
         stats = LoadGenerator(settings, stop_event()).run()
     summary = stats.summary()
