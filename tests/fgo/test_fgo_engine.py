@@ -347,6 +347,23 @@ def test_clusters_merge_and_split_when_ranges_come_and_go(solver: Solver) -> Non
     assert rms["split"] < 1.15 * rms["joint"]  # the rebuilds lose next to nothing
 
 
+def test_window_clusters_stay_within_their_bound() -> None:
+    """Eight vehicles that all range to each other, the window's clusters bounded to 4 vehicles:
+    the ranges that would join two clusters beyond it are left out and counted, every epoch has
+    two clusters of four, and every vehicle is still solved. Within the bound (the default 32)
+    every range is kept: the same bits as no bound at all."""
+    fleet = make_fleet(8, 12, seed=7, group_size=8, max_range=500.0)
+    cfg = dataclasses.replace(get_method("pc").fgo, range_warmup_epochs=0)
+    sols = run(fleet, dataclasses.replace(cfg, window_cluster_max=4))
+    assert all(s.n_clusters == 2 and len(s.estimates) == 8 for s in sols)
+    assert all(s.rejected.get("range_cluster_bound", 0) > 0 for s in sols)
+    assert _fingerprint(run(fleet, cfg)) == _fingerprint(
+        run(fleet, dataclasses.replace(cfg, window_cluster_max=0))
+    )
+    with pytest.raises(ValueError, match="window_cluster_max"):
+        dataclasses.replace(cfg, window_cluster_max=-1)
+
+
 def test_ranges_merge_clusters() -> None:
     fleet = make_fleet(4, 6, seed=5, group_size=2, group_spacing=3000.0)
     sols = run(fleet, get_method("mci").fgo)

@@ -133,6 +133,16 @@ class FgoConfig:
     compute_covariance: bool = True
     # Solve each connected cluster (vehicles linked by ranges in the window) on its own.
     split_clusters: bool = True
+    # At most this many vehicles in one cluster of the window (0: no bound). The fusion step bounds
+    # each epoch's clusters to 16 (`steps.fusion.bounded_ranges`), but as peers change within the
+    # window the union of its epochs still grew: in a 256-vehicle city to 20 vehicles at the median
+    # of the rebuilt clusters and 112 at most, and rebuilding smoothers over such clusters cost
+    # over a third of the estimator's time. A new range that would join two window clusters beyond
+    # this is left out (counted `range_cluster_bound`); a fleet within the bound keeps every range,
+    # bit for bit. Chosen on the 256-vehicle city of seed 11: 16 cut the cost by 17 % but lost 31 %
+    # of the horizontal accuracy, 32 cut it by 13 % at the same accuracy (docs/performance-scale.md,
+    # "Window clusters", with seed 12 as the report).
+    window_cluster_max: int = 32
     # Levenberg-Marquardt (lm-window and batch-fixed-lag).
     lm_max_iterations: int = 50
     lm_relative_error_tol: float = 1e-6
@@ -206,6 +216,8 @@ class FgoConfig:
             raise ValueError(
                 f"fde_warmup_prior must be 'reported' or 'snapshot', got {self.fde_warmup_prior!r}"
             )
+        if self.window_cluster_max < 0:
+            raise ValueError(f"window_cluster_max must be >= 0, got {self.window_cluster_max!r}")
         if self.range_warmup_epochs < 0:
             raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
         if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:

@@ -116,6 +116,11 @@ class FusionEstimator:
             stats.skipped[vid] = "not enough measurements to determine a first position"
             del preps[vid]
         ranges = self._warm(valid.ranges_between(preps), k, stats)
+        if cfg.split_clusters:
+            kept = st.window.bounded(ranges, preps, cfg.window_cluster_max)
+            if len(kept) < len(ranges):
+                stats.reject("range_cluster_bound", len(ranges) - len(kept))
+            ranges = kept
 
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, Protocol, TypeVar, cast
 
 import gtsam
 import numpy as np
@@ -28,6 +28,20 @@ from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
+
+
+class _Range(Protocol):
+    """What `Window.bounded` reads of a range (the estimator's validated ranges)."""
+
+    @property
+    def a(self) -> str: ...
+    @property
+    def b(self) -> str: ...
+    @property
+    def range_m(self) -> float: ...
+
+
+R = TypeVar("R", bound=_Range)
 
 
 @dataclass(frozen=True)
@@ -157,6 +171,29 @@ class Window:
 
     def vehicles(self) -> list[str]:
         return sorted(self.by_vehicle)
+
+    def bounded(self, ranges: Sequence[R], new: Iterable[str], cap: int) -> list[R]:
+        """`ranges` (a new epoch's, of vehicles in the window or `new`) without those that would
+        join two of the window's clusters into one of more than `cap` vehicles.
+
+        Shortest first, ties by pair, as Kruskal's algorithm (the same choice as
+        `steps.fusion.bounded_ranges` for one epoch); a range inside a cluster is always kept. The
+        window's clusters only shrink as steps leave it, so none ever exceeds `cap`. Kept ranges
+        come back in their given order, so a fleet within the bound gets the same graph."""
+        if cap <= 0 or not ranges:
+            return list(ranges)
+        uf = UnionFind(sorted(set(self.by_vehicle).union(new)))
+        for rec in self.steps:
+            for e in rec.ranges:
+                uf.union(e.a, e.b)
+        dropped: set[int] = set()
+        for i in sorted(range(len(ranges)), key=lambda i: (ranges[i].range_m, ranges[i].a, ranges[i].b)):
+            a, b = ranges[i].a, ranges[i].b
+            if uf.find(a) != uf.find(b) and uf.set_size(a) + uf.set_size(b) > cap:
+                dropped.add(i)
+            else:
+                uf.union(a, b)
+        return [r for i, r in enumerate(ranges) if i not in dropped]
 
     def partition(self, split: bool) -> list[ClusterView]:
         """Connected components of vehicles linked by ranges in the window, with their content.
