@@ -30,6 +30,7 @@ class Pacing:
     s: FusionSettings
     pending: dict[GpsTime, dict[str, NodeMessage]]
     first_arrival: dict[GpsTime, float]
+    last_arrival: dict[GpsTime, float]
     latest: dict[str, GpsTime]
     solved_up_to: GpsTime | None
     live: set[str]
@@ -78,13 +79,16 @@ class Pacing:
 
     def _only_linked_overdue(self, waiting: list[str], t: GpsTime, now: float) -> bool:
         """Regions: every vehicle still awaited is in another server's region (linked by ranges to
-        this server's, or heard here lately), and the epoch's first message came `LINKED_WAIT_S`
-        ago: solve without them (their message may go only to their own server now)."""
+        this server's, or heard here lately), and no message of the epoch came for
+        `LINKED_WAIT_S`: solve without them (their message may go only to their own server now).
+        From the epoch's latest message, not its first: one load generator puts a 256-vehicle
+        epoch over about 2 s, and a vehicle crossing into this server's regions late in that
+        order was given up on before its message came (its epoch then went unanswered)."""
         if self.regions is None:
             return False
         if self.regions.owned_vehicles(waiting):
             return False
-        return now - self.first_arrival.get(t, now) >= LINKED_WAIT_S
+        return now - self.last_arrival.get(t, now) >= LINKED_WAIT_S
 
     def _live_here(
         self, upcoming: dict[str, NodeMessage] | None = None, t: GpsTime | None = None
@@ -134,6 +138,7 @@ class Pacing:
             msgs = self.pending.pop(t)
             log.debug("epoch dropped", extra={"epoch": str(t), "messages": len(msgs), "side": side})
             self.first_arrival.pop(t, None)
+            self.last_arrival.pop(t, None)
             self.admission.forget(t)
             for vid in msgs:
                 self._reject(vid, side, f"epoch {t} dropped from pending")

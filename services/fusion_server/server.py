@@ -67,6 +67,7 @@ class FusionServer(Pacing):
         self.step = setup.fusion_step()
         self.pending: dict[GpsTime, dict[str, NodeMessage]] = defaultdict(dict)
         self.first_arrival: dict[GpsTime, float] = {}
+        self.last_arrival: dict[GpsTime, float] = {}  # lockstep: an epoch still coming in
         self.latest: dict[str, GpsTime] = {}
         self.solved_up_to: GpsTime | None = None
         self.live: set[str] = set()
@@ -231,6 +232,7 @@ class FusionServer(Pacing):
             c["out_of_order"] += 1  # still usable: its epoch is not solved yet
         self.pending[t][vid] = v.message
         self.first_arrival.setdefault(t, now)
+        self.last_arrival[t] = now
         if vid not in self.latest or self.latest[vid] < t:
             self.latest[vid] = t
         self.admission.admitted(vid, t, msg.seq, digest, now)
@@ -270,6 +272,7 @@ class FusionServer(Pacing):
     def solve(self, t: GpsTime) -> SolutionMessage | None:
         msgs = self.pending.pop(t)
         self.first_arrival.pop(t, None)
+        self.last_arrival.pop(t, None)
         self.admission.solved(t)
         answer: set[str] = set(msgs)
         if self.regions is not None:
