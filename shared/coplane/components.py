@@ -43,6 +43,15 @@ class UnionFind:
         self.size[ra] += self.size.pop(rb)
         return True
 
+    def union_within(self, a: str, b: str, cap: int) -> bool:
+        """Join the sets of `a` and `b` unless the joined set would have more than `cap` members
+        (0: no bound); whether they are one set now. The rule of both range bounds (one epoch's,
+        `steps.fusion.bounded_ranges`, and the estimator window's, `fgo.window.Window.bounded`)."""
+        if self.find(a) != self.find(b) and cap > 0 and self.set_size(a) + self.set_size(b) > cap:
+            return False
+        self.union(a, b)
+        return True
+
     def set_size(self, v: str) -> int:
         return self.size[self.find(v)]
 

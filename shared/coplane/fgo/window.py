@@ -186,13 +186,11 @@ class Window:
         for rec in self.steps:
             for e in rec.ranges:
                 uf.union(e.a, e.b)
+        order = sorted(range(len(ranges)), key=lambda i: (ranges[i].range_m, ranges[i].a, ranges[i].b))
         dropped: set[int] = set()
-        for i in sorted(range(len(ranges)), key=lambda i: (ranges[i].range_m, ranges[i].a, ranges[i].b)):
-            a, b = ranges[i].a, ranges[i].b
-            if uf.find(a) != uf.find(b) and uf.set_size(a) + uf.set_size(b) > cap:
+        for i in order:  # in order: each kept range joins the sets the next ones are checked against
+            if not uf.union_within(ranges[i].a, ranges[i].b, cap):
                 dropped.add(i)
-            else:
-                uf.union(a, b)
         return [r for i, r in enumerate(ranges) if i not in dropped]
 
     def partition(self, split: bool) -> list[ClusterView]:

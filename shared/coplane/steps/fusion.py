@@ -70,10 +70,8 @@ def bounded_ranges(
         a, b = pair
         if per_vehicle > 0 and (used.get(a, 0) >= per_vehicle or used.get(b, 0) >= per_vehicle):
             continue
-        if uf.find(a) != uf.find(b):
-            if cluster_max > 0 and uf.set_size(a) + uf.set_size(b) > cluster_max:
-                continue
-            uf.union(a, b)
+        if not uf.union_within(a, b, cluster_max):
+            continue
         out[pair] = r
         used[a] = used.get(a, 0) + 1
         used[b] = used.get(b, 0) + 1
