@@ -38,6 +38,7 @@ def region_of_tile(key: TileKey, tile_size_m: float, cfg: RegionConfig) -> str:
     return region_of_ecef(tile_frame(key, tile_size_m)[0], cfg)
 
 
+@lru_cache(maxsize=1 << 16)  # asked for every vehicle a lockstep server may wait for, every message
 def shard_of(region: str, shards: int) -> int:
     """A region's shard: a stable hash (BLAKE2b, not Python's salted `hash`) so that every process
     on every machine agrees."""
