@@ -7,7 +7,6 @@ reason only (so hostile ids cannot grow memory). Membership follows Zenoh liveli
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import threading
 import time
@@ -21,6 +20,7 @@ from coplane.bus import (
     Payload,
     Presence,
     Publication,
+    RepeatDecoder,
     Subscription,
     decode,
     encode,
@@ -69,6 +69,7 @@ class FusionServer(Pacing):
         self.first_arrival: dict[GpsTime, float] = {}
         self.last_arrival: dict[GpsTime, float] = {}  # lockstep: an epoch still coming in
         self.latest: dict[str, GpsTime] = {}
+        self.node_decoder = RepeatDecoder(NodeMessage)
         self.solved_up_to: GpsTime | None = None
         self.live: set[str] = set()
         self.counters: dict[str, Counter[str]] = {v: Counter() for v in self.known}
@@ -187,8 +188,9 @@ class FusionServer(Pacing):
             return
         c = self.counters[vid]
         c["received"] += 1
+        digest = RepeatDecoder.digest(payload)
         try:
-            msg = decode(NodeMessage, payload)
+            msg = self.node_decoder.decode(vid, payload, digest)
             if msg.vehicle_id != vid:
                 raise BadMessage("key-mismatch", f"message for {msg.vehicle_id!r} on the key of {vid!r}")
             if msg.fleet != self.fleet:
@@ -200,7 +202,6 @@ class FusionServer(Pacing):
             # where it is, even if this epoch is late
             self.regions.saw_node(vid, key, now, gps_time(msg.epoch), msg.spp.position_ecef_m)
         t = gps_time(msg.epoch)
-        digest = hashlib.blake2b(payload, digest_size=16).digest()
         v = self.admission.check(
             msg,
             t,

@@ -2,7 +2,7 @@
 access control) and the `BusNode` every service uses (docs/bus.md). `python -m coplane.bus.router`
 runs a router."""
 
-from coplane.bus.codec import BadMessage, decode, encode, payload_bytes
+from coplane.bus.codec import BadMessage, RepeatDecoder, decode, encode, payload_bytes
 from coplane.bus.config import router_config, router_document, secure_endpoint, session_config
 from coplane.bus.keys import KEY_ROOT, KeySpace
 from coplane.bus.node import BusEvent, BusNode, Payload, Presence, Publication, Subscription
@@ -33,6 +33,7 @@ __all__ = [
     "Payload",
     "Presence",
     "Publication",
+    "RepeatDecoder",
     "Subscription",
     "current_security",
     "decode",
