@@ -62,6 +62,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     "no-range-warmup": {"range_warmup_epochs": 0},
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},
+    # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)
+    "isam2-extra-0": {"isam2_extra_iterations": 0},
+    "isam2-extra-2": {"isam2_extra_iterations": 2},
 }
 # GNC needs a batch solve: compare with paper-window (the same window with Huber + FDE). About ten
 # times slower than LM, so not in the default runs (docs/tuning-gnc.md, made with --seeds).
