@@ -12,7 +12,7 @@ from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
 
 from coplane.ids import VEHICLE_ID_PATTERN
-from coplane.runtime import ServiceSettings
+from coplane.runtime import LogLevel, ServiceSettings
 
 
 class ApiSettings(ServiceSettings):
@@ -79,7 +79,7 @@ class ApiSettings(ServiceSettings):
         " (<stem>.<server>.sqlite beside it; each replica is the whole map, docs/scale.md)",
     )
     access_log: bool = False
-    log_level: str = "INFO"
+    log_level: LogLevel = "INFO"
 
     @model_validator(mode="after")
     def _fleet_known(self) -> ApiSettings:

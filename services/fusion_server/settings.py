@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from coplane.runtime import RegionOptions, ServiceSettings
+from coplane.runtime import LogLevel, RegionOptions, ServiceSettings
 
 
 class FusionSettings(ServiceSettings, RegionOptions):
@@ -83,7 +83,7 @@ class FusionSettings(ServiceSettings, RegionOptions):
     reject_log_every_s: float = Field(
         default=10.0, ge=0.0, description="At most one rejection log per vehicle and reason this often"
     )
-    log_level: str = "INFO"
+    log_level: LogLevel = "INFO"
     # Regions (docs/scale.md): several servers share a fleet; each needs its own id
     server_id: str = Field(
         default="0",

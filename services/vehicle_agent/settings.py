@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
-from coplane.runtime import RegionOptions, ServiceSettings
+from coplane.runtime import LogLevel, RegionOptions, ServiceSettings
 
 
 class AgentSettings(ServiceSettings, RegionOptions):
@@ -61,7 +61,7 @@ class AgentSettings(ServiceSettings, RegionOptions):
     )
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
-    log_level: str = "INFO"
+    log_level: LogLevel = "INFO"
 
 
 class LoadgenSettings(ServiceSettings, RegionOptions):
@@ -91,4 +91,4 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
         description="Lockstep: once some server answered, go on when no answer came for this long",
     )
     lease_ms: int = Field(default=2000, ge=500)
-    log_level: str = "INFO"
+    log_level: LogLevel = "INFO"

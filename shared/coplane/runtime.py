@@ -14,9 +14,9 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, Field
+from pydantic import AfterValidator, BaseModel, Field
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -190,6 +190,19 @@ def stop_signals(
 
 
 # -- configuration -------------------------------------------------------------------------------
+
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
+
+
+def _log_level(value: str) -> str:
+    """A log level name in any case, as `logging` knows it: a typo is a settings error naming the
+    field, not a traceback from `logging` after the service has started."""
+    if value.upper() not in LOG_LEVELS:
+        raise ValueError(f"{value!r} is not a log level (one of {', '.join(LOG_LEVELS)})")
+    return value.upper()
+
+
+LogLevel = Annotated[str, AfterValidator(_log_level)]
 
 
 class ServiceSettings(BaseSettings):
