@@ -1,0 +1,138 @@
+"""Where a fusion server's estimator spends its CPU on a city (issue 16: the 1.0 ms target).
+
+    .venv/bin/python bench/bench_fusion_breakdown.py [--vehicles 256] [--duration 20] [--seed 11]
+        [--warmup 10] [--out docs/performance-scale.md]
+
+A simulated city (`coplane simulate --scenario city`) is replayed in process with method pc while
+the estimator's epoch inputs are recorded; then the estimator alone (`FusionEstimator.step`, what
+a fusion server's solve costs) runs over them with its defaults, and the CPU of its parts is
+summed after the first `--warmup` epochs (the window and the clusters fill up first; the cost
+per vehicle grows until then). Parts, timed by wrapping them: the input validation, each
+vehicle's preparation (FDE screening, factor blocks), the iSAM2 smoother updates that add an
+epoch's factors (or build a smoother from the window), the updates without new factors (the
+extra iteration and the convergence loop of a new or rebuilt smoother), the marginal
+covariances, and the rest of the step (window bookkeeping, clustering, estimates). CPU is
+`time.process_time`: compare the rows of one run, as the host's speed varies between runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+MARK = "bench_fusion_breakdown"
+
+
+@contextmanager
+def timed(owner: Any, name: str, part: Callable[..., str], cpu: dict[str, float]) -> Iterator[None]:
+    """Wrap `owner.name` so that its CPU is added to cpu[part(*args)] (nested parts included)."""
+    original = getattr(owner, name)
+
+    def wrapper(*args: Any, **kw: Any) -> Any:
+        c0 = time.process_time()
+        try:
+            return original(*args, **kw)
+        finally:
+            cpu[part(*args)] += time.process_time() - c0
+
+    setattr(owner, name, wrapper)
+    try:
+        yield
+    finally:
+        setattr(owner, name, original)
+
+
+def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, float], int]:
+    """CPU seconds per part of the estimator over `inputs[warmup:]`, and the vehicle-epochs."""
+    import gtsam
+
+    import coplane.fgo.engine as engine
+    import coplane.fgo.window as window
+    from coplane.fgo.engine import FusionEstimator
+
+    est = FusionEstimator(config)
+    for epoch in inputs[:warmup]:
+        est.step(epoch)
+    cpu: dict[str, float] = defaultdict(float)
+    parts = [
+        (engine, "validate_epoch", lambda *a: "input validation"),
+        (engine, "prepare_vehicle", lambda *a: "vehicle preparation (FDE, factor blocks)"),
+        (
+            gtsam.IncrementalFixedLagSmoother,
+            "update",
+            lambda self, *a: (
+                "smoother updates with an epoch's factors" if a else "smoother updates without new factors"
+            ),
+        ),
+        (window, "marginal_covariances", lambda *a: "marginal covariances"),
+    ]
+    n = 0
+    with timed(*parts[0], cpu), timed(*parts[1], cpu), timed(*parts[2], cpu), timed(*parts[3], cpu):
+        c0 = time.process_time()
+        for epoch in inputs[warmup:]:
+            est.step(epoch)
+            n += len(epoch.vehicles)
+        total = time.process_time() - c0
+    cpu["rest of the step (window, clusters, estimates)"] = total - sum(cpu.values())
+    cpu["whole step"] = total
+    return dict(cpu), n
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--vehicles", type=int, default=256)
+    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    import bench_window_clusters as recorder  # the same recorded inputs as the window-bound table
+
+    with tempfile.TemporaryDirectory(prefix="coplane-breakdown-") as tmp:
+        rec = Path(tmp) / "city"
+        subprocess.run(
+            [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles",
+             str(args.vehicles), "--duration", str(args.duration), "--seed", str(args.seed), "--out", str(rec)],
+            check=True, capture_output=True, cwd=ROOT,
+        )  # fmt: skip
+        config, inputs = recorder.record_inputs(rec)  # pc's estimator config, defaults
+    cpu, n = breakdown(inputs, config, args.warmup)
+    total = cpu["whole step"]
+    rows = ["| part | CPU ms / vehicle-epoch | share |", "|---|---|---|"]
+    for part, sec in sorted(cpu.items(), key=lambda kv: -kv[1]):
+        if part != "whole step":
+            rows.append(f"| {part} | {1e3 * sec / n:.2f} | {100 * sec / total:.0f} % |")
+    rows.append(f"| **whole step** | **{1e3 * total / n:.2f}** | 100 % |")
+    head = (
+        f"machine: {platform.machine()}, Python {platform.python_version()}; city of {args.vehicles} vehicles x "
+        f"{args.duration:.0f} s (seed {args.seed}), method pc, the estimator alone on recorded inputs, "
+        f"epochs after the first {args.warmup}: {n} vehicle-epochs"
+    )
+    table = head + "\n\n" + "\n".join(rows)
+    print(table)
+    if args.out is not None:
+        start, end = f"<!-- {MARK}:start -->", f"<!-- {MARK}:end -->"
+        cmd = (
+            f"python bench/bench_fusion_breakdown.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
+            f"--seed {args.seed} --warmup {args.warmup} --out {args.out}"
+        )
+        block = f"{start}\nMade on {time.strftime('%Y-%m-%d')} by `{cmd}`:\n\n{table}\n{end}"
+        text = args.out.read_text()
+        i, j = text.index(start), text.index(end) + len(end)
+        args.out.write_text(text[:i] + block + text[j:])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
