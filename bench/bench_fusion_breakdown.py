@@ -98,6 +98,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     import bench_window_clusters as recorder  # the same recorded inputs as the window-bound table
+    from docblock import write_block
 
     with tempfile.TemporaryDirectory(prefix="coplane-breakdown-") as tmp:
         rec = Path(tmp) / "city"
@@ -122,15 +123,11 @@ def main() -> int:
     table = head + "\n\n" + "\n".join(rows)
     print(table)
     if args.out is not None:
-        start, end = f"<!-- {MARK}:start -->", f"<!-- {MARK}:end -->"
         cmd = (
             f"python bench/bench_fusion_breakdown.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
             f"--seed {args.seed} --warmup {args.warmup} --out {args.out}"
         )
-        block = f"{start}\nMade on {time.strftime('%Y-%m-%d')} by `{cmd}`:\n\n{table}\n{end}"
-        text = args.out.read_text()
-        i, j = text.index(start), text.index(end) + len(end)
-        args.out.write_text(text[:i] + block + text[j:])
+        write_block(args.out, MARK, cmd, table)
     return 0
 
 

@@ -31,6 +31,8 @@ import threading
 import time
 from pathlib import Path
 
+from docblock import write_block  # bench/ is the script's directory, first on sys.path
+
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 TICK = os.sysconf("SC_CLK_TCK")
@@ -322,8 +324,6 @@ def main() -> int:
 
 def _write_doc(path: Path, table: str, args: argparse.Namespace, marker: str, flag: str) -> None:
     """Replace the generated block `marker` of the performance page with `table`."""
-    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
-    text = path.read_text()
     servers = (
         "" if flag else f"--servers {args.servers} --region-size {args.region_size:.0f} --pace {args.pace} "
     )
@@ -333,9 +333,7 @@ def _write_doc(path: Path, table: str, args: argparse.Namespace, marker: str, fl
         f"python bench/bench_scale.py {flag}--vehicles {args.vehicles} --duration {args.duration:.0f} "
         f"{servers}--out {path}"
     )
-    block = f"{start}\nMade on {time.strftime('%Y-%m-%d')} by `{cmd}`:\n\n{table}\n{end}"
-    i, j = text.index(start), text.index(end) + len(end)
-    path.write_text(text[:i] + block + text[j:])
+    write_block(path, marker, cmd, table)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from docblock import write_block  # bench/ is the script's directory, first on sys.path
 
 ROOT = Path(__file__).resolve().parents[1]
 MARK = "bench_window_clusters"
@@ -157,15 +158,11 @@ def main() -> int:
     table = head + "\n\n" + "\n".join(rows)
     print(table)
     if args.out is not None:
-        start, end = f"<!-- {MARK}:start -->", f"<!-- {MARK}:end -->"
-        text = args.out.read_text()
         cmd = (
             f"python bench/bench_window_clusters.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
             f"--seeds {args.seeds} --training {args.training} --caps {args.caps} --out {args.out}"
         )
-        block = f"{start}\nMade on {time.strftime('%Y-%m-%d')} by `{cmd}`:\n\n{table}\n{end}"
-        i, j = text.index(start), text.index(end) + len(end)
-        args.out.write_text(text[:i] + block + text[j:])
+        write_block(args.out, MARK, cmd, table)
     return 0
 
 
