@@ -297,19 +297,20 @@ class RegionRole:
             out |= {
                 v for v in self.coming & live if (tv := self.region_t.get(v)) is not None and not tv < since
             }
-            out = {v for v in out if (ta := self.answered_elsewhere.get(v)) is None or ta < t}
+            out = {v for v in out if not self._answered_elsewhere(v, t)}
         return out
 
     def surely_awaited(self, vehicle_id: str, t: GpsTime) -> bool:
         """Whether `awaited(live, ..., t)` holds the live vehicle whatever else is upcoming: it is in
         this server's regions and no other server answered it at `t`. Pacing asks this first, as
-        `awaited` rebuilds the range links of the window and the epoch (once per message it was
-        most of a regional server's CPU at 256 vehicles)."""
-        r = self.region.get(vehicle_id)
-        if r is None or not self.owns(r):
-            return False
+        `awaited` rebuilds the range links of the window and the epoch (once per message it cost a
+        regional server more than GTSAM's updates)."""
+        return self._owned(vehicle_id) and not self._answered_elsewhere(vehicle_id, t)
+
+    def _answered_elsewhere(self, vehicle_id: str, t: GpsTime) -> bool:
+        """Another server answered the vehicle at `t` or later (it moved on: not awaited here)."""
         ta = self.answered_elsewhere.get(vehicle_id)
-        return ta is None or ta < t
+        return ta is not None and not ta < t
 
     def mine(self, vehicle_id: str) -> bool:
         """Whether this server solves the vehicle now: in its regions, or in its last epoch."""
@@ -317,7 +318,11 @@ class RegionRole:
 
     def owned_vehicles(self, vehicles: Iterable[str]) -> set[str]:
         """The vehicles among `vehicles` whose last region this server owns (lockstep waits for them)."""
-        return {v for v in vehicles if (r := self.region.get(v)) is not None and self.owns(r)}
+        return {v for v in vehicles if self._owned(v)}
+
+    def _owned(self, vehicle_id: str) -> bool:
+        r = self.region.get(vehicle_id)
+        return r is not None and self.owns(r)
 
     # -- hand-over -----------------------------------------------------------------------------
     def peer_solution(self, key: str, sol: SolutionMessage) -> None:
