@@ -79,7 +79,7 @@ class Pacing:
         """Whether lockstep still waits for live vehicle `v` at epoch `t`: not heard at `t` or
         later, and not given up on as silent. Asked per vehicle and stopped at the first waiting
         one (`ready_epoch` runs after every message: a list of all of them each time cost
-        O(vehicles^2) per epoch, a millisecond per vehicle-epoch at 256 vehicles)."""
+        O(vehicles^2) per epoch)."""
         return (v not in self.latest or self.latest[v] < t) and not self.admission.is_silent(v)
 
     def _own_vehicle_waiting(self, t: GpsTime) -> bool:

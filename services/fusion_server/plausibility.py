@@ -64,7 +64,7 @@ def spp_residual_m(msg: NodeMessage) -> float | None:
     clock removed by its median (robust to NLOS outliers); None when it cannot tell (no fix, too
     few satellites). The medians of a few dozen values are Python's (`statistics.median`, the
     same numbers as numpy's): numpy's call overhead made this check cost more than decoding the
-    message (200 us per message)."""
+    message."""
     p = msg.spp.position_ecef_m
     used = [s for s in msg.satellites if s.used]
     if p is None or len(used) < MIN_SATS_FOR_RESIDUAL:

@@ -50,8 +50,8 @@ def decode(model: type[M], payload: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -
 
 class RepeatDecoder(Generic[M]):
     """`decode` that keeps each sender's last decoded payload, so a byte-identical re-send is not
-    validated again (a lockstep agent re-sends its node message every second until answered: at
-    256 vehicles and a slow epoch, half of a server's decoding was re-sends). Same bytes, same
+    validated again (a lockstep agent re-sends its node message every second until answered: with
+    epochs that take seconds to solve, most of a server's decoding was re-sends). Same bytes, same
     model: what the caller does with it is unchanged, and a payload that failed is never kept."""
 
     def __init__(self, model: type[M]) -> None:
