@@ -107,6 +107,8 @@ class FleetSolution:
     solve_time_s: float
     factor_counts: dict[str, int]
     iterations: int = 0
+    # the graph's error before and after the solve, summed over the clusters; NaN where the
+    # solver does not evaluate it (the iSAM2 smoother, the baselines)
     error_before: float = float("nan")
     error_after: float = float("nan")
     # vehicles present in the EpochInput without an estimate, with the reason (e.g. too few
