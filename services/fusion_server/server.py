@@ -188,9 +188,8 @@ class FusionServer(Pacing):
             return
         c = self.counters[vid]
         c["received"] += 1
-        digest = RepeatDecoder.digest(payload)
         try:
-            msg = self.node_decoder.decode(vid, payload, digest)
+            msg, digest = self.node_decoder.decode(vid, payload)
             if msg.vehicle_id != vid:
                 raise BadMessage("key-mismatch", f"message for {msg.vehicle_id!r} on the key of {vid!r}")
             if msg.fleet != self.fleet:

@@ -63,15 +63,19 @@ class RepeatDecoder(Generic[M]):
         """The payload's 16-byte BLAKE2b digest (also what admission tells duplicates by)."""
         return hashlib.blake2b(payload, digest_size=16).digest()
 
-    def decode(self, sender: str, payload: bytes, digest: bytes) -> M:
-        """The model of `payload` (whose `digest` the caller computed), from `sender`'s last one
-        when the bytes are the same; raises BadMessage like `decode`."""
+    def decode(self, sender: str, payload: bytes) -> tuple[M, bytes]:
+        """The model of `payload` and its `digest`, the model from `sender`'s last one when the
+        bytes are the same; raises BadMessage like `decode`, an oversized payload before it is
+        hashed (a hostile sender must not make the server hash megabytes)."""
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise BadMessage("too-large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
+        digest = self.digest(payload)
         last = self._last.get(sender)
         if last is not None and last[0] == digest:
-            return last[1]
+            return last[1], digest
         msg = decode(self.model, payload)
         self._last[sender] = (digest, msg)
-        return msg
+        return msg, digest
 
 
 def payload_bytes(sample: Any) -> bytes:
