@@ -156,6 +156,9 @@ class FgoConfig:
     # until no position moves by more than isam2_converged_m.
     isam2_converge_iterations: int = 10
     isam2_converged_m: float = 1e-3
+    # iSAM2's relinearisation check only in the part of the Bayes tree an update touches
+    # (ISAM2Params.enablePartialRelinearizationCheck): cheaper, approximate.
+    isam2_partial_relinearization_check: bool = False
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:

@@ -310,6 +310,7 @@ class SmootherCluster:
             p = gtsam.ISAM2Params()
             p.setRelinearizeThreshold(cfg.isam2_relinearize_threshold)
             p.relinearizeSkip = 1
+            p.enablePartialRelinearizationCheck = cfg.isam2_partial_relinearization_check
             p.findUnusedFactorSlots = True
             # IncrementalFixedLagSmoother's result never carries iSAM2's error (getError() is 0
             # whatever the graph), so evaluating it (the whole graph at two full estimates per
