@@ -127,7 +127,7 @@ class Admission:
 
     def _changed(self, vid: str, v: VehicleState) -> None:
         """A vehicle's latest epoch or admit time changed: keep `epochs` in step."""
-        self.epochs.update(vid, v.latest, v.last_admit_s)
+        self.epochs.update(vid, v.latest, v.last_admit_s, v.first)
 
     def _vehicle(self, vid: str, now: float) -> VehicleState:
         v = self.vehicles.get(vid)
@@ -191,9 +191,7 @@ class Admission:
         """Where the fleet began: the lower median of the active vehicles' earliest admitted
         epochs (a history replay after a restart included), so one vehicle's stray old epoch is
         not solved first."""
-        active = self.active(now)
-        firsts = sorted(v.first for vid, v in self.vehicles.items() if v.first is not None and vid in active)
-        return firsts[(len(firsts) - 1) // 2] if firsts else None
+        return self.epochs.first_median(now)
 
     # -- one message ---------------------------------------------------------------------------
     def check(

@@ -8,6 +8,7 @@ median O(K log K), K the distinct latest epochs (a handful: the fleet is within 
 itself). A vehicle stops being active `silent_after_s` after its last admitted message; the
 expiries wait in a heap. `now` is the caller's monotonic clock; a query with an earlier `now`
 than the last one (only tests do that) rebuilds, so the answers are always the exact ones.
+The active vehicles' first epochs (where each began) are kept the same way, for the fleet's start.
 """
 
 from __future__ import annotations
@@ -24,23 +25,29 @@ class FleetEpochs:
 
     def __init__(self, silent_after_s: float) -> None:
         self.silent_after_s = silent_after_s
-        self._heard: dict[str, tuple[GpsTime, float]] = {}  # vehicle -> (latest epoch, last admit)
+        # vehicle -> (latest epoch, last admit, first epoch)
+        self._heard: dict[str, tuple[GpsTime, float, GpsTime]] = {}
         self._active: dict[str, GpsTime] = {}
+        self._firsts: dict[str, GpsTime] = {}  # first epochs of the active vehicles
         self._counts: Counter[GpsTime] = Counter()  # latest epochs of the active vehicles
+        self._first_counts: Counter[GpsTime] = Counter()  # their first epochs
         self._expiry: list[tuple[float, str]] = []  # (last admit, vehicle), stale entries skipped
         self._now = -math.inf
 
-    def update(self, vid: str, latest: GpsTime | None, last_admit_s: float | None) -> None:
-        """The vehicle's admission state changed (None: it has none, e.g. it went offline)."""
+    def update(
+        self, vid: str, latest: GpsTime | None, last_admit_s: float | None, first: GpsTime | None = None
+    ) -> None:
+        """The vehicle's admission state changed (None: it has none, e.g. it went offline);
+        `first`: its earliest admitted epoch (`latest` if not given)."""
         self._deactivate(vid)
         if latest is None or last_admit_s is None:
             self._heard.pop(vid, None)
             return
-        self._heard[vid] = (latest, last_admit_s)
-        self._activate(vid, latest)  # the next query expires it if it is already silent
+        self._heard[vid] = (latest, last_admit_s, latest if first is None else first)
+        self._activate(vid)  # the next query expires it if it is already silent
         heapq.heappush(self._expiry, (last_admit_s, vid))
         if len(self._expiry) > 4 * len(self._heard) + 64:  # stale entries: rebuild the heap
-            self._expiry = [(s, v) for v, (_, s) in self._heard.items()]
+            self._expiry = [(h[1], v) for v, h in self._heard.items()]
             heapq.heapify(self._expiry)
 
     def active(self, now: float) -> dict[str, GpsTime]:
@@ -57,20 +64,14 @@ class FleetEpochs:
         """Lower (or `upper`) median of the active vehicles' latest epochs, leaving `exclude` out;
         None when no other vehicle is active."""
         self._advance(now)
-        counts = self._counts
-        n = len(self._active)
         skip = self._active.get(exclude) if exclude is not None else None
-        if skip is not None:
-            n -= 1
-        if n <= 0:
-            return None
-        k = n // 2 if upper else (n - 1) // 2  # index into the sorted epochs
-        for t in sorted(counts):
-            c = counts[t] - (1 if t == skip else 0)
-            if k < c:
-                return t
-            k -= c
-        raise AssertionError("counts out of step with the active vehicles")
+        return _median(self._counts, len(self._active), skip, upper)
+
+    def first_median(self, now: float) -> GpsTime | None:
+        """Lower median of the active vehicles' first epochs (where the fleet began); None when no
+        vehicle is active."""
+        self._advance(now)
+        return _median(self._first_counts, len(self._firsts), None, False)
 
     # -- internals ---------------------------------------------------------------------------
     def _advance(self, now: float) -> None:
@@ -88,20 +89,45 @@ class FleetEpochs:
     def _rebuild(self, now: float) -> None:
         self._now = now
         self._active.clear()
+        self._firsts.clear()
         self._counts.clear()
-        for vid, (latest, s) in self._heard.items():
+        self._first_counts.clear()
+        for vid, (_, s, _) in self._heard.items():
             if now - s <= self.silent_after_s:
-                self._activate(vid, latest)
-        self._expiry = [(s, v) for v, (_, s) in self._heard.items()]
+                self._activate(vid)
+        self._expiry = [(h[1], v) for v, h in self._heard.items()]
         heapq.heapify(self._expiry)
 
-    def _activate(self, vid: str, latest: GpsTime) -> None:
+    def _activate(self, vid: str) -> None:
+        latest, _, first = self._heard[vid]
         self._active[vid] = latest
         self._counts[latest] += 1
+        self._firsts[vid] = first
+        self._first_counts[first] += 1
 
     def _deactivate(self, vid: str) -> None:
         t = self._active.pop(vid, None)
         if t is not None:
-            self._counts[t] -= 1
-            if self._counts[t] == 0:
-                del self._counts[t]
+            _uncount(self._counts, t)
+            _uncount(self._first_counts, self._firsts.pop(vid))
+
+
+def _uncount(counts: Counter[GpsTime], t: GpsTime) -> None:
+    counts[t] -= 1
+    if counts[t] == 0:
+        del counts[t]
+
+
+def _median(counts: Counter[GpsTime], n: int, skip: GpsTime | None, upper: bool) -> GpsTime | None:
+    """Lower (or `upper`) median of the `n` epochs counted in `counts`, one `skip` left out."""
+    if skip is not None:
+        n -= 1
+    if n <= 0:
+        return None
+    k = n // 2 if upper else (n - 1) // 2  # index into the sorted epochs
+    for t in sorted(counts):
+        c = counts[t] - (1 if t == skip else 0)
+        if k < c:
+            return t
+        k -= c
+    raise AssertionError("counts out of step with the active vehicles")

@@ -1,5 +1,6 @@
 """`FleetEpochs` (the admission's incremental fleet epoch) answers exactly as the rebuild-from-every-
-vehicle rule it replaced, whatever the order of updates, expiries and clock values."""
+vehicle rule it replaced, whatever the order of updates, expiries and clock values; so does the
+fleet's start (the median of the active vehicles' first epochs)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ def test_matches_the_rebuild_rule(seed: int) -> None:
     rng = random.Random(seed)
     fe = FleetEpochs(LIM)
     heard: dict[str, tuple[GpsTime, float]] = {}
+    firsts: dict[str, GpsTime] = {}
     now = 0.0
     base = GpsTime(2300, 100.0)
     for _ in range(3000):
@@ -34,9 +36,11 @@ def test_matches_the_rebuild_rule(seed: int) -> None:
             now += rng.choice([0.0, 0.1, 0.5, 2.0])
             t = base + float(rng.randrange(8))
             heard[vid] = (t, now)
-            fe.update(vid, t, now)
+            first = firsts[vid] = min(t, firsts.get(vid, t))
+            fe.update(vid, t, now, first)
         elif op < 0.6:
             heard.pop(vid, None)
+            firsts.pop(vid, None)
             fe.update(vid, None, None)
         elif op < 0.65:
             now = max(0.0, now - rng.choice([1.0, 6.0]))  # a test's clock may go back
@@ -48,3 +52,6 @@ def test_matches_the_rebuild_rule(seed: int) -> None:
         assert fe.median(now, exclude=exclude, upper=upper) == med
         assert fe.count(now) == _brute(heard, now, None, False)[1]
         assert fe.active(now) == {v: t for v, (t, s) in heard.items() if now - s <= LIM}
+        # the fleet's start: the lower median of the active vehicles' first epochs
+        started = sorted(firsts[v] for v, (_, s) in heard.items() if now - s <= LIM)
+        assert fe.first_median(now) == (started[(len(started) - 1) // 2] if started else None)
