@@ -65,7 +65,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)
     "isam2-extra-0": {"isam2_extra_iterations": 0},
     "isam2-extra-2": {"isam2_extra_iterations": 2},
-    "isam2-partial-check": {"isam2_partial_relinearization_check": True},
+    "isam2-full-check": {"isam2_partial_relinearization_check": False},  # the default until 2026-11-26
     # a new or rebuilt smoother's convergence loop: at most 3 more updates instead of 10
     "isam2-converge-3": {"isam2_converge_iterations": 3},
 }

@@ -157,8 +157,10 @@ class FgoConfig:
     isam2_converge_iterations: int = 10
     isam2_converged_m: float = 1e-3
     # iSAM2's relinearisation check only in the part of the Bayes tree an update touches
-    # (ISAM2Params.enablePartialRelinearizationCheck): cheaper, approximate.
-    isam2_partial_relinearization_check: bool = False
+    # (ISAM2Params.enablePartialRelinearizationCheck): the full check costs 8-9 % more fusion CPU on
+    # the cities at the same accuracy there and on the training seeds (docs/tuning-isam2.md,
+    # docs/performance-scale.md "iSAM2 variants on cities").
+    isam2_partial_relinearization_check: bool = True
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
