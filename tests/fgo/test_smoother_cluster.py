@@ -1,7 +1,7 @@
 """`SmootherCluster`: what a fixed-lag smoother reports, and how a diverged one is caught.
 
 GTSAM's IncrementalFixedLagSmoother never puts iSAM2's error in its result, so the estimator does
-not ask iSAM2 to evaluate it (a seventh of the fusion CPU on a city) and reports NaN; divergence
+not ask iSAM2 to evaluate it (CPU for nothing) and reports NaN; divergence
 is caught on the estimates instead, and the cluster is rebuilt from the window.
 """
 

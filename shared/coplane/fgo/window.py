@@ -314,8 +314,8 @@ class SmootherCluster:
             p.findUnusedFactorSlots = True
             # IncrementalFixedLagSmoother's result never carries iSAM2's error (getError() is 0
             # whatever the graph), so evaluating it (the whole graph at two full estimates per
-            # update) cost about a seventh of the estimator's CPU for nothing; the estimates are
-            # checked for divergence instead (`update`)
+            # update) was CPU spent for nothing; the estimates are checked for divergence instead
+            # (`update`)
             p.evaluateNonlinearError = False
             self.smoother = gtsam.IncrementalFixedLagSmoother(cfg.lag, p)
         else:
