@@ -30,10 +30,15 @@ class BadMessage(Exception):
         self.reason = reason
 
 
-def decode(model: type[M], payload: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> M:
-    """Validate a payload into `model`; raises BadMessage with a short reason, never anything else."""
+def check_size(payload: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> None:
+    """Raise BadMessage("too-large") for a payload over `max_bytes`, before any work on it."""
     if len(payload) > max_bytes:
         raise BadMessage("too-large", f"{len(payload)} bytes > {max_bytes}")
+
+
+def decode(model: type[M], payload: bytes, max_bytes: int = MAX_PAYLOAD_BYTES) -> M:
+    """Validate a payload into `model`; raises BadMessage with a short reason, never anything else."""
+    check_size(payload, max_bytes)
     try:
         return model.model_validate_json(payload)
     except ValidationError as exc:
@@ -67,8 +72,7 @@ class RepeatDecoder(Generic[M]):
         """The model of `payload` and its `digest`, the model from `sender`'s last one when the
         bytes are the same; raises BadMessage like `decode`, an oversized payload before it is
         hashed (a hostile sender must not make the server hash megabytes)."""
-        if len(payload) > MAX_PAYLOAD_BYTES:
-            raise BadMessage("too-large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
+        check_size(payload)
         digest = self.digest(payload)
         last = self._last.get(sender)
         if last is not None and last[0] == digest:
