@@ -28,7 +28,6 @@ class FleetEpochs:
         # vehicle -> (latest epoch, last admit, first epoch)
         self._heard: dict[str, tuple[GpsTime, float, GpsTime]] = {}
         self._active: dict[str, GpsTime] = {}
-        self._firsts: dict[str, GpsTime] = {}  # first epochs of the active vehicles
         self._counts: Counter[GpsTime] = Counter()  # latest epochs of the active vehicles
         self._first_counts: Counter[GpsTime] = Counter()  # their first epochs
         self._expiry: list[tuple[float, str]] = []  # (last admit, vehicle), stale entries skipped
@@ -71,7 +70,7 @@ class FleetEpochs:
         """Lower median of the active vehicles' first epochs (where the fleet began); None when no
         vehicle is active."""
         self._advance(now)
-        return _median(self._first_counts, len(self._firsts), None, False)
+        return _median(self._first_counts, len(self._active), None, False)
 
     # -- internals ---------------------------------------------------------------------------
     def _advance(self, now: float) -> None:
@@ -89,7 +88,6 @@ class FleetEpochs:
     def _rebuild(self, now: float) -> None:
         self._now = now
         self._active.clear()
-        self._firsts.clear()
         self._counts.clear()
         self._first_counts.clear()
         for vid, (_, s, _) in self._heard.items():
@@ -102,14 +100,15 @@ class FleetEpochs:
         latest, _, first = self._heard[vid]
         self._active[vid] = latest
         self._counts[latest] += 1
-        self._firsts[vid] = first
         self._first_counts[first] += 1
 
     def _deactivate(self, vid: str) -> None:
+        """Uncount an active vehicle; call it before `_heard[vid]` changes (its first epoch is
+        read from there)."""
         t = self._active.pop(vid, None)
         if t is not None:
             _uncount(self._counts, t)
-            _uncount(self._first_counts, self._firsts.pop(vid))
+            _uncount(self._first_counts, self._heard[vid][2])
 
 
 def _uncount(counts: Counter[GpsTime], t: GpsTime) -> None:
