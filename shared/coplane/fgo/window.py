@@ -364,10 +364,11 @@ class SmootherCluster:
         values = self.smoother.calculateEstimate(keys)
         if not np.isfinite(gtsam.utilities.extractPoint3(values)).all():
             raise RuntimeError("smoother returned a non-finite position")
-        # batch LM's result holds the graph's error; iSAM2's does not (NaN: not evaluated)
-        error = float("nan") if self.incremental else float(res.getError())
-        if not self.incremental and not np.isfinite(error):
-            raise RuntimeError(f"smoother returned a non-finite error {error}")
+        error = float("nan")  # iSAM2's result has no error (not evaluated); batch LM's has
+        if not self.incremental:
+            error = float(res.getError())
+            if not np.isfinite(error):
+                raise RuntimeError(f"smoother returned a non-finite error {error}")
         covs = self.covariances(cov_keys) if cov_keys else {}
         return ClusterResult(values, covs, iterations, float("nan"), error)
 
