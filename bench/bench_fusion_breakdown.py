@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -102,11 +101,7 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory(prefix="coplane-breakdown-") as tmp:
         rec = Path(tmp) / "city"
-        subprocess.run(
-            [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles",
-             str(args.vehicles), "--duration", str(args.duration), "--seed", str(args.seed), "--out", str(rec)],
-            check=True, capture_output=True, cwd=ROOT,
-        )  # fmt: skip
+        recorder.simulate_city(rec, args.vehicles, args.duration, args.seed)
         config, inputs = recorder.record_inputs(rec)  # pc's estimator config, defaults
     cpu, n = breakdown(inputs, config, args.warmup)
     total = cpu["whole step"]

@@ -20,7 +20,6 @@ import argparse
 import dataclasses
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -57,6 +56,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
+    import bench_window_clusters as recorder
     from docblock import write_block
 
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -70,11 +70,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="coplane-variants-") as tmp:
         for seed in seeds:
             rec_dir = Path(tmp) / f"city-{seed}"
-            subprocess.run(
-                [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles",
-                 str(args.vehicles), "--duration", str(args.duration), "--seed", str(seed), "--out", str(rec_dir)],
-                check=True, capture_output=True, cwd=ROOT,
-            )  # fmt: skip
+            recorder.simulate_city(rec_dir, args.vehicles, args.duration, seed)
             res = compare(rec_dir, variants, args.repeats)
             role = "training" if seed in training else "report"
             base = res["default"]["ms"]

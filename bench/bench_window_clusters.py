@@ -32,6 +32,16 @@ ROOT = Path(__file__).resolve().parents[1]
 MARK = "bench_window_clusters"
 
 
+def simulate_city(out: Path, vehicles: int, duration: float, seed: int) -> None:
+    """`coplane simulate --scenario city` into `out` (the cities of this and the estimator's
+    other benchmarks: bench_fusion_breakdown.py, bench_fusion_variants.py)."""
+    subprocess.run(
+        [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles", str(vehicles),
+         "--duration", str(duration), "--seed", str(seed), "--out", str(out)],
+        check=True, capture_output=True, cwd=ROOT,
+    )  # fmt: skip
+
+
 def record_inputs(rec_dir: Path) -> tuple[Any, list[Any]]:
     """The pc estimator's config and every epoch input of an in-process replay, no window bound."""
     import coplane.fgo.window as window
@@ -133,11 +143,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="coplane-wclusters-") as tmp:
         for seed in seeds:
             rec_dir = Path(tmp) / f"city-{seed}"
-            subprocess.run(
-                [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles",
-                 str(args.vehicles), "--duration", str(args.duration), "--seed", str(seed), "--out", str(rec_dir)],
-                check=True, capture_output=True, cwd=ROOT,
-            )  # fmt: skip
+            simulate_city(rec_dir, args.vehicles, args.duration, seed)
             config, inputs = record_inputs(rec_dir)
             base: float | None = None
             for cap in caps:
