@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from support.fgo_synthetic import make_fleet, run
 
-from coplane.fgo import window
+from coplane.fgo import factors, keys, window
+from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.methods import get_method
 
@@ -49,15 +50,16 @@ def test_a_non_finite_estimate_raises() -> None:
     assert cfg is not None
     sm = window.SmootherCluster(cfg, ["a"])
     sm.smoother = _Diverged(sm.smoother)  # type: ignore[assignment]
+    pk = keys.position_key(0, 0)  # a kind iSAM2 has a relinearisation threshold for
     g = gtsam.NonlinearFactorGraph()
-    g.add(gtsam.PriorFactorPoint3(1, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    g.add(gtsam.PriorFactorPoint3(pk, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
     init = gtsam.Values()
-    init.insert(1, np.ones(3))
+    init.insert(pk, np.ones(3))
     blk = window.StateBlock(
         vehicle_id="a",
         step=0,
         time=GpsTime(2100, 0.0),
-        pos_key=1,
+        pos_key=pk,
         clock_keys={},
         init_pos=np.ones(3),
         init_clocks={},
@@ -71,7 +73,7 @@ def test_a_non_finite_estimate_raises() -> None:
         has_fix=True,
     )
     with pytest.raises(RuntimeError, match="non-finite position"):
-        sm.update([blk], [], [], init, {1: 0.0}, [], 0, [1])
+        sm.update([blk], [], [], init, {pk: 0.0}, [], 0, [pk])
 
 
 def test_the_estimator_rebuilds_a_diverged_smoother(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -109,3 +111,60 @@ def test_the_estimator_rebuilds_a_diverged_smoother(monkeypatch: pytest.MonkeyPa
         for vid, e in b.estimates.items():
             assert np.isfinite(e.position_m).all()
             assert np.linalg.norm(e.position_m - a.estimates[vid].position_m) < 1.0
+
+
+def _huber_snapshot(clock_guess_error_m: float) -> tuple[window.StateBlock, gtsam.Values]:
+    """One receiver, 9 satellites, one of them 40 m long (NLOS), Huber kernel; the clock's first
+    guess is off by `clock_guess_error_m` metres, as an SPP clock is against the fused one."""
+    rng = np.random.default_rng(7)
+    receiver = np.array([-2414266.9, 5386768.8, 2407460.0])
+    up = receiver / np.linalg.norm(receiver)
+    sats, rho = [], []
+    clock_s = 1e-4
+    for i in range(9):
+        d = rng.normal(size=3)
+        d = d - (d @ up) * up + (0.3 + 0.7 * rng.random()) * np.linalg.norm(d) * up
+        sat = receiver + 2.2e7 * d / np.linalg.norm(d)
+        sats.append(sat)
+        rho.append(
+            np.linalg.norm(sat - receiver) + C * clock_s + rng.normal(0, 1.0) + (40.0 if i == 0 else 0.0)
+        )
+    pk, ck = keys.position_key(0, 0), keys.clock_key(0, 0, "G")
+    g = gtsam.NonlinearFactorGraph()
+    for f in factors.pseudorange_factors(
+        pk, [ck] * 9, rho, np.array(sats), [0.0] * 9, [2.0] * 9, receiver, robust="huber", robust_k=1.345
+    ):
+        g.add(f)
+    init = gtsam.Values()
+    init_pos = receiver + np.array([3.0, -2.0, 4.0])
+    init.insert(pk, init_pos)
+    init.insert(ck, clock_s + clock_guess_error_m / C)
+    blk = window.StateBlock(
+        vehicle_id="a", step=0, time=GpsTime(2100, 0.0), pos_key=pk, clock_keys={"G": ck},
+        init_pos=init_pos, init_clocks={ck: clock_s}, graph=g, counts={}, links=[],
+        n_pseudoranges=9, plane_used=False, velocity=None, clock_drift_mps=None, has_fix=True,
+    )  # fmt: skip
+    return blk, init
+
+
+@pytest.mark.parametrize("clock_guess_error_m", [0.0, 5.0, -20.0])
+def test_isam2_reaches_the_graphs_optimum_whatever_the_clocks_first_guess(clock_guess_error_m: float) -> None:
+    """Clocks are in seconds: iSAM2 must relinearise them on a threshold in seconds, or the Huber
+    weights stay at the clock's first guess and the smoother stops away from the optimum."""
+    cfg = get_method("pc", solver="isam2-fixed-lag").fgo
+    assert cfg is not None
+    blk, init = _huber_snapshot(clock_guess_error_m)
+    params = gtsam.GaussNewtonParams()
+    params.setMaxIterations(100)
+    params.setRelativeErrorTol(1e-12)
+    params.setAbsoluteErrorTol(1e-12)
+    best = gtsam.GaussNewtonOptimizer(blk.graph, init, params).optimize().atPoint3(blk.pos_key)
+    sm = window.SmootherCluster(cfg, ["a"])
+    res = sm.update([blk], [], [], init, {k: 0.0 for k in blk.keys}, [], 0, blk.keys, converge=True)
+    assert np.linalg.norm(res.values.atPoint3(blk.pos_key) - best) < 0.02
+
+
+def test_every_kind_of_key_has_a_relinearisation_threshold_in_its_unit() -> None:
+    """GTSAM reads a key's threshold from the map without a default: a missing kind is undefined."""
+    th = keys.relinearize_thresholds(0.01)
+    assert th.size() == 1 + len(keys.CLOCK_CHR)

@@ -147,9 +147,10 @@ class FgoConfig:
     lm_max_iterations: int = 50
     lm_relative_error_tol: float = 1e-6
     lm_absolute_error_tol: float = 1e-6
-    # iSAM2: relinearisation threshold (tangent units: metres for positions) and the number of
-    # extra update() iterations per epoch (iSAM2 does one Gauss-Newton step per update; 0 and 2
-    # compared on the training seeds in docs/tuning-isam2.md: 0 is cheaper, worse on dense-urban).
+    # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
+    # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
+    # does one Gauss-Newton step per update; 0 and 2 compared on the training seeds in
+    # docs/tuning-isam2.md: 0 is cheaper, worse on dense-urban).
     isam2_relinearize_threshold: float = 0.01
     isam2_extra_iterations: int = 1
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more

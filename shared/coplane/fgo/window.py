@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.keys import relinearize_thresholds
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
 
@@ -308,7 +309,7 @@ class SmootherCluster:
         self.smoother: gtsam.IncrementalFixedLagSmoother | gtsam.BatchFixedLagSmoother
         if self.incremental:
             p = gtsam.ISAM2Params()
-            p.setRelinearizeThreshold(cfg.isam2_relinearize_threshold)
+            p.setRelinearizeThreshold(relinearize_thresholds(cfg.isam2_relinearize_threshold))
             p.relinearizeSkip = 1
             p.enablePartialRelinearizationCheck = cfg.isam2_partial_relinearization_check
             p.findUnusedFactorSlots = True
