@@ -150,7 +150,8 @@ class FgoConfig:
     # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
     # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
     # does one Gauss-Newton step per update; 0 and 2 compared on the training seeds in
-    # docs/tuning-isam2.md: 0 is cheaper, worse on dense-urban).
+    # docs/tuning-isam2.md: 0 is cheaper and, since the clocks' threshold, within 0.05 m of 1;
+    # kept at 1 until the cities are measured again, docs/fgo.md).
     isam2_relinearize_threshold: float = 0.01
     isam2_extra_iterations: int = 1
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
@@ -158,7 +159,7 @@ class FgoConfig:
     isam2_converge_iterations: int = 10
     isam2_converged_m: float = 1e-3
     # iSAM2's relinearisation check only in the part of the Bayes tree an update touches
-    # (ISAM2Params.enablePartialRelinearizationCheck): the full check costs 8-9 % more fusion CPU on
+    # (ISAM2Params.enablePartialRelinearizationCheck): the full check costs 2-3 % more fusion CPU on
     # the cities at the same accuracy there and on the training seeds (docs/tuning-isam2.md,
     # docs/performance-scale.md "iSAM2 variants on cities").
     isam2_partial_relinearization_check: bool = True
