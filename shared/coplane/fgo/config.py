@@ -150,8 +150,8 @@ class FgoConfig:
     # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
     # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
     # does one Gauss-Newton step per update; 0 and 2 compared on the training seeds in
-    # docs/tuning-isam2.md: 0 is cheaper and, since the clocks' threshold, within 0.05 m of 1;
-    # kept at 1 until the cities are measured again, docs/fgo.md).
+    # docs/tuning-isam2.md: 0 is cheaper and, since the clocks' threshold, within 0.05 m of 1,
+    # and as accurate on the cities; 1 stays until docs/results.md is regenerated on 0, docs/fgo.md).
     isam2_relinearize_threshold: float = 0.01
     isam2_extra_iterations: int = 1
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
