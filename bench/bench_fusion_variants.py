@@ -1,7 +1,7 @@
 """The estimator's cost and accuracy on cities, per iSAM2 variant (issue 16: the 1.0 ms target).
 
     .venv/bin/python bench/bench_fusion_variants.py [--vehicles 256] [--duration 20] [--seeds 11,12]
-        [--training 11] [--variants isam2-full-check,isam2-extra-0] [--repeats 3]
+        [--training 11] [--variants isam2-full-check,isam2-extra-1,no-range-warmup] [--repeats 3]
         [--out docs/performance-scale.md]
 
 For each city seed (`coplane simulate --scenario city`) the pc estimator's epoch inputs are recorded
@@ -52,7 +52,7 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--seeds", default="11,12")
     ap.add_argument("--training", default="11", help="seeds the defaults were chosen on")
-    ap.add_argument("--variants", default="isam2-full-check,isam2-extra-0")
+    ap.add_argument("--variants", default="isam2-full-check,isam2-extra-1,no-range-warmup")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()

@@ -63,7 +63,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)
-    "isam2-extra-0": {"isam2_extra_iterations": 0},
+    "isam2-extra-1": {"isam2_extra_iterations": 1},  # the default until 2026-11-27
     "isam2-extra-2": {"isam2_extra_iterations": 2},
     "isam2-full-check": {"isam2_partial_relinearization_check": False},  # the default until 2026-11-26
     # a new or rebuilt smoother's convergence loop: at most 3 more updates instead of 10

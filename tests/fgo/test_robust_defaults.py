@@ -62,6 +62,34 @@ def test_short_ranges_wait_for_both_tracks_to_settle() -> None:
     assert float(np.mean(hs[5])) < 0.6 * float(np.mean(hs[0]))
 
 
+def test_a_far_off_first_fix_gets_its_short_ranges_at_once() -> None:
+    """A first fix whose distance to a neighbour differs from their range by more than
+    `range_warmup_max_m` is not a swap but a far-off fix, and the range pulls it in: the warm-up
+    admits it (a vehicle started 28 m off in a canyon 4.7 m from another, city seed 11, docs/fgo.md).
+    A vehicle whose track is settled anchors every range it has, so a new track next to it gets
+    them too."""
+    fleet = make_fleet(4, 12, seed=0, **NLOS)
+    cfg = get_method("pc").fgo
+    warm = cfg.range_warmup_epochs
+    first = fleet.epochs[0]
+    v01 = first.vehicles["v01"]
+    assert v01.spp_position is not None
+    moved = dataclasses.replace(v01, spp_position=v01.spp_position + 40.0 * fleet.enu[0])
+    epochs = [dataclasses.replace(first, vehicles={**first.vehicles, "v01": moved}), *fleet.epochs[1:]]
+    short = [r for r in first.ranges if r.range_m < cfg.range_warmup_max_m]
+    with_v01 = sum("v01" in (r.a, r.b) for r in short)
+    assert with_v01 > 0 and len(short) > with_v01
+    held = run(fleet, cfg)[0].rejected.get("range_warmup", 0)
+    assert held == len(short)
+    assert run(fleet, cfg, epochs)[0].rejected.get("range_warmup", 0) == held - with_v01
+    # v02 starts late (absent for the warm-up): the others are settled when it comes
+    late = make_fleet(4, 12, seed=0, absent={"v02": range(warm + 1)}, **NLOS)
+    came = late.epochs[warm + 1].ranges
+    assert any("v02" in (r.a, r.b) and r.range_m < cfg.range_warmup_max_m for r in came)
+    sols = run(late, cfg)
+    assert sum(s.rejected.get("range_warmup", 0) for s in sols[warm + 1 :]) == 0
+
+
 def test_reported_covariance_is_scaled_but_the_estimate_is_not() -> None:
     fleet = make_fleet(3, 12, seed=7)
     base = dataclasses.replace(get_method("mci").fgo, covariance_scale=1.0)

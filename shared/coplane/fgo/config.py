@@ -45,13 +45,15 @@ class FgoConfig:
     sigma_v: float = 0.6
     # UWB ranging sigma (m) when a RangeObs carries no positive sigma (paper: 0.3 m, UWB datasheet).
     range_sigma: float = 0.3
-    # A vehicle's ranges enter the graph only once it has been tracked for this many epochs since it
-    # started (from its SPP): a range fixes a distance, not a side, so two vehicles a few metres
+    # A range between two vehicles both tracked for less than this many epochs since they started
+    # (from their SPP) waits: a range fixes a distance, not a side, so two vehicles a few metres
     # apart whose SPP fixes are swapped stay swapped (with planes pinning the height they cannot
-    # pass each other without crossing the range's barrier). 0: from the first epoch (the paper).
+    # pass each other without crossing the range's barrier). A settled end anchors the range, so it
+    # is not held. 0: every range from the first epoch (the paper).
     range_warmup_epochs: int = 0
-    # ... only ranges shorter than this (m): a distance well above the SPP error cannot be on the
-    # wrong side, and those ranges help most right at the start.
+    # ... only ranges shorter than this (m), and only while the two fixes' distance is within this
+    # of the range: a distance well above the SPP error cannot be on the wrong side, and fixes that
+    # far from their range are not a swap but a far-off fix, which the range pulls in.
     range_warmup_max_m: float = 15.0
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
@@ -149,11 +151,11 @@ class FgoConfig:
     lm_absolute_error_tol: float = 1e-6
     # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
     # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
-    # does one Gauss-Newton step per update; 0 and 2 compared on the training seeds in
-    # docs/tuning-isam2.md: 0 is cheaper and, since the clocks' threshold, within 0.05 m of 1,
-    # and as accurate on the cities; 1 stays until docs/results.md is regenerated on 0, docs/fgo.md).
+    # does one Gauss-Newton step per update; 1 and 2 compared on the training seeds in
+    # docs/tuning-isam2.md: since the clocks' threshold none is within 0.05 m of 1 and costs about
+    # 0.8 of it on the cities at the same accuracy; 1 was the default until 2026-11-27, docs/fgo.md).
     isam2_relinearize_threshold: float = 0.01
-    isam2_extra_iterations: int = 1
+    isam2_extra_iterations: int = 0
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
     # until no position moves by more than isam2_converged_m.
     isam2_converge_iterations: int = 10

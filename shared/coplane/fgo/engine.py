@@ -111,11 +111,12 @@ class FusionEstimator:
         for vid in preps:
             if not st.window.by_vehicle.get(vid):
                 st.track_start[vid] = k  # a new track, from the SPP
-        ranges = self._warm(valid.ranges_between(preps), k, stats)
+        # counted once, below, on the vehicles that stay
+        ranges = self._warm(valid.ranges_between(preps), preps, k, StepStats())
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
             del preps[vid]
-        ranges = self._warm(valid.ranges_between(preps), k, stats)
+        ranges = self._warm(valid.ranges_between(preps), preps, k, stats)
         if cfg.split_clusters:
             kept = st.window.bounded(ranges, preps, cfg.window_cluster_max)
             if len(kept) < len(ranges):
@@ -253,13 +254,28 @@ class FusionEstimator:
             has_fix=False,
         )
 
-    def _warm(self, ranges: list[ValidRange], k: int, stats: StepStats) -> list[ValidRange]:
-        """Ranges, without the short ones of vehicles tracked for less than `range_warmup_epochs`."""
+    def _warm(
+        self, ranges: list[ValidRange], preps: dict[str, Prepared], k: int, stats: StepStats
+    ) -> list[ValidRange]:
+        """Ranges, without the short ones that could lock two swapped first fixes in place.
+
+        A range fixes a distance, not a side: two vehicles a few metres apart whose first fixes are
+        swapped stay swapped once it holds them. Only two unsettled ends (both tracked for less than
+        `range_warmup_epochs`) can be swapped; a settled end anchors the range. And fixes whose
+        distance differs from the range by more than `range_warmup_max_m` (the SPP error scale) are
+        not a swap but a far-off fix, which the range pulls in: it is admitted at once."""
         w, short = self.config.range_warmup_epochs, self.config.range_warmup_max_m
         if w == 0:
             return ranges
         start = self._state.track_start
-        keep = [r for r in ranges if r.range_m >= short or (k - start[r.a] >= w and k - start[r.b] >= w)]
+
+        def admitted(r: ValidRange) -> bool:
+            if r.range_m >= short or k - start[r.a] >= w or k - start[r.b] >= w:
+                return True
+            gap = float(np.linalg.norm(preps[r.a].init_pos - preps[r.b].init_pos)) - r.range_m
+            return abs(gap) > short
+
+        keep = [r for r in ranges if admitted(r)]
         if len(keep) < len(ranges):
             stats.reject("range_warmup", len(ranges) - len(keep))
         return keep
