@@ -152,8 +152,8 @@ class FgoConfig:
     # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
     # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
     # does one Gauss-Newton step per update; 1 and 2 compared on the training seeds in
-    # docs/tuning-isam2.md: since the clocks' threshold none is within 0.05 m of 1 and costs about
-    # 0.8 of it on the cities at the same accuracy; 1 was the default until 2026-11-27, docs/fgo.md).
+    # docs/tuning-isam2.md: since the clocks' threshold none is within 0.07 m of 1, and 1 costs 1.18
+    # times none on the cities at the same accuracy; 1 was the default until 2026-11-27, docs/fgo.md).
     isam2_relinearize_threshold: float = 0.01
     isam2_extra_iterations: int = 0
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
