@@ -111,12 +111,15 @@ class FusionEstimator:
         for vid in preps:
             if not st.window.by_vehicle.get(vid):
                 st.track_start[vid] = k  # a new track, from the SPP
-        # counted once, below, on the vehicles that stay
-        ranges = self._warm(valid.ranges_between(preps), preps, k, StepStats())
+        ranges, held = self._warm(valid.ranges_between(preps), preps, k)
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
             del preps[vid]
-        ranges = self._warm(valid.ranges_between(preps), preps, k, stats)
+        # a verdict depends only on a range's two ends: keep (and count) those of the vehicles left
+        ranges = [r for r in ranges if r.a in preps and r.b in preps]
+        n_held = sum(1 for r in held if r.a in preps and r.b in preps)
+        if n_held:
+            stats.reject("range_warmup", n_held)
         if cfg.split_clusters:
             kept = st.window.bounded(ranges, preps, cfg.window_cluster_max)
             if len(kept) < len(ranges):
@@ -255,9 +258,10 @@ class FusionEstimator:
         )
 
     def _warm(
-        self, ranges: list[ValidRange], preps: dict[str, Prepared], k: int, stats: StepStats
-    ) -> list[ValidRange]:
-        """Ranges, without the short ones that could lock two swapped first fixes in place.
+        self, ranges: list[ValidRange], preps: dict[str, Prepared], k: int
+    ) -> tuple[list[ValidRange], list[ValidRange]]:
+        """The ranges admitted now, and those held back: short ones that could lock two swapped
+        first fixes in place.
 
         A range fixes a distance, not a side: two vehicles a few metres apart whose first fixes are
         swapped stay swapped once it holds them. Only two unsettled ends (both tracked for less than
@@ -266,7 +270,7 @@ class FusionEstimator:
         not a swap but a far-off fix, which the range pulls in: it is admitted at once."""
         w, short = self.config.range_warmup_epochs, self.config.range_warmup_max_m
         if w == 0:
-            return ranges
+            return ranges, []
         start = self._state.track_start
 
         def admitted(r: ValidRange) -> bool:
@@ -275,10 +279,11 @@ class FusionEstimator:
             gap = float(np.linalg.norm(preps[r.a].init_pos - preps[r.b].init_pos)) - r.range_m
             return abs(gap) > short
 
-        keep = [r for r in ranges if admitted(r)]
-        if len(keep) < len(ranges):
-            stats.reject("range_warmup", len(ranges) - len(keep))
-        return keep
+        keep: list[ValidRange] = []
+        held: list[ValidRange] = []
+        for r in ranges:
+            (keep if admitted(r) else held).append(r)
+        return keep, held
 
     def _estimates(self, rec: StepRecord, t: GpsTime) -> dict[str, VehicleEstimate]:
         """The newest state of every vehicle solved this epoch."""
