@@ -15,6 +15,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from coplane.estimation.limits import (
+    MAX_ANTENNA_HEIGHT_M,
     MAX_DRIFT_MPS,
     MAX_NORMAL_ERROR,
     MAX_PLANE_SIGMA_M,
@@ -181,7 +182,7 @@ class NodeMessage(_Model):
     seq: int = Field(ge=0)
     epoch: EpochTime  # nominal epoch (multiple of the interval)
     rx_time: EpochTime  # the receiver's exact tag
-    antenna_height_m: float = Field(ge=0.0, le=10.0)
+    antenna_height_m: float = Field(ge=0.0, le=MAX_ANTENNA_HEIGHT_M)
     spp: SppReport
     velocity: VelocityReport | None = None
     satellites: list[SatelliteReport] = Field(default_factory=list, max_length=MAX_SATELLITES)
@@ -224,7 +225,7 @@ class VehicleState(_Model):
     position_ecef_m: Ecef
     covariance_m2: Cov3 | None = None
     clocks_s: dict[str, float] = Field(default_factory=dict, max_length=4)
-    antenna_height_m: float = Field(ge=0.0, le=10.0)
+    antenna_height_m: float = Field(ge=0.0, le=MAX_ANTENNA_HEIGHT_M)
     n_pseudoranges: int = Field(ge=0)
     n_ranges: int = Field(ge=0)
     plane_used: bool

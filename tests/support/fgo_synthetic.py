@@ -226,7 +226,7 @@ def make_fleet(
             d_plane = -float(n @ p)
             plane = PlaneObs(n.copy(), d_plane, plane_sigma) if with_planes else None
             if vid in outages and k in outages[vid]:
-                vehicles[vid] = VehicleEpochInput(vid, time, plane=plane)
+                vehicles[vid] = VehicleEpochInput(vid, time, plane=plane, antenna_height_m=float(v["h"]))
                 continue
             b_gps = v["b0"] + v["drift"] * t + (C * 1e-3 if k >= clock_jumps.get(vid, n_epochs) else 0.0)
             prs: list[PseudorangeObs] = []
@@ -243,7 +243,14 @@ def make_fleet(
             vel_obs = VelocityObs(vel + rng.normal(0.0, velocity_sigma, 3), 0.6) if lim is None else None
             drift = v["drift"] + rng.normal(0.0, 0.05) if lim is None else None
             vehicles[vid] = VehicleEpochInput(
-                vid, time, tuple(prs), vel_obs, plane, spp_position=spp, clock_drift_mps=drift
+                vid,
+                time,
+                tuple(prs),
+                vel_obs,
+                plane,
+                spp_position=spp,
+                clock_drift_mps=drift,
+                antenna_height_m=float(v["h"]),
             )
         ranges: list[RangeObs] = []
         if len(present) > 1:

@@ -68,6 +68,7 @@ class VehicleEpochInput:
     plane: PlaneObs | None = None
     spp_position: Vec | None = None  # initial guess; None when SPP had no fix
     clock_drift_mps: float | None = None  # Doppler clock drift, for the clock between factor
+    antenna_height_m: float | None = None  # above the road: the height links (FgoConfig) need it
 
 
 @dataclass(frozen=True)

@@ -25,4 +25,5 @@ MAX_DRIFT_MPS = 1.0e5  # receiver clock drift, m/s
 MAX_RANGE_M = 2.0e3  # an inter-vehicle (UWB) range
 MAX_RANGE_SIGMA_M = 100.0  # its 1-sigma
 MAX_PLANE_SIGMA_M = 100.0  # a road plane's 1-sigma at the antenna
+MAX_ANTENNA_HEIGHT_M = 10.0  # an antenna's height above the road
 MAX_NORMAL_ERROR = 1e-6  # a plane normal's length may differ this much from 1 (SVD gives ~1e-16)

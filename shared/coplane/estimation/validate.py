@@ -22,6 +22,7 @@ import numpy as np
 from coplane.estimation.contract import EpochInput, FleetSolution, PlaneObs, PseudorangeObs, VehicleEpochInput
 from coplane.estimation.limits import (
     KNOWN_SYSTEMS,
+    MAX_ANTENNA_HEIGHT_M,
     MAX_DRIFT_MPS,
     MAX_NORMAL_ERROR,
     MAX_PLANE_SIGMA_M,
@@ -105,6 +106,7 @@ class ValidVehicle:
     plane: PlaneObs | None = None
     spp: Vec | None = None  # the node's SPP fix (initial guess)
     drift: float | None = None  # Doppler receiver clock drift, m/s
+    antenna_height_m: float | None = None  # above the road, 0-10 m
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,13 @@ def validate_vehicle(
             rejected["spp"] += 1
             spp = None
     plane = _valid_plane(vin.plane, rejected) if planes else None
-    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift)
+    antenna = None
+    if vin.antenna_height_m is not None:
+        antenna = finite(vin.antenna_height_m)
+        if antenna is None or not 0.0 <= antenna <= MAX_ANTENNA_HEIGHT_M:
+            rejected["antenna_height"] += 1
+            antenna = None
+    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna)
 
 
 def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -> ValidPseudoranges:

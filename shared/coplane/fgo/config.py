@@ -55,6 +55,18 @@ class FgoConfig:
     # of the range: a distance well above the SPP error cannot be on the wrong side, and fixes that
     # far from their range are not a swap but a far-off fix, which the range pulls in.
     range_warmup_max_m: float = 15.0
+    # Road-height links (plane methods only): two vehicles linked by a range shorter than
+    # `height_link_max_m` drive on one road surface, so their antennas' heights differ by the
+    # road's grade over that distance plus their antenna heights' difference: a height-only link
+    # with sigma sqrt(height_link_sigma_m^2 + (height_link_grade * range)^2), the plane's
+    # zeroth-order form, which needs no fitted history (a cold start, a canyon without a plane).
+    # 0: off.
+    height_link_max_m: float = 0.0
+    height_link_grade: float = 0.05
+    height_link_sigma_m: float = 0.5
+    # ... only once one of its ends has been tracked this many epochs (0: from the first): that
+    # end's height anchors the link; two new tracks (a cold start) both have their SPP's height
+    height_link_settled_epochs: int = 0
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
@@ -192,6 +204,8 @@ class FgoConfig:
             "sigma_v": self.sigma_v,
             "range_sigma": self.range_sigma,
             "range_warmup_max_m": self.range_warmup_max_m,
+            "height_link_grade": self.height_link_grade,
+            "height_link_sigma_m": self.height_link_sigma_m,
             "covariance_scale": self.covariance_scale,
             "clock_rw_sigma": self.clock_rw_sigma,
             "clock_drift_sigma": self.clock_drift_sigma,
@@ -228,6 +242,12 @@ class FgoConfig:
             )
         if self.window_cluster_max < 0:
             raise ValueError(f"window_cluster_max must be >= 0, got {self.window_cluster_max!r}")
+        if not (math.isfinite(self.height_link_max_m) and self.height_link_max_m >= 0):
+            raise ValueError(f"height_link_max_m must be finite and >= 0, got {self.height_link_max_m!r}")
+        if self.height_link_settled_epochs < 0:
+            raise ValueError(
+                f"height_link_settled_epochs must be >= 0, got {self.height_link_settled_epochs!r}"
+            )
         if self.range_warmup_epochs < 0:
             raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
         if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:

@@ -32,6 +32,7 @@ from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.cooperative import cooperative_exclusion
+from coplane.fgo.height_links import height_links
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.solve import ClusterSolver
@@ -139,6 +140,11 @@ class FusionEstimator:
                 ka, kb, r.range_m, r.sigma_or(cfg.range_sigma), cfg.robust, cfg.robust_tuning
             )
             rec.ranges.append(RangeEdge(r.a, r.b, ka, kb, factor))
+        if cfg.use_planes and cfg.height_link_max_m > 0:
+            n_set = cfg.height_link_settled_epochs
+            rec.ranges += height_links(
+                ranges, rec.blocks, valid.vehicles, cfg, lambda v: k - st.track_start[v] >= n_set
+            )
         st.window.push(rec)
 
         n_clusters = 0
@@ -289,7 +295,7 @@ class FusionEstimator:
         """The newest state of every vehicle solved this epoch."""
         st = self._state
         n_ranges: dict[str, int] = {}
-        for r in rec.ranges:
+        for r in (e for e in rec.ranges if e.kind == "range"):
             n_ranges[r.a] = n_ranges.get(r.a, 0) + 1
             n_ranges[r.b] = n_ranges.get(r.b, 0) + 1
         nan_cov = np.full((3, 3), np.nan)

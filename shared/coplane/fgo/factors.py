@@ -196,6 +196,31 @@ def range_factor(
     )
 
 
+def height_link_factor(
+    key_a: int,
+    key_b: int,
+    pos_a: Vec,
+    pos_b: Vec,
+    antenna_diff_m: float,
+    sigma_up_m: float,
+    robust: str | None = None,
+    robust_k: float | None = None,
+) -> gtsam.BetweenFactorPoint3:
+    """Two vehicles on one road surface: h_b - h_a = (antenna_b - antenna_a) +- sigma_up_m.
+
+    GTSAM has no height-difference factor between two points, so this is a between factor whose
+    horizontal part is nearly free (sigma HEIGHT_LINK_FREE_M, measured from the initial
+    positions `pos_a`, `pos_b`) and whose component along local up carries the link."""
+    a, b = np.asarray(pos_a, dtype=float), np.asarray(pos_b, dtype=float)
+    u = up_vector(a)
+    d = b - a
+    d = d - float(u @ d) * u + float(antenna_diff_m) * u
+    return displacement_factor(key_a, key_b, d, HEIGHT_LINK_FREE_M, a, sigma_up_m, robust, robust_k)
+
+
+HEIGHT_LINK_FREE_M = 1.0e3  # a height link's horizontal sigma: no horizontal information
+
+
 def displacement_factor(
     prev_key: int,
     key: int,

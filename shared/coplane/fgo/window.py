@@ -15,7 +15,7 @@ Solvers, one instance per cluster of vehicles (connected by ranges within the wi
 
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, cast
@@ -85,11 +85,19 @@ class StateBlock:
 
 @dataclass
 class RangeEdge:
+    """A factor between two vehicles' states of one epoch: a range, or a height link beside one."""
+
     a: str
     b: str
     key_a: int
     key_b: int
     factor: gtsam.NonlinearFactor
+    kind: str = "range"  # "range" | "height_link": what the factor counts expose
+
+
+def edge_counts(edges: Iterable[RangeEdge]) -> dict[str, int]:
+    """How many edges of each kind."""
+    return dict(Counter(e.kind for e in edges))
 
 
 @dataclass
@@ -138,7 +146,7 @@ class Window:
                     del self.by_vehicle[vid]
                 self._count(blk.counts, -1)
                 removed.append(blk)
-            self._count({"range": len(rec.ranges)}, -1)
+            self._count(edge_counts(rec.ranges), -1)
             self._count(self._links_by_prev.pop(rec.step, {}), -1)  # links into the deleted states
         return removed
 
@@ -149,7 +157,7 @@ class Window:
             self.by_vehicle.setdefault(vid, deque()).append(blk)
             self._count(blk.counts, +1)
             self._count_links(blk, +1)
-        self._count({"range": len(rec.ranges)}, +1)
+        self._count(edge_counts(rec.ranges), +1)
 
     def drop_new(self, vehicles: Iterable[str]) -> None:
         """Remove the newest step's blocks (and their ranges) of `vehicles` after a failed solve."""
@@ -166,9 +174,8 @@ class Window:
                 del self.by_vehicle[vid]
             self._count(blk.counts, -1)
             self._count_links(blk, -1)
-        kept = [r for r in rec.ranges if r.a not in gone and r.b not in gone]
-        self._count({"range": len(rec.ranges) - len(kept)}, -1)
-        rec.ranges = kept
+        self._count(edge_counts(r for r in rec.ranges if r.a in gone or r.b in gone), -1)
+        rec.ranges = [r for r in rec.ranges if r.a not in gone and r.b not in gone]
 
     def vehicles(self) -> list[str]:
         return sorted(self.by_vehicle)

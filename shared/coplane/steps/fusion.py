@@ -147,6 +147,7 @@ class FusionStep:
             plane=plane,
             spp_position=np.array(m.spp.position_ecef_m) if m.spp.position_ecef_m is not None else None,
             clock_drift_mps=m.velocity.clock_drift_mps if m.velocity is not None else None,
+            antenna_height_m=m.antenna_height_m,
         )
 
     def solve(
