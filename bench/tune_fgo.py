@@ -67,7 +67,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     "height-links-100": {"height_link_max_m": 100.0, "height_link_settled_epochs": 5},
     "height-links-cold": {"height_link_max_m": 50.0, "height_link_settled_epochs": 0},
     "height-links-grade-0.1": {"height_link_grade": 0.1},
-    "height-links-sigma-1": {"height_link_sigma_m": 1.0},
+    "height-links-sigma-0.5": {"height_link_sigma_m": 0.5},
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)

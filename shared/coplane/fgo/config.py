@@ -63,7 +63,7 @@ class FgoConfig:
     # 0: off.
     height_link_max_m: float = 0.0
     height_link_grade: float = 0.05
-    height_link_sigma_m: float = 0.5
+    height_link_sigma_m: float = 1.0
     # ... only once one of its ends has been tracked this many epochs (0: from the first): that
     # end's height anchors the link; two new tracks (a cold start) both have their SPP's height
     height_link_settled_epochs: int = 0
