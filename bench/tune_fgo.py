@@ -60,14 +60,13 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-warmup-10": {"fde_warmup_epochs": 10},  # a new track's first epochs: the reported covariance
     "fde-warmup-10-snapshot": {"fde_warmup_epochs": 10, "fde_warmup_prior": "snapshot"},
     "no-range-warmup": {"range_warmup_epochs": 0},
-    # road-height links beside ranges shorter than 50 m (100 m), once one of the two tracks is 5
-    # epochs old (from the first epoch)
-    "height-links": {"height_link_max_m": 50.0, "height_link_settled_epochs": 5},
-    "no-height-links": {"height_link_max_m": 0.0},
-    "height-links-100": {"height_link_max_m": 100.0, "height_link_settled_epochs": 5},
+    # road-height links (off by default, docs/fgo.md) beside ranges shorter than 50 m (100 m), once
+    # one of the two tracks is 5 epochs old (from the first epoch), and with one setting changed
+    "height-links": {"height_link_max_m": 50.0},
+    "height-links-100": {"height_link_max_m": 100.0},
     "height-links-cold": {"height_link_max_m": 50.0, "height_link_settled_epochs": 0},
-    "height-links-grade-0.1": {"height_link_grade": 0.1},
-    "height-links-sigma-0.5": {"height_link_sigma_m": 0.5},
+    "height-links-grade-0.1": {"height_link_max_m": 50.0, "height_link_grade": 0.1},
+    "height-links-sigma-0.5": {"height_link_max_m": 50.0, "height_link_sigma_m": 0.5},
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)

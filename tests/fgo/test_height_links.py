@@ -52,8 +52,8 @@ def test_height_links_are_counted_apart_from_ranges_and_only_with_planes() -> No
     for name, expect in (("pc", True), ("mci", False)):
         spec = get_method(name)
         assert spec.fgo is not None
-        cfg = spec.fgo  # the defaults
-        ref = run(fleet, dataclasses.replace(cfg, height_link_max_m=0.0))
+        cfg = dataclasses.replace(spec.fgo, height_link_max_m=50.0)
+        ref = run(fleet, spec.fgo)  # the defaults: no links
         sols = run(fleet, cfg)
         last = sols[-1]
         assert ("height_link" in last.factor_counts) is expect, (name, last.factor_counts)
@@ -69,9 +69,9 @@ def test_a_neighbour_carries_a_height_the_satellites_do_not_fix() -> None:
     fleet = make_fleet(4, 30, seed=2, with_planes=False, sat_limit=limit)
     base = get_method("pc").fgo
     assert base is not None
-    on = error_stats(fleet, run(fleet, base), vehicles=["v01"], skip=5)  # the defaults
-    off = error_stats(
-        fleet, run(fleet, dataclasses.replace(base, height_link_max_m=0.0)), vehicles=["v01"], skip=5
+    off = error_stats(fleet, run(fleet, base), vehicles=["v01"], skip=5)  # the defaults: no links
+    on = error_stats(
+        fleet, run(fleet, dataclasses.replace(base, height_link_max_m=50.0)), vehicles=["v01"], skip=5
     )
     assert on.v_rmse < 0.5 * off.v_rmse, (on, off)
     assert on.h_rmse < off.h_rmse, (on, off)

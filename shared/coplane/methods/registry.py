@@ -109,8 +109,6 @@ ROBUST_FGO: dict[str, object] = {
     "motion_sigma": 0.5,
     "motion_sigma_up": 0.2,
     "range_warmup_epochs": 5,
-    "height_link_max_m": 50.0,  # road-height links (docs/fgo.md); only where planes are used
-    "height_link_settled_epochs": 5,
     "covariance_scale": 4.5,
 }
 
