@@ -4,11 +4,11 @@ The paper's plane (eqs. 22-24) needs a history of fleet positions around the veh
 unavailable for about a third of the epochs (docs/results.md), always at a cold start. Its
 zeroth-order form needs none: two vehicles whose UWB range is r drive on one surface, so their
 antennas' heights differ by the road's grade over r plus the difference of their antenna heights,
-within sqrt(sigma^2 + (grade r)^2). A height is what a road vehicle's GNSS determines worst (deep
-canyons, few satellites), and the vehicles of one range pair rarely share their NLOS geometry, so
-the link lets the better-determined height carry the other. It is part of the plane methods (the
-same road-surface assumption), never of `mci`, and is robust like the ranges: where two roads
-cross at different levels the kernel caps the pull (docs/fgo.md, "Road-height links").
+within sqrt(sigma^2 + (grade r)^2), and a well-determined height can carry a neighbour's in a
+canyon. It belongs to the plane methods (the same road-surface assumption), never to `mci`, and
+has the ranges' robust kernel. Off by default (`FgoConfig.height_link_max_m` 0): on the held-out
+seeds it cost dense-urban horizontally and the underpasses vertically, where one grade may be the
+wrong model (docs/fgo.md, "Road-height links, tried").
 """
 
 from __future__ import annotations
