@@ -31,6 +31,7 @@ from coplane.evaluate.benchmark import (
     checks_table,
     consistency_table,
     make_recordings,
+    numeric_versions,
     pooled_by_environment,
     tail_summary,
 )
@@ -75,7 +76,7 @@ def _held_out(tmp: Path, duration_s: float) -> list[str]:
     """The held-out benchmark: every method pooled over 5 fresh seeds per scenario."""
     out = [
         "## Held-out benchmark (the acceptance of the robust-fusion work)\n",
-        f"Made on {dt.date.today()}. Defaults were chosen on the training seeds {_seeds(TRAINING)} (`bench/tune_fgo.py`) and are "
+        f"Made on {dt.date.today()} with {numeric_versions()}. Defaults were chosen on the training seeds {_seeds(TRAINING)} (`bench/tune_fgo.py`) and are "
         f"reported here on other seeds, {_seeds(HELD_OUT)}: 4 vehicles, {duration_s:.0f} s each, DGNSS "
         "base, UWB. Errors are pooled over every vehicle of every seed of a scenario, overall and per "
         "environment of the truth; the ratios are the orderings issue 12 asks for "
@@ -119,7 +120,7 @@ def _bundled() -> str:
     return "\n\n".join(
         [
             "## Bundled recording (urban loop, 4 vehicles, 600 s; the paper's Tables I and II)\n",
-            f"Made on {dt.date.today()}. The recording the README's first command replays (simulator seed 0). It is not a held-out "
+            f"Made on {dt.date.today()} with {numeric_versions()}. The recording the README's first command replays (simulator seed 0). It is not a held-out "
             "seed: older defaults were chosen on it, so the benchmark above is the one to judge methods "
             "by. The RTKLIB row is RTKLIB's own SPP on the RINEX (docs/methods.md).\n",
             _run("bundled", bundled_default_path(), methods, RATES, ["u1", "u2", "u3", "u4"]),

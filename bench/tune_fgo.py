@@ -20,7 +20,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-from coplane.evaluate.benchmark import TRAINING, Consistency, make_recordings, pooled_by_environment
+from coplane.evaluate.benchmark import (
+    TRAINING,
+    Consistency,
+    make_recordings,
+    numeric_versions,
+    pooled_by_environment,
+)
 from coplane.evaluate.metrics import PooledStats
 from coplane.methods import MethodSpec, get_method
 
@@ -60,13 +66,32 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-warmup-10": {"fde_warmup_epochs": 10},  # a new track's first epochs: the reported covariance
     "fde-warmup-10-snapshot": {"fde_warmup_epochs": 10, "fde_warmup_prior": "snapshot"},
     "no-range-warmup": {"range_warmup_epochs": 0},
-    # road-height links (off by default, docs/fgo.md) beside ranges shorter than 50 m (100 m), once
+    # road-height links (docs/fgo.md): the default since 2026-11-27 is links beside ranges shorter
+    # than 50 m that predict the rise from both ends' Doppler grades (sigma 0.02). The first try
+    # (docs/tuning-height-links.md) had no prediction: a fixed 0.05 grade, reach 50 m (100 m), once
     # one of the two tracks is 5 epochs old (from the first epoch), and with one setting changed
-    "height-links": {"height_link_max_m": 50.0},
-    "height-links-100": {"height_link_max_m": 100.0},
-    "height-links-cold": {"height_link_max_m": 50.0, "height_link_settled_epochs": 0},
-    "height-links-grade-0.1": {"height_link_max_m": 50.0, "height_link_grade": 0.1},
-    "height-links-sigma-0.5": {"height_link_max_m": 50.0, "height_link_sigma_m": 0.5},
+    "no-height-links": {"height_link_max_m": 0.0},  # the default until 2026-11-27
+    "height-links": {"height_link_max_m": 50.0, "height_link_doppler_grade_sigma": 0.0},
+    "height-links-100": {"height_link_max_m": 100.0, "height_link_doppler_grade_sigma": 0.0},
+    "height-links-cold": {
+        "height_link_max_m": 50.0,
+        "height_link_settled_epochs": 0,
+        "height_link_doppler_grade_sigma": 0.0,
+    },
+    "height-links-grade-0.1": {
+        "height_link_max_m": 50.0,
+        "height_link_grade": 0.1,
+        "height_link_doppler_grade_sigma": 0.0,
+    },
+    "height-links-sigma-0.5": {
+        "height_link_max_m": 50.0,
+        "height_link_sigma_m": 0.5,
+        "height_link_doppler_grade_sigma": 0.0,
+    },
+    # ... predicting the height difference from both vehicles' Doppler grades
+    "height-links-doppler": {"height_link_max_m": 50.0, "height_link_doppler_grade_sigma": 0.02},
+    "height-links-doppler-0.01": {"height_link_max_m": 50.0, "height_link_doppler_grade_sigma": 0.01},
+    "height-links-doppler-0.04": {"height_link_max_m": 50.0, "height_link_doppler_grade_sigma": 0.04},
     "covariance-scale-3.5": {"covariance_scale": 3.5},  # the default before the 2026-11-25 round
     "no-covariance-scale": {"covariance_scale": 1.0},
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)
@@ -106,12 +131,14 @@ def apply_variant(spec: MethodSpec, variant: str) -> MethodSpec:
 
 
 def row(method: str, variant: str, by_env: dict[str, PooledStats], cons: Consistency) -> str:
-    """One Markdown row: pooled H/V RMSE, tail, deep canyon, and the 95 % containment."""
-    a, deep = by_env["all"], by_env.get("deep")
-    d = f"{deep.h_rmse_m:.2f} / {deep.v_rmse_m:.2f}" if deep else "-"
+    """One Markdown row: pooled H/V RMSE, tail, deep canyon, underpass, and the 95 % containment."""
+    a = by_env["all"]
+    env = [
+        f"{s.h_rmse_m:.2f} / {s.v_rmse_m:.2f}" if (s := by_env.get(k)) else "-" for k in ("deep", "underpass")
+    ]
     return (
         f"| {method} | {variant} | {a.h_rmse_m:.2f} / {a.v_rmse_m:.2f} | {a.h_p99_m:.2f} / {a.h_max_m:.1f} "
-        f"| {d} | {cons.h_in95:.2f} / {cons.v_in95:.2f} |"
+        f"| {env[0]} | {env[1]} | {cons.h_in95:.2f} / {cons.v_in95:.2f} |"
     )
 
 
@@ -144,12 +171,14 @@ def main() -> None:
         f"{', '.join(f'{k} {v}' for k, v in training.items())}, 4 vehicles x {args.duration:.0f} s, "
         "pooled over the vehicles and seeds of each scenario. Each variant changes the current defaults "
         "(`ROBUST_FGO`, docs/fgo.md) in one respect. These seeds are never reported: "
-        "docs/results.md uses held-out ones. In95: share of epochs inside the reported 95 % region.\n",
+        "docs/results.md uses held-out ones. In95: share of epochs inside the reported 95 % region. "
+        f"Made with {numeric_versions()}.\n",
     ]
     print("\n".join(lines), flush=True)
     header = [
-        "| method | variant | H / V RMSE (m) | H p99 / max (m) | deep canyon H / V RMSE (m) | in95 H / V |",
-        "|---|---|---|---|---|---|",
+        "| method | variant | H / V RMSE (m) | H p99 / max (m) | deep canyon H / V RMSE (m) "
+        "| underpass H / V RMSE (m) | in95 H / V |",
+        "|---|---|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory() as tmp:
         for scen, seeds in training.items():

@@ -7,10 +7,13 @@ from collections import Counter
 
 import gtsam
 import numpy as np
+import pytest
 from support.fgo_synthetic import error_stats, make_fleet, run
 
 from coplane.estimation.validate import validate_vehicle
 from coplane.fgo import factors as F
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.height_links import _doppler_rise
 from coplane.geo import geodetic_to_ecef, up_vector
 from coplane.methods import get_method
 
@@ -53,7 +56,7 @@ def test_height_links_are_counted_apart_from_ranges_and_only_with_planes() -> No
         spec = get_method(name)
         assert spec.fgo is not None
         cfg = dataclasses.replace(spec.fgo, height_link_max_m=50.0)
-        ref = run(fleet, spec.fgo)  # the defaults: no links
+        ref = run(fleet, dataclasses.replace(spec.fgo, height_link_max_m=0.0))  # no links
         sols = run(fleet, cfg)
         last = sols[-1]
         assert ("height_link" in last.factor_counts) is expect, (name, last.factor_counts)
@@ -69,9 +72,41 @@ def test_a_neighbour_carries_a_height_the_satellites_do_not_fix() -> None:
     fleet = make_fleet(4, 30, seed=2, with_planes=False, sat_limit=limit)
     base = get_method("pc").fgo
     assert base is not None
-    off = error_stats(fleet, run(fleet, base), vehicles=["v01"], skip=5)  # the defaults: no links
+    no_links = dataclasses.replace(base, height_link_max_m=0.0)
+    off = error_stats(fleet, run(fleet, no_links), vehicles=["v01"], skip=5)
     on = error_stats(
         fleet, run(fleet, dataclasses.replace(base, height_link_max_m=50.0)), vehicles=["v01"], skip=5
     )
     assert on.v_rmse < 0.5 * off.v_rmse, (on, off)
     assert on.h_rmse < off.h_rmse, (on, off)
+
+
+def test_the_doppler_grades_predict_the_rise_along_the_heading() -> None:
+    """On a 5 % grade, b 20 m ahead of a lies 1 m higher; side by side, level. Two grades that
+    disagree predict their mean and widen the sigma by half their difference. No prediction
+    when either end lacks a grade (no Doppler, below 2 m/s, or above 15 %: a biased velocity),
+    nor when the prediction is off."""
+    a = geodetic_to_ecef(0.6, 2.0, 30.0)
+    u = up_vector(a)
+    east = np.cross([0.0, 0.0, 1.0], u)
+    east /= np.linalg.norm(east)
+    north = np.cross(u, east)
+    cfg = FgoConfig(height_link_max_m=50.0, height_link_doppler_grade_sigma=0.02)
+    fleet = make_fleet(2, 1, seed=0)
+    vin = validate_vehicle("v01", fleet.epochs[0].vehicles["v01"], fleet.epochs[0].time, Counter())
+    assert not isinstance(vin, str)
+
+    def rise(
+        b: np.ndarray, va: np.ndarray | None, vb: np.ndarray | None, c: FgoConfig = cfg
+    ) -> tuple[float, float] | None:
+        ends = [dataclasses.replace(vin, velocity=v, velocity_sigma=0.05) for v in (va, vb)]
+        return _doppler_rise(a, b, ends[0], ends[1], c)
+
+    up_hill, level = 10.0 * east + 0.5 * u, 10.0 * east
+    assert rise(a + 20.0 * east, up_hill, up_hill) == pytest.approx((1.0, 0.02))
+    assert rise(a + 20.0 * north, up_hill, up_hill) == pytest.approx((0.0, 0.02), abs=1e-9)
+    assert rise(a + 20.0 * east, up_hill, level) == pytest.approx((0.5, float(np.hypot(0.02, 0.025))))
+    for no_grade in (None, 1.0 * east, 10.0 * east + 2.0 * u):
+        assert rise(a + 20.0 * east, up_hill, no_grade) is None
+    off = dataclasses.replace(cfg, height_link_doppler_grade_sigma=0.0)
+    assert rise(a + 20.0 * east, up_hill, up_hill, off) is None

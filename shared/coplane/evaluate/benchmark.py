@@ -9,6 +9,7 @@ canyons and underpasses where methods differ are visible next to the fleet RMSE.
 
 from __future__ import annotations
 
+import importlib.metadata
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +50,17 @@ class Check:
     @property
     def ok(self) -> bool:
         return bool(self.value <= self.limit)
+
+
+NUMERIC_PACKAGES = ("gtsam", "numpy", "scipy")
+
+
+def numeric_versions() -> str:
+    """The numeric libraries' versions, for a benchmark's header. A fresh install moves pooled
+    figures in the second decimal: the same commit (06bdd65) gave a training dense-urban `pc`
+    H p99 of 9.81 m in one session and 10.09 m after a new `scripts/setup.sh` in the next
+    (library versions or the BLAS kernel; which one was not isolated), so a table names them."""
+    return ", ".join(f"{p} {importlib.metadata.version(p)}" for p in NUMERIC_PACKAGES)
 
 
 def make_recordings(

@@ -60,14 +60,20 @@ class FgoConfig:
     # road's grade over that distance plus their antenna heights' difference: a height-only link
     # with sigma sqrt(height_link_sigma_m^2 + (height_link_grade * range)^2), the plane's
     # zeroth-order form, which needs no fitted history (a cold start, a canyon without a plane).
-    # 0: off, the default: on the held-out seeds they cost dense-urban 5 % horizontally and the
-    # underpasses vertically, where one grade may be the wrong model (ramps; docs/fgo.md).
-    height_link_max_m: float = 0.0
+    # 0: off. 50 m with the Doppler grades below, chosen on the training seeds (2026-11-27,
+    # docs/fgo.md); the fixed grade alone had cost the held-out underpasses vertically.
+    height_link_max_m: float = 50.0
     height_link_grade: float = 0.05
     height_link_sigma_m: float = 1.0
     # ... only once one of its ends has been tracked this many epochs (0: from the first): that
     # end's height anchors the link; two new tracks (a cold start) both have their SPP's height
     height_link_settled_epochs: int = 5
+    # ... and when both vehicles' Doppler velocities give a grade (vertical over horizontal speed,
+    # along each one's heading; not below 2 m/s nor above 15 %), their mean predicts the height
+    # difference instead of 0, with the grade's sigma hypot(height_link_doppler_grade_sigma,
+    # half the two grades' difference) in place of height_link_grade. A link with a grade at one
+    # end only keeps the fixed grade. 0: no prediction (every link uses the fixed grade).
+    height_link_doppler_grade_sigma: float = 0.02
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
@@ -245,6 +251,13 @@ class FgoConfig:
             raise ValueError(f"window_cluster_max must be >= 0, got {self.window_cluster_max!r}")
         if not (math.isfinite(self.height_link_max_m) and self.height_link_max_m >= 0):
             raise ValueError(f"height_link_max_m must be finite and >= 0, got {self.height_link_max_m!r}")
+        if not (
+            math.isfinite(self.height_link_doppler_grade_sigma) and self.height_link_doppler_grade_sigma >= 0
+        ):
+            raise ValueError(
+                "height_link_doppler_grade_sigma must be finite and >= 0, "
+                f"got {self.height_link_doppler_grade_sigma!r}"
+            )
         if self.height_link_settled_epochs < 0:
             raise ValueError(
                 f"height_link_settled_epochs must be >= 0, got {self.height_link_settled_epochs!r}"

@@ -6,9 +6,10 @@ zeroth-order form needs none: two vehicles whose UWB range is r drive on one sur
 antennas' heights differ by the road's grade over r plus the difference of their antenna heights,
 within sqrt(sigma^2 + (grade r)^2), and a well-determined height can carry a neighbour's in a
 canyon. It belongs to the plane methods (the same road-surface assumption), never to `mci`, and
-has the ranges' robust kernel. Off by default (`FgoConfig.height_link_max_m` 0): on the held-out
-seeds it cost dense-urban horizontally and the underpasses vertically, where one grade may be the
-wrong model (docs/fgo.md, "Road-height links, tried").
+has the ranges' robust kernel. With `height_link_doppler_grade_sigma` the vehicles' own Doppler
+velocities give the road's grade, and the link predicts the height difference along it (a ramp
+into an underpass) instead of 0. The fixed-grade form cost the held-out underpasses vertically
+(docs/fgo.md, "Road-height links"); the Doppler form was chosen on the training seeds.
 """
 
 from __future__ import annotations
@@ -20,6 +21,11 @@ from coplane.estimation.validate import ValidRange, ValidVehicle
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.window import RangeEdge, StateBlock
+from coplane.geo import up_vector
+from coplane.typing import Vec
+
+MIN_GRADE_SPEED_MPS = 2.0  # below this the Doppler grade is mostly noise (0.1 m/s vertical = 5 %)
+MAX_ROAD_GRADE = 0.15  # a steeper Doppler "grade" is a biased velocity, not a road: no prediction
 
 
 def height_links(
@@ -40,9 +46,48 @@ def height_links(
         a, b = blocks[r.a], blocks[r.b]
         ha, hb = vehicles[r.a].antenna_height_m, vehicles[r.b].antenna_height_m
         diff = hb - ha if ha is not None and hb is not None else 0.0
-        sigma = math.hypot(cfg.height_link_sigma_m, cfg.height_link_grade * r.range_m)
+        grade = cfg.height_link_grade
+        predicted = _doppler_rise(a.init_pos, b.init_pos, vehicles[r.a], vehicles[r.b], cfg)
+        if predicted is not None:
+            rise, grade = predicted
+            diff += rise
+        sigma = math.hypot(cfg.height_link_sigma_m, grade * r.range_m)
         factor = F.height_link_factor(
             a.pos_key, b.pos_key, a.init_pos, b.init_pos, diff, sigma, cfg.robust, cfg.robust_tuning
         )
         out.append(RangeEdge(r.a, r.b, a.pos_key, b.pos_key, factor, "height_link"))
     return out
+
+
+def _doppler_rise(
+    pos_a: Vec, pos_b: Vec, va: ValidVehicle, vb: ValidVehicle, cfg: FgoConfig
+) -> tuple[float, float] | None:
+    """The road's rise from a to b and its grade's sigma, from both ends' Doppler grades along
+    their own headings; None when either end has no grade (or the prediction is off).
+
+    Both ends, because one end's grade says nothing about a change of grade between the two (a
+    ramp down into an underpass, the other vehicle already on the flat under the deck): on the
+    training seeds predicting from one end cost dense-urban's underpasses a third of their
+    vertical accuracy (docs/fgo.md). The two grades' half-difference joins the sigma, since
+    it measures a change of grade between them or a biased Doppler. Only the along-heading part
+    of the separation rises with the grade; the cross-road part is left to the sigma (a crown or
+    a banked curve)."""
+    if cfg.height_link_doppler_grade_sigma <= 0:
+        return None
+    u = up_vector(pos_a)
+    d = pos_b - pos_a
+    d = d - float(u @ d) * u
+    grades: list[float] = []
+    rises: list[float] = []
+    for v in (va, vb):
+        if v.velocity is None:
+            return None
+        up = float(u @ v.velocity)
+        horiz = v.velocity - up * u
+        speed = float(math.sqrt(horiz @ horiz))
+        if speed < MIN_GRADE_SPEED_MPS or abs(up) > MAX_ROAD_GRADE * speed:
+            return None
+        grades.append(up / speed)
+        rises.append(up / speed * float(d @ horiz) / speed)
+    spread = abs(grades[0] - grades[1]) / 2.0
+    return sum(rises) / 2.0, math.hypot(cfg.height_link_doppler_grade_sigma, spread)
