@@ -66,11 +66,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-warmup-10": {"fde_warmup_epochs": 10},  # a new track's first epochs: the reported covariance
     "fde-warmup-10-snapshot": {"fde_warmup_epochs": 10, "fde_warmup_prior": "snapshot"},
     "no-range-warmup": {"range_warmup_epochs": 0},
-    # road-height links (docs/fgo.md): the default since 2026-11-27 is links beside ranges shorter
-    # than 50 m that predict the rise from both ends' Doppler grades (sigma 0.02). The first try
-    # (docs/tuning-height-links.md) had no prediction: a fixed 0.05 grade, reach 50 m (100 m), once
-    # one of the two tracks is 5 epochs old (from the first epoch), and with one setting changed
-    "no-height-links": {"height_link_max_m": 0.0},  # the default until 2026-11-27
+    # road-height links (off by default, docs/fgo.md). The first try (docs/tuning-height-links.md)
+    # had no prediction: a fixed 0.05 grade, reach 50 m (100 m), once one of the two tracks is 5
+    # epochs old (from the first epoch), and with one setting changed
     "height-links": {"height_link_max_m": 50.0, "height_link_doppler_grade_sigma": 0.0},
     "height-links-100": {"height_link_max_m": 100.0, "height_link_doppler_grade_sigma": 0.0},
     "height-links-cold": {

@@ -60,9 +60,11 @@ class FgoConfig:
     # road's grade over that distance plus their antenna heights' difference: a height-only link
     # with sigma sqrt(height_link_sigma_m^2 + (height_link_grade * range)^2), the plane's
     # zeroth-order form, which needs no fitted history (a cold start, a canyon without a plane).
-    # 0: off. 50 m with the Doppler grades below, chosen on the training seeds (2026-11-27,
-    # docs/fgo.md); the fixed grade alone had cost the held-out underpasses vertically.
-    height_link_max_m: float = 50.0
+    # 0: off, the default: tried twice (2026-11-27, docs/fgo.md), with a fixed grade and with the
+    # Doppler grades below. Both won on the training seeds and cost the held-out dense-urban
+    # seeds 5-6 % horizontally: in a deep canyon a better height moves a fix whose pseudoranges
+    # carry NLOS biases along the street. 50 m with the Doppler grades is the opt-in form.
+    height_link_max_m: float = 0.0
     height_link_grade: float = 0.05
     height_link_sigma_m: float = 1.0
     # ... only once one of its ends has been tracked this many epochs (0: from the first): that
