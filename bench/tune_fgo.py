@@ -66,6 +66,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-warmup-10": {"fde_warmup_epochs": 10},  # a new track's first epochs: the reported covariance
     "fde-warmup-10-snapshot": {"fde_warmup_epochs": 10, "fde_warmup_prior": "snapshot"},
     "no-range-warmup": {"range_warmup_epochs": 0},
+    # the FDE's w-test with a lower threshold on the NLOS side (pseudoranges measured too long)
+    "fde-long-2.5": {"fde_k_long": 2.5},
+    "fde-long-2.0": {"fde_k_long": 2.0},
+    "fde-long-1.5": {"fde_k_long": 1.5},
     # road-height links (off by default, docs/fgo.md). The first try (docs/tuning-height-links.md)
     # had no prediction: a fixed 0.05 grade, reach 50 m (100 m), once one of the two tracks is 5
     # epochs old (from the first epoch), and with one setting changed

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -88,7 +89,7 @@ def main() -> None:
     names = [f"{BASE}{SEP}{v}" if v != "default" else BASE for v in args.variants.split(",")]
     parts = [
         "# Tuning: the real-data check\n",
-        f"Output of `.venv/bin/python bench/tune_real_data.py --out docs/tuning-real.md` ({dt.date.today()}): "
+        f"Output of `.venv/bin/python bench/tune_real_data.py {' '.join(sys.argv[1:])}` ({dt.date.today()}): "
         f"`{BASE}` with each bench/tune_fgo.py variant (`{BASE}{SEP}<variant>`) on the real sets of "
         "docs/results.md, kinematic processing. A default chosen on the training seeds "
         '(docs/tuning.md) must not lose here. RTKLIB is not rerun, so the "common" columns are '

@@ -103,6 +103,8 @@ class FgoConfig:
     # pseudoranges against the predicted position with its covariance (the last reported
     # covariance + the displacement noise, eigenvalues floored at fde_prior_floor_m^2). None: off.
     fde_k: float | None = None
+    # ... and for a pseudorange measured longer than the fit (the NLOS side): None, fde_k
+    fde_k_long: float | None = None
     fde_prior_floor_m: float = 2.0
     # Cooperative exclusion (`cooperative.py`), after each vehicle's FDE: a satellite whose FDE
     # residuals summed over the vehicles within coop_fde_radius_m exceed coop_fde_k sqrt(m) is
@@ -233,6 +235,8 @@ class FgoConfig:
             positive["robust_k"] = self.robust_k
         if self.fde_k is not None:
             positive["fde_k"] = self.fde_k
+        if self.fde_k_long is not None:
+            positive["fde_k_long"] = self.fde_k_long
         if self.coop_fde_k is not None:
             positive["coop_fde_k"] = self.coop_fde_k
         positive["coop_fde_radius_m"] = self.coop_fde_radius_m

@@ -183,7 +183,9 @@ def screen(
     p_pred = F.floored_covariance(
         None if last_cov is None else last_cov + np.eye(3) * link_sigma**2, cfg.fde_prior_floor_m
     )
-    res = screen_pseudoranges(prs, predicted, p_pred, cfg.fde_k, snapshot_fallback=cfg.fde_snapshot_fallback)
+    res = screen_pseudoranges(
+        prs, predicted, p_pred, cfg.fde_k, snapshot_fallback=cfg.fde_snapshot_fallback, k_long=cfg.fde_k_long
+    )
     if res.prediction_rejected:
         stats.reject("fde_prediction_rejected")
     n_out = len(prs) - int(res.keep.sum())

@@ -59,8 +59,14 @@ def screen_pseudoranges(
     divergence_fraction: float = 0.5,
     divergence_min: int = 6,
     snapshot_fallback: bool = False,
+    k_long: float | None = None,
 ) -> ScreenResult:
     """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance.
+
+    `k_long`: the threshold for a residual measured longer than the fit (v > 0), the only side
+    NLOS produces; None: `k` on both sides. GTSAM's asymmetric kernels cannot do this in the
+    graph: its robust noise model hands them the Mahalanobis distance, which has no sign
+    (docs/fgo.md), so the asymmetry lives here.
 
     `snapshot_fallback`: when the prediction is rejected, test the epoch again without the prior
     (snapshot RAIM: the epoch's own redundancy) instead of keeping every pseudorange; an over-
@@ -107,13 +113,21 @@ def screen_pseudoranges(
         ok = q_v > 1e-6 * var[idx]  # a system's only satellite has no redundancy: not testable
         w = np.zeros_like(v)
         w[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
+        if k_long is not None:  # a long residual is tested against k_long: scale it onto k
+            w = np.where(v > 0, w * (k / k_long), w)
         if n_fail_first is None:
             n_fail_first = int((w > k).sum())
             if n >= divergence_min and n_fail_first > divergence_fraction * n:
                 if snapshot_fallback:
                     # no prior, so no prediction to reject: the w-test runs to its end
                     snapshot = screen_pseudoranges(
-                        prs, predicted, np.eye(3) * 1e12, k, min_keep=min_keep, divergence_min=n + 1
+                        prs,
+                        predicted,
+                        np.eye(3) * 1e12,
+                        k,
+                        min_keep=min_keep,
+                        divergence_min=n + 1,
+                        k_long=k_long,
                     )
                     return dataclasses.replace(snapshot, prediction_rejected=True)
                 return ScreenResult(np.ones(n, dtype=bool), (), True)
