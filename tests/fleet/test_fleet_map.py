@@ -97,6 +97,13 @@ def test_servers_by_region_share_one_map(tmp_path: Path) -> None:
         region_args=regions, listeners=[count], extra_fusion_args=["--map_commit_every_s", "1"],
     ) as lf:  # fmt: skip
         wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
+        # each server's diagnostics arrive on their own period: a snapshot taken the moment the
+        # agents finish can predate a server's first report (seen once in CI, 2026-11-27)
+        wait_until(
+            lambda: sum(d.epochs_solved > 0 for d in list(lf.collector.diags.values())) == 2,
+            30,
+            "both servers to report solved epochs",
+        )
         diags = dict(lf.collector.diags)
         replicas = [tmp_path / f"map.s{i}.sqlite" for i in (1, 2)]
 
