@@ -166,6 +166,12 @@ def test_a_lower_threshold_on_the_long_side_catches_a_smaller_nlos_bias() -> Non
         prs = dataclasses.replace(prs, sigma=np.ones(len(prs)))
         res = screen_pseudoranges(prs, RX, np.eye(3) * 0.25, 3.29, k_long=k_long)
         assert (not res.keep[3]) is out, (bias, k_long, res.keep)
+    # what is reported is the standardised residual itself (measured 4.54), not the statistic
+    # scaled onto 3.29 for the long side
+    same = _epoch(10, 1e-9, np.random.default_rng(0), bias={3: 5.0})
+    same = dataclasses.replace(same, sigma=np.ones(len(same)))
+    w = [screen_pseudoranges(same, RX, np.eye(3) * 0.25, 3.29, k_long=k).excluded_w for k in (None, 2.0)]
+    assert w[0] == pytest.approx(w[1]) and 4.0 < w[0][0] < 5.0, w
 
 
 def test_gtsam_asymmetric_kernels_act_on_the_distance_not_the_sign() -> None:

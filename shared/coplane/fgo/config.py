@@ -62,8 +62,8 @@ class FgoConfig:
     # zeroth-order form, which needs no fitted history (a cold start, a canyon without a plane).
     # 0: off, the default: tried twice (2026-11-27, docs/fgo.md), with a fixed grade and with the
     # Doppler grades below. Both won on the training seeds and cost the held-out dense-urban
-    # seeds 5-6 % horizontally: in a deep canyon a better height moves a fix whose pseudoranges
-    # carry NLOS biases along the street. 50 m with the Doppler grades is the opt-in form.
+    # seeds 5-6 % horizontally: in a deep canyon a better height pushes the NLOS biases of a
+    # fix's pseudoranges into its horizontal position. 50 m with the Doppler grades is the opt-in form.
     height_link_max_m: float = 0.0
     height_link_grade: float = 0.05
     height_link_sigma_m: float = 1.0

@@ -10,8 +10,8 @@ has the ranges' robust kernel. With `height_link_doppler_grade_sigma` the vehicl
 velocities give the road's grade, and the link predicts the height difference along it (a ramp
 into an underpass) instead of 0. Off by default (`FgoConfig.height_link_max_m` 0): in both forms
 the links won on the training seeds and cost the held-out dense-urban seeds horizontally, where
-a deep canyon's NLOS-biased pseudoranges trade a better height for a worse position along the
-street (docs/fgo.md, "Road-height links, tried twice").
+a deep canyon's NLOS-biased pseudoranges trade a better height for a worse horizontal position
+(docs/fgo.md, "Road-height links, tried twice").
 """
 
 from __future__ import annotations

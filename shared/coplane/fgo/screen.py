@@ -111,10 +111,10 @@ def screen_pseudoranges(
         v = resid[idx] - h @ x
         q_v = var[idx] - np.einsum("ij,jk,ik->i", h, q_x, h)
         ok = q_v > 1e-6 * var[idx]  # a system's only satellite has no redundancy: not testable
-        w = np.zeros_like(v)
-        w[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
-        if k_long is not None:  # a long residual is tested against k_long: scale it onto k
-            w = np.where(v > 0, w * (k / k_long), w)
+        w_abs = np.zeros_like(v)
+        w_abs[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
+        # the test statistic: a long residual is tested against k_long, so scale it onto k
+        w = w_abs if k_long is None else np.where(v > 0, w_abs * (k / k_long), w_abs)
         if n_fail_first is None:
             n_fail_first = int((w > k).sum())
             if n >= divergence_min and n_fail_first > divergence_fraction * n:
@@ -141,5 +141,5 @@ def screen_pseudoranges(
                 return ScreenResult(keep, tuple(excluded), False, factor, signed)
             return ScreenResult(keep, tuple(excluded), False, 1.0, signed)
         keep[idx[worst]] = False
-        excluded.append(float(w[worst]))
+        excluded.append(float(w_abs[worst]))  # the standardised residual, not the scaled statistic
     return ScreenResult(keep, tuple(excluded), False)
