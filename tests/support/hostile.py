@@ -736,11 +736,14 @@ def run_attack(
     max_ahead_s: float = 25.0,
     label: str = "",
     timeout_s: float = 120.0,
+    follow_fleet: bool = False,
 ) -> AttackRun:
     """Run the fleet without `attacker`'s agent; once it solves, send the node attacks as the
     attacker's vehicle and the forged solutions on the solution key (interleaved, in rounds, each
     round built against the newest solved epoch); then let the genuine agents finish and stop the
-    fusion server cleanly (its final diagnostics)."""
+    fusion server cleanly (its final diagnostics). `follow_fleet`: round k of n waits until the
+    fleet has solved its k/n share of the epochs (or the agents are done), so the attack spreads
+    over the genuine run however fast this host solves; otherwise rounds follow `round_s`."""
     from coplane.bus.security import vehicle_identity
 
     t_start = time.monotonic()
@@ -791,7 +794,14 @@ def run_attack(
         def agents_done() -> bool:
             return all(procs.procs[a].poll() is not None for a in agents)
 
-        sent_live = n_items = 0
+        sent_live = n_items = k_round = 0
+        n_rounds = sum(-(-len(items) // per_round) for _, items in groups)
+        paced = genuine.epochs[:-2] or genuine.epochs  # the agents exit once their last node is out
+
+        def fleet_reached(k: int) -> Callable[[], bool]:
+            target = paced[min(len(paced) - 1, k * len(paced) // max(1, n_rounds))]
+            return lambda: agents_done() or (newest_solved(col) or first) >= target
+
         t0 = time.monotonic()
         try:
             for kind, items in groups:
@@ -805,6 +815,9 @@ def run_attack(
                 before = _snapshot(watch, attacker)
                 n_diag, node_before = len(watch.diags), log.node_sent.total() - log.node_over_transport
                 for i in range(0, len(items), per_round):
+                    if follow_fleet:
+                        _wait(fleet_reached(k_round), timeout_s, "the fleet's progress", fail=False)
+                    k_round += 1
                     r0 = time.monotonic()
                     ctx.newest = newest_solved(col) or ctx.newest
                     if generation is None:
