@@ -70,6 +70,15 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-long-2.5": {"fde_k_long": 2.5},
     "fde-long-2.0": {"fde_k_long": 2.0},
     "fde-long-1.5": {"fde_k_long": 1.5},
+    # ... only for satellites likely NLOS: low (elevation) or weak (C/N0)
+    "fde-long-2.5-cn0-38": {"fde_k_long": 2.5, "fde_long_below_cn0_dbhz": 38.0},
+    "fde-long-2.0-cn0-38": {"fde_k_long": 2.0, "fde_long_below_cn0_dbhz": 38.0},
+    "fde-long-2.0-cn0-35": {"fde_k_long": 2.0, "fde_long_below_cn0_dbhz": 35.0},
+    "fde-long-2.0-el-30": {"fde_k_long": 2.0, "fde_long_below_elevation_deg": 30.0},
+    "fde-long-1.5-cn0-35": {"fde_k_long": 1.5, "fde_long_below_cn0_dbhz": 35.0},
+    "fde-long-1.5-cn0-38": {"fde_k_long": 1.5, "fde_long_below_cn0_dbhz": 38.0},
+    "fde-long-1.0-cn0-35": {"fde_k_long": 1.0, "fde_long_below_cn0_dbhz": 35.0},
+    "fde-long-1.5-cn0-32": {"fde_k_long": 1.5, "fde_long_below_cn0_dbhz": 32.0},
     # road-height links (off by default, docs/fgo.md). The first try (docs/tuning-height-links.md)
     # had no prediction: a fixed 0.05 grade, reach 50 m (100 m), once one of the two tracks is 5
     # epochs old (from the first epoch), and with one setting changed
@@ -126,10 +135,12 @@ DEFAULT_RUNS = (
 
 def apply_variant(spec: MethodSpec, variant: str) -> MethodSpec:
     """`spec` with a VARIANTS entry applied to its factor graph, or a BASELINE_VARIANTS entry to a
-    baseline; an unknown name raises KeyError."""
+    baseline; `a+b` applies both (b's settings win where they overlap); an unknown name raises
+    KeyError."""
     if spec.fgo is None:
         return dataclasses.replace(spec, **BASELINE_VARIANTS[variant])  # type: ignore[arg-type]
-    return dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **VARIANTS[variant]))  # type: ignore[arg-type]
+    changes = {k: v for part in variant.split("+") for k, v in VARIANTS[part].items()}
+    return dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **changes))  # type: ignore[arg-type]
 
 
 def row(method: str, variant: str, by_env: dict[str, PooledStats], cons: Consistency) -> str:
@@ -146,7 +157,9 @@ def row(method: str, variant: str, by_env: dict[str, PooledStats], cons: Consist
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", default="", help="method:variant,... (default: every pc variant + the others)")
+    ap.add_argument(
+        "--runs", default="", help="method:variant[+variant],... (default: every pc variant + the others)"
+    )
     ap.add_argument("--duration", type=float, default=200.0)
     ap.add_argument("--out", type=Path, default=None, help="also write the table here (docs/tuning.md)")
     ap.add_argument(

@@ -10,7 +10,7 @@ import pytest
 from coplane.estimation.validate import ValidPseudoranges
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.prepare import screen
-from coplane.fgo.screen import screen_pseudoranges
+from coplane.fgo.screen import screen_pseudoranges, weak_rows
 from coplane.fgo.state import StepStats
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
@@ -172,6 +172,28 @@ def test_a_lower_threshold_on_the_long_side_catches_a_smaller_nlos_bias() -> Non
     same = dataclasses.replace(same, sigma=np.ones(len(same)))
     w = [screen_pseudoranges(same, RX, np.eye(3) * 0.25, 3.29, k_long=k).excluded_w for k in (None, 2.0)]
     assert w[0] == pytest.approx(w[1]) and 4.0 < w[0][0] < 5.0, w
+
+
+def test_the_long_side_threshold_can_be_kept_to_weak_satellites() -> None:
+    """`long_rows` keeps `k_long` to the satellites likely to be NLOS: a 3-sigma lengthening
+    is excluded on a weak satellite and kept on a strong one (the symmetric 3.29 passes it there).
+    Weak means low or faint; an unreported elevation or C/N0 is not evidence."""
+    prs = _epoch(10, 1e-9, np.random.default_rng(0), bias={3: 3.0})
+    prs = dataclasses.replace(prs, sigma=np.ones(len(prs)))
+    for weak, out in ((True, True), (False, False)):
+        mask = np.zeros(len(prs), dtype=bool)
+        mask[3] = weak
+        res = screen_pseudoranges(prs, RX, np.eye(3) * 0.25, 3.29, k_long=2.0, long_rows=mask)
+        assert (not res.keep[3]) is out, (weak, res.keep)
+    cn0 = np.array([30.0, 45.0, np.nan, 45.0, 45.0, 45.0, 45.0, 45.0, 45.0, 45.0])
+    el = np.radians([60.0, 60.0, 60.0, 10.0, np.nan, 60.0, 60.0, 60.0, 60.0, 60.0])
+    faint_or_low = dataclasses.replace(prs, cn0=cn0, elevation=el)
+    assert weak_rows(faint_or_low, 20.0, 35.0).tolist() == [True, False, False, True] + [False] * 6
+    assert weak_rows(faint_or_low, None, 35.0).tolist() == [True] + [False] * 9
+    assert weak_rows(faint_or_low, 20.0, None).tolist() == [False] * 3 + [True] + [False] * 6
+    assert weak_rows(faint_or_low, None, None).all()
+    with pytest.raises(ValueError, match="fde_long_below_cn0_dbhz"):
+        FgoConfig(fde_long_below_cn0_dbhz=-1.0)
 
 
 def test_gtsam_asymmetric_kernels_act_on_the_distance_not_the_sign() -> None:

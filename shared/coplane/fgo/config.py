@@ -105,6 +105,11 @@ class FgoConfig:
     fde_k: float | None = None
     # ... and for a pseudorange measured longer than the fit (the NLOS side): None, fde_k
     fde_k_long: float | None = None
+    # fde_k_long only for satellites likely to be NLOS: below this elevation (degrees) or this
+    # C/N0 (dB-Hz), where reported; both None: for every satellite. A clean high strong satellite
+    # keeps the symmetric test and its 0.1 % false-exclusion rate (docs/fgo.md, "One-sided FDE").
+    fde_long_below_elevation_deg: float | None = None
+    fde_long_below_cn0_dbhz: float | None = None
     fde_prior_floor_m: float = 2.0
     # Cooperative exclusion (`cooperative.py`), after each vehicle's FDE: a satellite whose FDE
     # residuals summed over the vehicles within coop_fde_radius_m exceed coop_fde_k sqrt(m) is
@@ -237,6 +242,10 @@ class FgoConfig:
             positive["fde_k"] = self.fde_k
         if self.fde_k_long is not None:
             positive["fde_k_long"] = self.fde_k_long
+        if self.fde_long_below_elevation_deg is not None:
+            positive["fde_long_below_elevation_deg"] = self.fde_long_below_elevation_deg
+        if self.fde_long_below_cn0_dbhz is not None:
+            positive["fde_long_below_cn0_dbhz"] = self.fde_long_below_cn0_dbhz
         if self.coop_fde_k is not None:
             positive["coop_fde_k"] = self.coop_fde_k
         positive["coop_fde_radius_m"] = self.coop_fde_radius_m

@@ -21,7 +21,7 @@ from coplane.estimation.contract import PlaneObs
 from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.screen import screen_pseudoranges
+from coplane.fgo.screen import screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
@@ -183,8 +183,17 @@ def screen(
     p_pred = F.floored_covariance(
         None if last_cov is None else last_cov + np.eye(3) * link_sigma**2, cfg.fde_prior_floor_m
     )
+    long_rows = None
+    if cfg.fde_k_long is not None:
+        long_rows = weak_rows(prs, cfg.fde_long_below_elevation_deg, cfg.fde_long_below_cn0_dbhz)
     res = screen_pseudoranges(
-        prs, predicted, p_pred, cfg.fde_k, snapshot_fallback=cfg.fde_snapshot_fallback, k_long=cfg.fde_k_long
+        prs,
+        predicted,
+        p_pred,
+        cfg.fde_k,
+        snapshot_fallback=cfg.fde_snapshot_fallback,
+        k_long=cfg.fde_k_long,
+        long_rows=long_rows,
     )
     if res.prediction_rejected:
         stats.reject("fde_prediction_rejected")

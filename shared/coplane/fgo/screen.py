@@ -60,13 +60,15 @@ def screen_pseudoranges(
     divergence_min: int = 6,
     snapshot_fallback: bool = False,
     k_long: float | None = None,
+    long_rows: np.ndarray | None = None,
 ) -> ScreenResult:
     """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance.
 
     `k_long`: the threshold for a residual measured longer than the fit (v > 0), the only side
     NLOS produces; None: `k` on both sides. GTSAM's asymmetric kernels cannot do this in the
     graph: its robust noise model hands them the Mahalanobis distance, which has no sign
-    (docs/fgo.md), so the asymmetry lives here.
+    (docs/fgo.md), so the asymmetry lives here. `long_rows`: the rows `k_long` applies to (a
+    boolean mask, e.g. the low or weak satellites: `weak_rows`); None: every row.
 
     `snapshot_fallback`: when the prediction is rejected, test the epoch again without the prior
     (snapshot RAIM: the epoch's own redundancy) instead of keeping every pseudorange; an over-
@@ -114,7 +116,8 @@ def screen_pseudoranges(
         w_abs = np.zeros_like(v)
         w_abs[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
         # the test statistic: a long residual is tested against k_long, so scale it onto k
-        w = w_abs if k_long is None else np.where(v > 0, w_abs * (k / k_long), w_abs)
+        long_side = v > 0 if long_rows is None else (v > 0) & long_rows[idx]
+        w = w_abs if k_long is None else np.where(long_side, w_abs * (k / k_long), w_abs)
         if n_fail_first is None:
             n_fail_first = int((w > k).sum())
             if n >= divergence_min and n_fail_first > divergence_fraction * n:
@@ -128,6 +131,7 @@ def screen_pseudoranges(
                         min_keep=min_keep,
                         divergence_min=n + 1,
                         k_long=k_long,
+                        long_rows=long_rows,
                     )
                     return dataclasses.replace(snapshot, prediction_rejected=True)
                 return ScreenResult(np.ones(n, dtype=bool), (), True)
@@ -143,3 +147,18 @@ def screen_pseudoranges(
         keep[idx[worst]] = False
         excluded.append(float(w_abs[worst]))  # the standardised residual, not the scaled statistic
     return ScreenResult(keep, tuple(excluded), False)
+
+
+def weak_rows(prs: ValidPseudoranges, below_elevation_deg: float | None, below_cn0_dbhz: float | None) -> Vec:
+    """The satellites likely to be NLOS: below `below_elevation_deg` or `below_cn0_dbhz` (either
+    None: not a criterion; both None: every satellite). An unreported elevation or C/N0 (NaN) does
+    not make a satellite weak: without evidence it keeps the symmetric test."""
+    if below_elevation_deg is None and below_cn0_dbhz is None:
+        return np.ones(len(prs), dtype=bool)
+    weak = np.zeros(len(prs), dtype=bool)
+    with np.errstate(invalid="ignore"):  # NaN compares False
+        if below_elevation_deg is not None:
+            weak |= prs.elevation < np.radians(below_elevation_deg)
+        if below_cn0_dbhz is not None:
+            weak |= prs.cn0 < below_cn0_dbhz
+    return weak
