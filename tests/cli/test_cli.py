@@ -46,6 +46,10 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "warp-drive" in r.output and "valid methods" in r.output
     r = runner.invoke(app, ["eval", "--interruption", "150", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "0..100" in r.output
+    r = runner.invoke(app, ["eval", "--fgo", "fde_k_long=-1", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "fde_k_long must be finite and > 0" in r.output, r.output
+    r = runner.invoke(app, ["eval", "--fgo", "warp=9", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "no such factor-graph setting" in r.output, r.output
     r = runner.invoke(app, ["fleet", "--method", "warp-drive", "--no-api"])
     assert r.exit_code == 2 and "valid methods" in r.output
     r = runner.invoke(app, ["fleet", str(tmp_path / "nope"), "--no-api"])
@@ -97,6 +101,13 @@ def test_eval_format_tum_and_map_methods_need_a_map(tmp_path: Path) -> None:
     assert r.exit_code != 0 and "kml" in r.output
     r = runner.invoke(app, ["eval", str(rec), "--methods", "pc-map", "--out", str(out)])
     assert r.exit_code == 2 and "--map" in r.output and "coplane map build" in r.output, r.output
+    # an opt-in setting changed from the command line is said on the console and in accuracy.json
+    r = runner.invoke(
+        app, ["eval", str(rec), "--methods", "non-cp", "--fgo", "fde_k_long=1.5", "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "settings changed for every FGO method: fde_k_long=1.5" in r.output
+    assert "fde_k_long=1.5" in (out / "accuracy.json").read_text()
 
 
 def test_eval_reports_the_recordings_input_problems(tmp_path: Path) -> None:

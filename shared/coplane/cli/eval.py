@@ -45,6 +45,14 @@ def eval_(
             help="Extra solution files: 'tum' (evo) writes solutions/<method>/<vehicle>.tum and truth/<vehicle>.tum.",
         ),
     ] = "",
+    fgo: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Change a factor-graph setting of every FGO method, key=value (repeatable), e.g."
+            " fde_k_long=1.5 or height_link_max_m=50; see FgoConfig and docs/fgo.md. Baselines are"
+            " unaffected.",
+        ),
+    ] = None,
     map_file: Annotated[
         Path | None,
         typer.Option(
@@ -54,10 +62,12 @@ def eval_(
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
+    from coplane.fgo.overrides import parse_fgo_overrides
     from coplane.recording.health import health_warnings, input_health
     from coplane.recording.reader import open_recording
 
     rates = interruption_rates(interruption)
+    fgo_changes = parse_fgo_overrides(fgo or [])
     if fmt not in ("", "tum"):
         raise typer.BadParameter(f"unknown --format {fmt!r} (expected tum)")
     road_map = None
@@ -78,6 +88,7 @@ def eval_(
         progress=True,
         jobs=jobs,
         road_map=road_map,
+        fgo=fgo_changes,
     )
     if fmt == "tum":
         from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum

@@ -58,13 +58,19 @@ def evaluate(
     progress: bool = False,
     jobs: int | None = None,
     road_map: RoadMap | None = None,
+    fgo: dict[str, object] | None = None,
 ) -> Evaluation:
-    """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3)."""
-    specs = [None if m == RTKLIB_METHOD else get_method(m) for m in methods]  # validate names first
+    """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3). `fgo`:
+    factor-graph settings changed for every FGO method (`--fgo`; the baselines have none)."""
+    # validate names (and settings) first
+    specs = [None if m == RTKLIB_METHOD else get_method(m, fgo=fgo) for m in methods]
     if dgnss and rec.manifest.base is None and any(s is not None for s in specs):
         # the runner would refuse too, but only after the methods before it had run
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")
     ev = Evaluation(recording=rec.manifest.name)
+    if fgo:  # in accuracy.json too: these are not the methods' defaults
+        changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
+        ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"
     for spec in specs:
         if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
             rtk_run, ev.notes[RTKLIB_METHOD] = evaluation_row(rec, dgnss)

@@ -78,6 +78,15 @@ class MethodSpec:
             changes["window_epochs"] = window_epochs
         return dataclasses.replace(self, fgo=dataclasses.replace(self.fgo, **changes))  # type: ignore[arg-type]
 
+    def with_fgo(self, changes: dict[str, object]) -> MethodSpec:
+        """The same method with some factor-graph settings changed (`--fgo key=value`, parsed by
+        `coplane.fgo.overrides`); a baseline, which has no factor graph, is returned unchanged."""
+        if self.fgo is None or not changes:
+            return self
+        from coplane.fgo.overrides import apply_fgo_overrides
+
+        return dataclasses.replace(self, fgo=apply_fgo_overrides(self.fgo, changes))
+
 
 # What every FGO method runs on top of the paper's graph (docs/fgo.md, "Robust defaults"). Chosen
 # on the TRAINING seeds only (urban-loop 101-110, dense-urban 201-206; bench/tune_fgo.py) and
@@ -222,10 +231,18 @@ METHODS: dict[str, MethodSpec] = {
 }
 
 
-def get_method(name: str, *, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
-    """The named method, optionally on another solver / window length."""
+def get_method(
+    name: str,
+    *,
+    solver: Solver | None = None,
+    window_epochs: int | None = None,
+    fgo: dict[str, object] | None = None,
+) -> MethodSpec:
+    """The named method, optionally on another solver / window length, with factor-graph settings
+    `fgo` changed (FGO methods only)."""
     try:
         spec = METHODS[name]
     except KeyError:
         raise ConfigError(f"unknown method {name!r}; valid methods: {', '.join(METHODS)}") from None
-    return spec.with_solver(solver, window_epochs) if (solver or window_epochs) else spec
+    spec = spec.with_solver(solver, window_epochs) if (solver or window_epochs) else spec
+    return spec.with_fgo(fgo or {})
