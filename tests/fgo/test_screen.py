@@ -177,7 +177,8 @@ def test_a_lower_threshold_on_the_long_side_catches_a_smaller_nlos_bias() -> Non
 def test_the_long_side_threshold_can_be_kept_to_weak_satellites() -> None:
     """`long_rows` keeps `k_long` to the satellites likely to be NLOS: a 3-sigma lengthening
     is excluded on a weak satellite and kept on a strong one (the symmetric 3.29 passes it there).
-    Weak means low or faint; an unreported elevation or C/N0 is not evidence."""
+    Weak means low or faint (absolute, or under the epoch's strongest satellite); an unreported
+    elevation or C/N0 is not evidence."""
     prs = _epoch(10, 1e-9, np.random.default_rng(0), bias={3: 3.0})
     prs = dataclasses.replace(prs, sigma=np.ones(len(prs)))
     for weak, out in ((True, True), (False, False)):
@@ -192,6 +193,14 @@ def test_the_long_side_threshold_can_be_kept_to_weak_satellites() -> None:
     assert weak_rows(faint_or_low, None, 35.0).tolist() == [True] + [False] * 9
     assert weak_rows(faint_or_low, 20.0, None).tolist() == [False] * 3 + [True] + [False] * 6
     assert weak_rows(faint_or_low, None, None).all()
+    # relative to the epoch's strongest satellite (45): the same satellites on a receiver whose
+    # levels are all 12 dB lower, where an absolute 35 dB-Hz would call every satellite weak
+    assert weak_rows(faint_or_low, below_best_cn0_db=12.0).tolist() == [True] + [False] * 9
+    quiet = dataclasses.replace(faint_or_low, cn0=cn0 - 12.0)
+    assert weak_rows(quiet, below_best_cn0_db=12.0).tolist() == [True] + [False] * 9
+    assert weak_rows(quiet, below_cn0_dbhz=35.0).sum() == 9
+    unreported = dataclasses.replace(faint_or_low, cn0=np.full(10, np.nan))
+    assert not weak_rows(unreported, below_best_cn0_db=12.0).any()
     with pytest.raises(ValueError, match="fde_long_below_cn0_dbhz"):
         FgoConfig(fde_long_below_cn0_dbhz=-1.0)
 

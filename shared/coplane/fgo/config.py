@@ -105,11 +105,13 @@ class FgoConfig:
     fde_k: float | None = None
     # ... and for a pseudorange measured longer than the fit (the NLOS side): None, fde_k
     fde_k_long: float | None = None
-    # fde_k_long only for satellites likely to be NLOS: below this elevation (degrees) or this
-    # C/N0 (dB-Hz), where reported; both None: for every satellite. A clean high strong satellite
-    # keeps the symmetric test and its 0.1 % false-exclusion rate (docs/fgo.md, "One-sided FDE").
+    # fde_k_long only for satellites likely to be NLOS: below this elevation (degrees), this C/N0
+    # (dB-Hz), or this many dB under the epoch's strongest satellite, where reported; all None:
+    # for every satellite. A clean high strong satellite keeps the symmetric test and its 0.1 %
+    # false-exclusion rate (docs/fgo.md, "One-sided FDE").
     fde_long_below_elevation_deg: float | None = None
     fde_long_below_cn0_dbhz: float | None = None
+    fde_long_below_best_cn0_db: float | None = None
     fde_prior_floor_m: float = 2.0
     # Cooperative exclusion (`cooperative.py`), after each vehicle's FDE: a satellite whose FDE
     # residuals summed over the vehicles within coop_fde_radius_m exceed coop_fde_k sqrt(m) is
@@ -246,6 +248,8 @@ class FgoConfig:
             positive["fde_long_below_elevation_deg"] = self.fde_long_below_elevation_deg
         if self.fde_long_below_cn0_dbhz is not None:
             positive["fde_long_below_cn0_dbhz"] = self.fde_long_below_cn0_dbhz
+        if self.fde_long_below_best_cn0_db is not None:
+            positive["fde_long_below_best_cn0_db"] = self.fde_long_below_best_cn0_db
         if self.coop_fde_k is not None:
             positive["coop_fde_k"] = self.coop_fde_k
         positive["coop_fde_radius_m"] = self.coop_fde_radius_m

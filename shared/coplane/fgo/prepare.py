@@ -185,7 +185,9 @@ def screen(
     )
     long_rows = None
     if cfg.fde_k_long is not None:
-        long_rows = weak_rows(prs, cfg.fde_long_below_elevation_deg, cfg.fde_long_below_cn0_dbhz)
+        long_rows = weak_rows(
+            prs, cfg.fde_long_below_elevation_deg, cfg.fde_long_below_cn0_dbhz, cfg.fde_long_below_best_cn0_db
+        )
     res = screen_pseudoranges(
         prs,
         predicted,

@@ -149,11 +149,19 @@ def screen_pseudoranges(
     return ScreenResult(keep, tuple(excluded), False)
 
 
-def weak_rows(prs: ValidPseudoranges, below_elevation_deg: float | None, below_cn0_dbhz: float | None) -> Vec:
-    """The satellites likely to be NLOS: below `below_elevation_deg` or `below_cn0_dbhz` (either
-    None: not a criterion; both None: every satellite). An unreported elevation or C/N0 (NaN) does
-    not make a satellite weak: without evidence it keeps the symmetric test."""
-    if below_elevation_deg is None and below_cn0_dbhz is None:
+def weak_rows(
+    prs: ValidPseudoranges,
+    below_elevation_deg: float | None = None,
+    below_cn0_dbhz: float | None = None,
+    below_best_cn0_db: float | None = None,
+) -> Vec:
+    """The satellites likely to be NLOS: below `below_elevation_deg`, below `below_cn0_dbhz`, or
+    more than `below_best_cn0_db` under the epoch's strongest satellite (any that is set; none
+    set: every satellite). The relative form follows the receiver: a phone's or a choke ring's
+    C/N0 levels differ by many dB from the car-roof patch an absolute threshold would be chosen
+    for, while NLOS costs the reflection's loss on any antenna. An unreported elevation or C/N0
+    (NaN) does not make a satellite weak: without evidence it keeps the symmetric test."""
+    if below_elevation_deg is None and below_cn0_dbhz is None and below_best_cn0_db is None:
         return np.ones(len(prs), dtype=bool)
     weak = np.zeros(len(prs), dtype=bool)
     with np.errstate(invalid="ignore"):  # NaN compares False
@@ -161,4 +169,6 @@ def weak_rows(prs: ValidPseudoranges, below_elevation_deg: float | None, below_c
             weak |= prs.elevation < np.radians(below_elevation_deg)
         if below_cn0_dbhz is not None:
             weak |= prs.cn0 < below_cn0_dbhz
+        if below_best_cn0_db is not None and np.isfinite(prs.cn0).any():
+            weak |= prs.cn0 < np.nanmax(prs.cn0) - below_best_cn0_db
     return weak
