@@ -186,6 +186,17 @@ def test_the_long_side_threshold_can_be_kept_to_weak_satellites() -> None:
         mask[3] = weak
         res = screen_pseudoranges(prs, RX, np.eye(3) * 0.25, 3.29, k_long=2.0, long_rows=mask)
         assert (not res.keep[3]) is out, (weak, res.keep)
+    # two-sided: the same threshold for a shortening on that satellite too (unbiased for
+    # symmetric noise); one-sided, a shortening keeps the symmetric 3.29
+    short = _epoch(10, 1e-9, np.random.default_rng(0), bias={3: -3.0})
+    short = dataclasses.replace(short, sigma=np.ones(len(short)))
+    mask = np.zeros(len(short), dtype=bool)
+    mask[3] = True
+    for two_sided, out in ((True, True), (False, False)):
+        res = screen_pseudoranges(
+            short, RX, np.eye(3) * 0.25, 3.29, k_long=2.0, long_rows=mask, two_sided=two_sided
+        )
+        assert (not res.keep[3]) is out, (two_sided, res.keep)
     cn0 = np.array([30.0, 45.0, np.nan, 45.0, 45.0, 45.0, 45.0, 45.0, 45.0, 45.0])
     el = np.radians([60.0, 60.0, 60.0, 10.0, np.nan, 60.0, 60.0, 60.0, 60.0, 60.0])
     faint_or_low = dataclasses.replace(prs, cn0=cn0, elevation=el)

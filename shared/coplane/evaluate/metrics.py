@@ -78,6 +78,9 @@ class PooledStats:
     h_p99_m: float
     h_max_m: float
     v_max_m: float
+    # signed mean vertical error: a bias (a screening rule that cuts one tail of the noise makes
+    # one; a road map built from biased heights inherits it) that RMSE does not separate
+    v_mean_m: float = math.nan
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -95,7 +98,7 @@ def pooled_stats(errors: Vec) -> PooledStats:
     """Statistics of N x 3 ENU errors (NaN when N is 0)."""
     if len(errors) == 0:
         nan = math.nan
-        return PooledStats(0, nan, nan, nan, nan, nan, nan)
+        return PooledStats(0, nan, nan, nan, nan, nan, nan, nan)
     h, v = _horizontal_vertical(errors)
     return PooledStats(
         n=len(errors),
@@ -105,6 +108,7 @@ def pooled_stats(errors: Vec) -> PooledStats:
         h_p99_m=float(np.percentile(h, 99)),
         h_max_m=float(h.max()),
         v_max_m=float(np.abs(v).max()),
+        v_mean_m=float(np.mean(v)),
     )
 
 

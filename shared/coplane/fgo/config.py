@@ -60,10 +60,11 @@ class FgoConfig:
     # road's grade over that distance plus their antenna heights' difference: a height-only link
     # with sigma sqrt(height_link_sigma_m^2 + (height_link_grade * range)^2), the plane's
     # zeroth-order form, which needs no fitted history (a cold start, a canyon without a plane).
-    # 0: off, the default: tried twice (2026-11-27, docs/fgo.md), with a fixed grade and with the
-    # Doppler grades below. Both won on the training seeds and cost the held-out dense-urban
-    # seeds 5-6 % horizontally: in a deep canyon a better height pushes the NLOS biases of a
-    # fix's pseudoranges into its horizontal position. 50 m with the Doppler grades is the opt-in form.
+    # 0: off, the default: tried three times (2026-11-27, docs/fgo.md), with a fixed grade, with the
+    # Doppler grades below, and with the one-sided FDE. Each won on the training seeds and cost the
+    # validation dense-urban seeds 5-6 % horizontally: in a deep canyon a better height pushes the
+    # NLOS biases of a fix's pseudoranges into its horizontal position. 50 m with the Doppler
+    # grades is the opt-in form (`coplane eval --fgo height_link_max_m=50`).
     height_link_max_m: float = 0.0
     height_link_grade: float = 0.05
     height_link_sigma_m: float = 1.0
@@ -112,6 +113,8 @@ class FgoConfig:
     fde_long_below_elevation_deg: float | None = None
     fde_long_below_cn0_dbhz: float | None = None
     fde_long_below_best_cn0_db: float | None = None
+    # fde_k_long on both sides of those satellites' residuals, not the long side only
+    fde_long_two_sided: bool = False
     fde_prior_floor_m: float = 2.0
     # Cooperative exclusion (`cooperative.py`), after each vehicle's FDE: a satellite whose FDE
     # residuals summed over the vehicles within coop_fde_radius_m exceed coop_fde_k sqrt(m) is

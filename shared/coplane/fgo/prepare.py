@@ -196,6 +196,7 @@ def screen(
         snapshot_fallback=cfg.fde_snapshot_fallback,
         k_long=cfg.fde_k_long,
         long_rows=long_rows,
+        two_sided=cfg.fde_long_two_sided,
     )
     if res.prediction_rejected:
         stats.reject("fde_prediction_rejected")

@@ -61,6 +61,7 @@ def screen_pseudoranges(
     snapshot_fallback: bool = False,
     k_long: float | None = None,
     long_rows: np.ndarray | None = None,
+    two_sided: bool = False,
 ) -> ScreenResult:
     """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance.
 
@@ -68,7 +69,9 @@ def screen_pseudoranges(
     NLOS produces; None: `k` on both sides. GTSAM's asymmetric kernels cannot do this in the
     graph: its robust noise model hands them the Mahalanobis distance, which has no sign
     (docs/fgo.md), so the asymmetry lives here. `long_rows`: the rows `k_long` applies to (a
-    boolean mask, e.g. the low or weak satellites: `weak_rows`); None: every row.
+    boolean mask, e.g. the low or weak satellites: `weak_rows`); None: every row. `two_sided`:
+    `k_long` tests both signs of those rows, which keeps the test unbiased for symmetric noise
+    (cutting only the long tail of clean residuals shifts the fit).
 
     `snapshot_fallback`: when the prediction is rejected, test the epoch again without the prior
     (snapshot RAIM: the epoch's own redundancy) instead of keeping every pseudorange; an over-
@@ -116,7 +119,9 @@ def screen_pseudoranges(
         w_abs = np.zeros_like(v)
         w_abs[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
         # the test statistic: a long residual is tested against k_long, so scale it onto k
-        long_side = v > 0 if long_rows is None else (v > 0) & long_rows[idx]
+        long_side = np.ones(len(v), dtype=bool) if two_sided else v > 0
+        if long_rows is not None:
+            long_side &= long_rows[idx]
         w = w_abs if k_long is None else np.where(long_side, w_abs * (k / k_long), w_abs)
         if n_fail_first is None:
             n_fail_first = int((w > k).sum())
@@ -132,6 +137,7 @@ def screen_pseudoranges(
                         divergence_min=n + 1,
                         k_long=k_long,
                         long_rows=long_rows,
+                        two_sided=two_sided,
                     )
                     return dataclasses.replace(snapshot, prediction_rejected=True)
                 return ScreenResult(np.ones(n, dtype=bool), (), True)
