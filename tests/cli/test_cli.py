@@ -103,11 +103,11 @@ def test_eval_format_tum_and_map_methods_need_a_map(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "--map" in r.output and "coplane map build" in r.output, r.output
     # an opt-in setting changed from the command line is said on the console and in accuracy.json
     r = runner.invoke(
-        app, ["eval", str(rec), "--methods", "non-cp", "--fgo", "fde_k_long=1.5", "--out", str(out)]
+        app, ["eval", str(rec), "--methods", "non-cp", "--fgo", "fde_k_long=2.5", "--out", str(out)]
     )
     assert r.exit_code == 0, r.output
-    assert "settings changed for every FGO method: fde_k_long=1.5" in r.output
-    assert "fde_k_long=1.5" in (out / "accuracy.json").read_text()
+    assert "settings changed for every FGO method: fde_k_long=2.5" in r.output
+    assert "fde_k_long=2.5" in (out / "accuracy.json").read_text()
 
 
 def test_eval_reports_the_recordings_input_problems(tmp_path: Path) -> None:

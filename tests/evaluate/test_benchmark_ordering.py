@@ -1,11 +1,11 @@
 """The methods' orderings on the held-out seeds, with margins (docs/results.md, "Held-out benchmark").
 
-The defaults were chosen on `TRAINING` seeds; these tests run exactly the benchmark of
-docs/results.md (every `HELD_OUT` seed of each scenario, 4 vehicles x 200 s, about 1.5 min per
-scenario), so they check the orderings on data nobody tuned on, and the numbers they see are the
-numbers the docs print. Limits are the issue's targets where they hold, else the measured value
-plus a margin for another CPU's last bits (docs/fgo.md, "Numerical sensitivity"); measured values
-are in the docstrings and printed with -s.
+The defaults were chosen on `TRAINING` seeds (and checked on `VALIDATION`); these tests run
+exactly the benchmark of docs/results.md (every `HELD_OUT` seed of each scenario, 4 vehicles x
+200 s, about 1.5 min per scenario), so they check the orderings on data nobody tuned on, and the
+numbers they see are the numbers the docs print. Limits are the issue's targets where they hold,
+else the measured value plus a margin for another CPU's last bits (docs/fgo.md, "Numerical
+sensitivity"); measured values are in the docstrings and printed with -s.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from coplane.evaluate.benchmark import (
     HELD_OUT,
     HELD_OUT_DURATION_S,
     TRAINING,
+    VALIDATION,
     Consistency,
     make_recordings,
     pooled_by_environment,
@@ -27,11 +28,13 @@ from coplane.evaluate.metrics import PooledStats
 
 pytestmark = pytest.mark.slow
 
-# pc / best EKF baseline, H and V RMSE, measured 2026-11-27: urban-loop 0.67 (0.66 on an earlier install), 0.83; dense-urban
-# 0.57, 0.86. H: the issue's 0.85. V: the issue's 0.6 does not hold (docs/planes.md, "How much a
-# fleet plane can add"); the limits keep pc ahead of every baseline with a margin.
+# pc / best EKF baseline, H and V RMSE, measured 2026-11-27 on the seeds reported since (701-705,
+# 801-805): urban-loop 0.29, 0.58; dense-urban 0.42, 0.65. H: the issue's 0.85. V: the issue's
+# 0.6 holds on urban-loop, with 0.02 to spare for another install's second decimal (docs/fgo.md,
+# "Numerical sensitivity"); on dense-urban it does not (docs/planes.md, "How much a fleet plane can
+# add"), and the limit is the measured value plus a margin.
 H_VS_BASELINE = {"urban-loop": 0.85, "dense-urban": 0.85}
-V_VS_BASELINE = {"urban-loop": 0.9, "dense-urban": 0.95}
+V_VS_BASELINE = {"urban-loop": 0.62, "dense-urban": 0.7}
 METHODS = ("non-cp", "mci", "pc", *BASELINES)
 
 
@@ -41,7 +44,7 @@ def scenario_stats(
 ) -> tuple[str, dict[str, tuple[dict[str, PooledStats], Consistency]]]:
     scenario = request.param
     seeds = HELD_OUT[scenario]
-    assert not set(seeds) & set(TRAINING[scenario])
+    assert not set(seeds) & (set(TRAINING[scenario]) | set(VALIDATION[scenario]))
     recs = make_recordings(scenario, seeds, Path(tmp_path_factory.mktemp(scenario)), 4, HELD_OUT_DURATION_S)
     out = {m: pooled_by_environment(recs, m) for m in METHODS}
     for m, (st, c) in out.items():
@@ -68,15 +71,15 @@ def test_pc_beats_every_baseline_vertically(scenario_stats: tuple) -> None:
 
 def test_pc_is_not_worse_than_mci(scenario_stats: tuple) -> None:
     """The planes add little on top of ranging here (docs/results.md): a tie within 3 % (measured
-    pc / mci H 0.99 urban-loop, 1.00 dense-urban, V 0.92 urban-loop, 0.99 dense-urban)."""
+    pc / mci H 0.99 urban-loop, 0.99 dense-urban, V 0.88 urban-loop, 0.98 dense-urban)."""
     _, stats = scenario_stats
     assert _all(stats, "pc").h_rmse_m <= 1.03 * _all(stats, "mci").h_rmse_m
     assert _all(stats, "pc").v_rmse_m <= 1.03 * _all(stats, "mci").v_rmse_m
 
 
 def test_graph_non_cp_is_no_worse_than_the_ekf(scenario_stats: tuple) -> None:
-    """The issue's limit (1.0). Measured non-cp / non-cp-ekf H, V: urban-loop 0.87, 0.91,
-    dense-urban 0.53, 0.73."""
+    """The issue's limit (1.0). Measured non-cp / non-cp-ekf H, V: urban-loop 0.52, 0.67,
+    dense-urban 0.50, 0.66."""
     _, stats = scenario_stats
     assert _all(stats, "non-cp").h_rmse_m <= _all(stats, "non-cp-ekf").h_rmse_m
     assert _all(stats, "non-cp").v_rmse_m <= _all(stats, "non-cp-ekf").v_rmse_m
@@ -84,8 +87,8 @@ def test_graph_non_cp_is_no_worse_than_the_ekf(scenario_stats: tuple) -> None:
 
 def test_reported_covariances_hold_the_errors(scenario_stats: tuple) -> None:
     """An honest 95 % region holds 95 % of the errors. One scale (4.5, chosen on the training seeds)
-    for every sky: measured 1.00 on urban-loop (conservative), 0.93-0.98 on dense-urban; the EKF
-    baselines hold 0.36-0.69."""
+    for every sky: measured 1.00 on urban-loop (conservative), 0.94-0.97 on dense-urban; the EKF
+    baselines hold 0.32-0.67."""
     _, stats = scenario_stats
     for m in ("non-cp", "mci", "pc"):
         c = stats[m][1]

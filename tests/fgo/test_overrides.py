@@ -55,8 +55,8 @@ def test_the_config_validates_the_changed_values() -> None:
 
 
 def test_a_method_changes_only_what_was_asked_and_baselines_none() -> None:
-    base, changed = get_method("pc"), get_method("pc", fgo={"fde_k_long": 1.5})
+    base, changed = get_method("pc"), get_method("pc", fgo={"height_link_max_m": 50.0})
     assert base.fgo is not None and changed.fgo is not None
-    assert changed.fgo.fde_k_long == 1.5 and base.fgo.fde_k_long is None
-    assert changed.fgo == FgoConfig(**{**base.fgo.__dict__, "fde_k_long": 1.5})
-    assert get_method("gamp-cp", fgo={"fde_k_long": 1.5}) == get_method("gamp-cp")
+    assert changed.fgo.height_link_max_m == 50.0 and base.fgo.height_link_max_m == 0.0
+    assert changed.fgo == FgoConfig(**{**base.fgo.__dict__, "height_link_max_m": 50.0})
+    assert get_method("gamp-cp", fgo={"fde_k_long": 2.5}) == get_method("gamp-cp")

@@ -8,10 +8,10 @@ within sqrt(sigma^2 + (grade r)^2), and a well-determined height can carry a nei
 canyon. It belongs to the plane methods (the same road-surface assumption), never to `mci`, and
 has the ranges' robust kernel. With `height_link_doppler_grade_sigma` the vehicles' own Doppler
 velocities give the road's grade, and the link predicts the height difference along it (a ramp
-into an underpass) instead of 0. Off by default (`FgoConfig.height_link_max_m` 0): in both forms
-the links won on the training seeds and cost the held-out dense-urban seeds horizontally, where
+into an underpass) instead of 0. Off by default (`FgoConfig.height_link_max_m` 0): in three tries
+the links won on the training seeds and cost the validation dense-urban seeds horizontally, where
 a deep canyon's NLOS-biased pseudoranges trade a better height for a worse horizontal position
-(docs/fgo.md, "Road-height links, tried twice").
+(docs/fgo.md, "Road-height links, tried three times").
 """
 
 from __future__ import annotations
