@@ -69,3 +69,6 @@ def test_pooled_by_environment_with_tail() -> None:
     assert math.isnan(pooled_stats(np.zeros((0, 3))).h_rmse_m)
     table = environment_table({"m": out})
     assert "| m | " in table and "open (4 ep.)" in table and "/ 20.00 |" in table
+    # the signed mean vertical error over all epochs: (0 + 0 + 1 - 2 + 0 + 0) / 6
+    assert out["all"].v_mean_m == pytest.approx(-1.0 / 6.0)
+    assert table.splitlines()[2].endswith("| -0.17 |") and "V mean (m)" in table

@@ -120,15 +120,18 @@ def environment_stats(run: MethodRun, rec: Recording) -> dict[str, PooledStats]:
 
 
 def environment_table(by_env: dict[str, dict[str, PooledStats]]) -> str:
-    """Pooled H / V RMSE per environment, then the tail (p50, p99, max) over all epochs."""
+    """Pooled H / V RMSE per environment, then the tail (p50, p99, max) over all epochs and the
+    signed mean vertical error (a bias, which RMSE does not separate from scatter)."""
     envs: list[str] = []
     for per in by_env.values():
         envs += [e for e in per if e not in envs]
     first = next(iter(by_env.values()), {})
     head = [f"{e} ({first[e].n} ep.)" if e in first else e for e in envs]
     lines = [
-        "| Method | " + " | ".join(f"{h} H / V RMSE (m)" for h in head) + " | H p50 / p99 / max (m) |",
-        "|---" * (len(envs) + 2) + "|",
+        "| Method | "
+        + " | ".join(f"{h} H / V RMSE (m)" for h in head)
+        + " | H p50 / p99 / max (m) | V mean (m) |",
+        "|---" * (len(envs) + 3) + "|",
     ]
 
     def f(x: float) -> str:
@@ -138,7 +141,8 @@ def environment_table(by_env: dict[str, dict[str, PooledStats]]) -> str:
         cells = [f"{f(per[e].h_rmse_m)} / {f(per[e].v_rmse_m)}" if e in per else "-" for e in envs]
         a = per.get("all")
         tail = f"{f(a.h_p50_m)} / {f(a.h_p99_m)} / {f(a.h_max_m)}" if a is not None else "-"
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | {tail} |")
+        bias = "-" if a is None or not math.isfinite(a.v_mean_m) else f"{a.v_mean_m:+.2f}"
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {tail} | {bias} |")
     return "\n".join(lines)
 
 
