@@ -241,25 +241,22 @@ class FgoConfig:
             "isam2_relinearize_threshold": self.isam2_relinearize_threshold,
             "isam2_converged_m": self.isam2_converged_m,
         }
-        if self.robust_k is not None:
-            positive["robust_k"] = self.robust_k
-        if self.fde_k is not None:
-            positive["fde_k"] = self.fde_k
-        if self.fde_k_long is not None:
-            positive["fde_k_long"] = self.fde_k_long
-        if self.fde_long_below_elevation_deg is not None:
-            positive["fde_long_below_elevation_deg"] = self.fde_long_below_elevation_deg
-        if self.fde_long_below_cn0_dbhz is not None:
-            positive["fde_long_below_cn0_dbhz"] = self.fde_long_below_cn0_dbhz
-        if self.fde_long_below_best_cn0_db is not None:
-            positive["fde_long_below_best_cn0_db"] = self.fde_long_below_best_cn0_db
-        if self.coop_fde_k is not None:
-            positive["coop_fde_k"] = self.coop_fde_k
+        # optional thresholds: checked where set (None switches each one off)
+        for name in (
+            "robust_k",
+            "fde_k",
+            "fde_k_long",
+            "fde_long_below_elevation_deg",
+            "fde_long_below_cn0_dbhz",
+            "fde_long_below_best_cn0_db",
+            "coop_fde_k",
+            "fde_max_sigma_scale",
+        ):
+            if (value := getattr(self, name)) is not None:
+                positive[name] = value
         positive["coop_fde_radius_m"] = self.coop_fde_radius_m
         positive["fde_prior_floor_m"] = self.fde_prior_floor_m
         positive["pseudorange_sigma_scale"] = self.pseudorange_sigma_scale
-        if self.fde_max_sigma_scale is not None:
-            positive["fde_max_sigma_scale"] = self.fde_max_sigma_scale
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
