@@ -69,8 +69,8 @@ def _check_common(m: Material, r: AttackRun) -> None:
     """No crash, pending bounded, every genuine message used, every hostile one accounted for."""
     print(
         f"{r.label}: sent {r.log.node_sent.total()} node ({r.log.node_bytes / 1e6:.0f} MB), "
-        f"{r.log.solutions_sent.total()} solutions in {r.send_s:.1f} s ({r.attack_overlap:.0%} while the "
-        f"agents ran); wall {r.wall_s:.0f} s; "
+        f"{r.log.solutions_sent.total()} solutions in {r.send_s:.1f} s ({r.attack_overlap:.0%} before the "
+        f"genuine run ended); wall {r.wall_s:.0f} s; "
         f"pending max {r.pending_max} / {r.pending_limit}; reasons {r.diag.rejected_by_reason if r.diag else None}"
     )
     assert not r.crashed, r.crashed

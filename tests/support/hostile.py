@@ -706,7 +706,7 @@ class AttackRun:
     collector_bad: int
     wall_s: float
     send_s: float
-    attack_overlap: float  # share of the attack sent while genuine agents were still running
+    attack_overlap: float  # share of the attack sent before the genuine run (agents, solves) ended
     per_kind: dict[str, dict[str, int]]  # by_kind runs: the server's counters moved by each kind
     attacker_positions: dict[GpsTime, Any]  # the compromised vehicle in published solutions
     attacker_plane_used: dict[GpsTime, bool]
@@ -798,9 +798,13 @@ def run_attack(
         n_rounds = sum(-(-len(items) // per_round) for _, items in groups)
         paced = genuine.epochs[:-2] or genuine.epochs  # the agents exit once their last node is out
 
+        def genuine_running() -> bool:
+            # the agents may exit once their nodes are out while the server still solves them
+            return not agents_done() or (newest_solved(col) or first) < ctx.end
+
         def fleet_reached(k: int) -> Callable[[], bool]:
             target = paced[min(len(paced) - 1, k * len(paced) // max(1, n_rounds))]
-            return lambda: agents_done() or (newest_solved(col) or first) >= target
+            return lambda: not genuine_running() or (newest_solved(col) or first) >= target
 
         t0 = time.monotonic()
         try:
@@ -816,13 +820,14 @@ def run_attack(
                 n_diag, node_before = len(watch.diags), log.node_sent.total() - log.node_over_transport
                 for i in range(0, len(items), per_round):
                     if follow_fleet:
-                        _wait(fleet_reached(k_round), timeout_s, "the fleet's progress", fail=False)
+                        # a lockstep epoch solves in milliseconds: 10 s bounds a stalled fleet's cost
+                        _wait(fleet_reached(k_round), 10.0, "the fleet's progress", fail=False)
                     k_round += 1
                     r0 = time.monotonic()
                     ctx.newest = newest_solved(col) or ctx.newest
                     if generation is None:
                         generation = watch.generation
-                    live = not agents_done()
+                    live = genuine_running()
                     for x in items[i : i + per_round]:
                         if isinstance(x, NodeAttack):
                             send_node(att, x, ctx, log)
