@@ -57,7 +57,7 @@ def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, fl
     import gtsam
 
     import coplane.fgo.engine as engine
-    import coplane.fgo.window as window
+    import coplane.fgo.smoother as smoother
     from coplane.fgo.engine import FusionEstimator
 
     est = FusionEstimator(config)
@@ -74,7 +74,7 @@ def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, fl
                 "smoother updates with an epoch's factors" if a else "smoother updates without new factors"
             ),
         ),
-        (window, "marginal_covariances", lambda *a: "marginal covariances"),
+        (smoother, "marginal_covariances", lambda *a: "marginal covariances"),
     ]
     n = 0
     with timed(*parts[0], cpu), timed(*parts[1], cpu), timed(*parts[2], cpu), timed(*parts[3], cpu):

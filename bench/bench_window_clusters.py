@@ -70,7 +70,7 @@ def record_inputs(rec_dir: Path) -> tuple[Any, list[Any]]:
 
 def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str, float]:
     """The estimator alone over `inputs` with window_cluster_max = cap: cost and errors."""
-    import coplane.fgo.window as window
+    import coplane.fgo.smoother as smoother
     from coplane.fgo.engine import FusionEstimator
     from coplane.geo import up_vector
     from coplane.recording.reader import open_recording
@@ -80,7 +80,7 @@ def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str,
     est = FusionEstimator(dataclasses.replace(config, window_cluster_max=cap))
     rebuilt: list[int] = []  # vehicles of each smoother built from the window (priors given)
     rebuild_cpu = [0.0]
-    update = window.SmootherCluster.update
+    update = smoother.SmootherCluster.update
 
     def counted(self: Any, blocks: Any, ranges: Any, priors: Any, *a: Any, **kw: Any) -> Any:
         c0 = time.process_time()
@@ -91,7 +91,7 @@ def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str,
                 rebuilt.append(len(self.vehicles))
                 rebuild_cpu[0] += time.process_time() - c0
 
-    window.SmootherCluster.update = counted  # type: ignore[method-assign]
+    smoother.SmootherCluster.update = counted  # type: ignore[method-assign]
     cpu, n, dropped, h, v = 0.0, 0, 0, [], []
     for epoch in inputs:
         c0 = time.process_time()
@@ -108,7 +108,7 @@ def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str,
             dv = float(d @ up)
             v.append(dv)
             h.append(float(np.linalg.norm(d - dv * up)))
-    window.SmootherCluster.update = update  # type: ignore[method-assign]
+    smoother.SmootherCluster.update = update  # type: ignore[method-assign]
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     return {
         "ms": 1e3 * cpu / n,

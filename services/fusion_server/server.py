@@ -64,7 +64,7 @@ class FusionServer(Pacing):
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)
         self.spec = setup.method
-        self.step = setup.fusion_step()
+        self.step = setup.fusion_step(workers=settings.cluster_workers)
         self.pending: dict[GpsTime, dict[str, NodeMessage]] = defaultdict(dict)
         self.first_arrival: dict[GpsTime, float] = {}
         self.last_arrival: dict[GpsTime, float] = {}  # lockstep: an epoch still coming in
@@ -393,3 +393,4 @@ class FusionServer(Pacing):
                     extra={"epochs": self.epochs_solved, "rejected": dict(self.rejected_by_reason)},
                 )
                 self.durable.close()
+                self.step.close()  # the cluster workers, if any

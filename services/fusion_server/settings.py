@@ -90,6 +90,13 @@ class FusionSettings(ServiceSettings, RegionOptions):
         pattern=r"^[A-Za-z0-9_-]{1,32}$",
         description="This server's id among the fleet's servers",
     )
+    cluster_workers: int = Field(
+        default=1,
+        ge=1,
+        le=64,
+        description="Processes that solve the clusters' smoothers (this one and N-1 children; "
+        "docs/scale.md, 'Parallel clusters inside one server'); the estimates are the same for any N",
+    )
     expected_servers: int = Field(
         default=1, ge=1, le=256, description="Regions: wait (up to startup_wait_s) for this many servers"
     )

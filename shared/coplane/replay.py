@@ -139,10 +139,11 @@ class ReplaySetup:
             self.fleet, v.id, v.antenna_height_m, recording.nav, self.method, self.vehicle_config
         )
 
-    def fusion_step(self) -> FusionStep:
+    def fusion_step(self, workers: int = 1) -> FusionStep:
+        """`workers` > 1: the factor graph's clusters solved on that many processes (same estimates)."""
         from coplane.steps import FusionStep
 
-        return FusionStep(self.fleet, self.method, self.fusion_config)
+        return FusionStep(self.fleet, self.method, self.fusion_config, workers=workers)
 
 
 def replay_setup(

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from support.fgo_synthetic import make_fleet, run
 
-from coplane.fgo import factors, keys, window
+from coplane.fgo import factors, keys, smoother, window
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.methods import get_method
@@ -48,7 +48,7 @@ class _Diverged:
 def test_a_non_finite_estimate_raises() -> None:
     cfg = get_method("pc", solver="isam2-fixed-lag").fgo
     assert cfg is not None
-    sm = window.SmootherCluster(cfg, ["a"])
+    sm = smoother.SmootherCluster(cfg, ["a"])
     sm.smoother = _Diverged(sm.smoother)  # type: ignore[assignment]
     pk = keys.position_key(0, 0)  # a kind iSAM2 has a relinearisation threshold for
     g = gtsam.NonlinearFactorGraph()
@@ -81,11 +81,11 @@ def test_the_estimator_rebuilds_a_diverged_smoother(monkeypatch: pytest.MonkeyPa
     fleet = make_fleet(3, 8, seed=4)
     cfg = get_method("pc", solver="isam2-fixed-lag").fgo
     clean = run(fleet, cfg)
-    real_update = window.SmootherCluster.update
+    real_update = smoother.SmootherCluster.update
     calls: list[tuple[int, bool]] = []  # (smoother, raised) per update
     seen: dict[int, int] = {}
 
-    def update(self: window.SmootherCluster, *a: Any, **kw: Any) -> Any:
+    def update(self: smoother.SmootherCluster, *a: Any, **kw: Any) -> Any:
         sid = seen.setdefault(id(self), len(seen))
         diverge = sid == 0 and sum(1 for s, _ in calls if s == 0) == 2  # the first one's third update
         real = self.smoother
@@ -101,7 +101,7 @@ def test_the_estimator_rebuilds_a_diverged_smoother(monkeypatch: pytest.MonkeyPa
         calls.append((sid, False))
         return out
 
-    monkeypatch.setattr(window.SmootherCluster, "update", update)
+    monkeypatch.setattr(smoother.SmootherCluster, "update", update)
     sols = run(fleet, cfg)
     assert calls[2] == (0, True)
     assert calls[3][0] > 0  # the same cluster, solved again by a smoother built from the window
@@ -159,7 +159,7 @@ def test_isam2_reaches_the_graphs_optimum_whatever_the_clocks_first_guess(clock_
     params.setRelativeErrorTol(1e-12)
     params.setAbsoluteErrorTol(1e-12)
     best = gtsam.GaussNewtonOptimizer(blk.graph, init, params).optimize().atPoint3(blk.pos_key)
-    sm = window.SmootherCluster(cfg, ["a"])
+    sm = smoother.SmootherCluster(cfg, ["a"])
     res = sm.update([blk], [], [], init, {k: 0.0 for k in blk.keys}, [], 0, blk.keys, converge=True)
     assert np.linalg.norm(res.values.atPoint3(blk.pos_key) - best) < 0.02
 

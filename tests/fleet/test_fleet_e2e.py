@@ -15,7 +15,7 @@ import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from support.e2e_fleet import agents_done, running_fleet, wait_until
+from support.e2e_fleet import agents_done, descendants, running, running_fleet, wait_until
 
 from coplane.bus import KeySpace, session_config
 from coplane.evaluate.runner import run_method
@@ -44,15 +44,31 @@ def _max_diff(a: dict, b: dict) -> tuple[float, int]:
     return worst, n
 
 
-@pytest.mark.parametrize("method", ["pc", "mci"])
-def test_lockstep_over_bus_equals_in_process(recording: Path, method: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("method", "workers"), [("pc", 1), ("mci", 1), ("pc", 2)])
+def test_lockstep_over_bus_equals_in_process(
+    recording: Path, method: str, workers: int, tmp_path: Path
+) -> None:
+    """Also with the server's clusters solved on two processes (`--cluster_workers 2`), whose
+    child process goes with the server."""
     ref = run_method(open_recording(recording), method)
-    with running_fleet(recording, method, log_dir=tmp_path / "logs") as (procs, col, _, _):
+    args = ["--cluster_workers", str(workers)] if workers > 1 else []
+    with running_fleet(recording, method, log_dir=tmp_path / "logs", extra_fusion_args=args) as (
+        procs,
+        col,
+        _,
+        _,
+    ):
+        server = procs.procs["fusion-server"]
         wait_until(lambda: agents_done(procs), 240, "agents to finish")
         time.sleep(0.5)
         bus = col.run.positions
+        children = descendants(server.pid)
+        # the worker, and with it multiprocessing's resource tracker
+        assert (len(children) >= workers - 1) and (workers > 1 or not children), children
+        procs.stop("fusion-server")
+    assert not [pid for pid in children if running(pid)], "a cluster worker outlived its server"
     worst, n = _max_diff(ref.positions, bus)
-    print(f"{method}: {n} positions, max |bus - in-process| = {worst:.2e} m")
+    print(f"{method}, {workers} workers: {n} positions, max |bus - in-process| = {worst:.2e} m")
     assert n >= 4 * DURATION_S * 0.9
     assert worst == 0.0  # bit for bit (README): the same objects on the same inputs
 

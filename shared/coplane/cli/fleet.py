@@ -71,6 +71,16 @@ def fleet(
             help="Zenoh routers in a mesh (the others join the first); servers and agents take them in turn.",
         ),
     ] = 1,
+    cluster_workers: Annotated[
+        int,
+        typer.Option(
+            "--cluster-workers",
+            min=1,
+            max=64,
+            help="Processes per fusion server that solve its clusters (docs/scale.md); the estimates are the "
+            "same for any number.",
+        ),
+    ] = 1,
     nmea_port: Annotated[
         int | None,
         typer.Option(
@@ -113,6 +123,7 @@ def fleet(
         nmea_port=nmea_port,
         servers=servers,
         routers=routers,
+        cluster_workers=cluster_workers,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

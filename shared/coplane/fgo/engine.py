@@ -35,7 +35,8 @@ from coplane.fgo.cooperative import cooperative_exclusion
 from coplane.fgo.height_links import height_links
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
-from coplane.fgo.solve import ClusterSolver
+from coplane.fgo.smoother import LocalSmoothers
+from coplane.fgo.solve import ClusterSolver, Smoothers
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import RangeEdge, StateBlock, StepRecord, Window
 from coplane.gnss.constants import C
@@ -49,17 +50,31 @@ SEED_CLOCK_FLOOR_M = 1.0  # smallest sigma of a seed's clock prior (m of range)
 class FusionEstimator:
     """Sliding-window cooperative positioning over GTSAM; `step()` once per epoch, in time order."""
 
-    def __init__(self, config: FgoConfig | None = None) -> None:
+    def __init__(self, config: FgoConfig | None = None, workers: int = 1) -> None:
+        """`workers` > 1 solves the clusters' smoothers on that many processes (`coplane.fgo.pool`),
+        with the same estimates; `lm-window` keeps no smoothers and always solves here."""
         self.config = config or FgoConfig()
+        if workers < 1:
+            raise ValueError(f"workers must be at least 1, got {workers}")
+        self._smoothers: Smoothers = LocalSmoothers(self.config)
+        if workers > 1 and self.config.solver != "lm-window":
+            from coplane.fgo.pool import SmootherPool  # starts processes: only when asked for
+
+            self._smoothers = SmootherPool(self.config, workers)
         self.reset()
 
     def reset(self) -> None:
         """Forget every state: the next epoch starts the window afresh."""
+        self._smoothers.keep(set())
         self._state = GraphState(Window(self.config.window_epochs))
-        self._solver = ClusterSolver(self.config, self._state)
+        self._solver = ClusterSolver(self.config, self._state, self._smoothers)
         self._last_time: GpsTime | None = None
         self._interval_s: float | None = None  # the smallest epoch interval seen
         self._seeds: dict[str, VehicleSeed] = {}
+
+    def close(self) -> None:
+        """Stop the smoothers' worker processes, if any; the estimator is unusable after."""
+        self._smoothers.close()
 
     def seed(self, seed: VehicleSeed) -> None:
         """Resume `seed.vehicle_id` from its state before a restart (used by its next new track)."""
@@ -147,12 +162,11 @@ class FusionEstimator:
             )
         st.window.push(rec)
 
-        n_clusters = 0
-        for view in st.window.partition(cfg.split_clusters):
-            if not any(v in rec.blocks for v in view.vehicles):
-                continue
-            n_clusters += 1
-            self._solver.solve(view, rec, stats)
+        views = [
+            w for w in st.window.partition(cfg.split_clusters) if any(v in rec.blocks for v in w.vehicles)
+        ]
+        self._solver.solve_all(views, rec, stats)
+        n_clusters = len(views)
 
         estimates = self._estimates(rec, t)
         counts = {kind: n for kind, n in sorted(st.window.counts.items()) if n}

@@ -10,8 +10,9 @@ too, the cluster's new epoch is dropped (`ClusterFailure`), never the estimator.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -19,15 +20,9 @@ import numpy as np
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.gnc import solve_gnc_window
+from coplane.fgo.smoother import LocalSmoothers, SmootherTask
 from coplane.fgo.state import GraphState, StepStats
-from coplane.fgo.window import (
-    ClusterResult,
-    ClusterView,
-    SmootherCluster,
-    StateBlock,
-    StepRecord,
-    solve_lm_window,
-)
+from coplane.fgo.window import ClusterResult, ClusterView, StateBlock, StepRecord, solve_lm_window
 
 FALLBACK_CLOCK_SIGMA_S = 1e-3  # strong-prior retry: clocks only need regularising
 
@@ -36,22 +31,43 @@ class ClusterFailure(RuntimeError):
     """GTSAM could not solve a cluster, even with strong priors."""
 
 
+class Smoothers(Protocol):
+    """Where the clusters' smoothers live and run: `LocalSmoothers` or `coplane.fgo.pool.SmootherPool`."""
+
+    def run(self, tasks: Sequence[SmootherTask]) -> list[ClusterResult | Exception]: ...
+
+    def keep(self, slots: set[int]) -> None: ...
+
+    def close(self) -> None: ...
+
+
 @dataclass
 class _Slot:
-    """A fixed-lag smoother that owns some vehicles' window states."""
+    """A fixed-lag smoother (held by `smoothers` under `id`) that owns some vehicles' window states."""
 
-    smoother: SmootherCluster
+    id: int
     vehicles: set[str]
     dirty: bool = False  # split: its remaining vehicles must be rebuilt before they are solved again
 
 
-class ClusterSolver:
-    """Solves the clusters of each epoch and writes estimates and covariances into the state."""
+Outcome = ClusterResult | ClusterFailure
+Attempts = Generator[SmootherTask, ClusterResult | Exception, ClusterResult]
 
-    def __init__(self, cfg: FgoConfig, state: GraphState) -> None:
+
+class ClusterSolver:
+    """Solves the clusters of each epoch and writes estimates and covariances into the state.
+
+    The smoothers live in `smoothers`: this process (`LocalSmoothers`) or a pool of processes
+    (`coplane.fgo.pool.SmootherPool`). Either way every cluster's epoch is solved from the same
+    graphs, and the results are written back in cluster order, so the estimates are the same.
+    """
+
+    def __init__(self, cfg: FgoConfig, state: GraphState, smoothers: Smoothers | None = None) -> None:
         self.cfg = cfg
         self.state = state
+        self.smoothers: Smoothers = smoothers if smoothers is not None else LocalSmoothers(cfg)
         self._slots: list[_Slot] = []
+        self._next_slot = 0
 
     def forget(self, in_window: set[str]) -> None:
         """Smoothers keep only vehicles still in the window; empty ones are dropped."""
@@ -59,16 +75,40 @@ class ClusterSolver:
             slot.vehicles &= in_window
         self._slots = [s for s in self._slots if s.vehicles]
 
-    def solve(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> None:
-        """Solve one cluster and store its result; on failure drop its vehicles' new states."""
-        new = [v for v in view.vehicles if v in rec.blocks]
-        try:
-            if self.cfg.solver == "lm-window":
-                res = self._solve_lm(view, rec, stats)
-            else:
-                res = self._solve_smoother(view, rec, stats)
-        except ClusterFailure as exc:
-            self._drop_new(new, rec, f"solver failed, epoch dropped: {exc}", stats)
+    def solve_all(self, views: Sequence[ClusterView], rec: StepRecord, stats: StepStats) -> None:
+        """Solve the epoch's clusters and store their results; a failed one drops its new states.
+
+        Each cluster's attempts (update its smoother, else rebuild, else rebuild with strong
+        priors) run in rounds: one task per unfinished cluster, all handed to the smoothers at
+        once so that a pool solves them side by side. Clusters share no state, so the rounds
+        give what solving them one after the other gives.
+        """
+        outcomes: dict[int, Outcome] = {}
+        if self.cfg.solver == "lm-window":
+            for i, view in enumerate(views):
+                outcomes[i] = self._solve_lm(view, rec, stats)
+        else:
+            attempts = {i: self._attempts(view, rec, stats) for i, view in enumerate(views)}
+            tasks = {i: next(gen) for i, gen in attempts.items()}
+            while tasks:
+                order = sorted(tasks)
+                results = self.smoothers.run([tasks[i] for i in order])
+                tasks = {}
+                for i, res in zip(order, results, strict=True):
+                    try:
+                        tasks[i] = attempts[i].send(res)
+                    except StopIteration as done:
+                        outcomes[i] = done.value
+                    except ClusterFailure as exc:
+                        outcomes[i] = exc
+        for i, view in enumerate(views):
+            self._store(view, rec, outcomes[i], stats)
+        self.smoothers.keep({s.id for s in self._slots})
+
+    def _store(self, view: ClusterView, rec: StepRecord, res: Outcome, stats: StepStats) -> None:
+        if isinstance(res, ClusterFailure):
+            new = [v for v in view.vehicles if v in rec.blocks]
+            self._drop_new(new, rec, f"solver failed, epoch dropped: {res}", stats)
             self._slots = [s for s in self._slots if not (s.vehicles & set(view.vehicles))]
             return
         self.state.values.update(res.values)
@@ -126,7 +166,7 @@ class ClusterSolver:
             return []
         return [rec.blocks[v].pos_key for v in view.vehicles if v in rec.blocks]
 
-    def _solve_lm(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> ClusterResult:
+    def _solve_lm(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> Outcome:
         cfg = self.cfg
         oldest = self.state.step - cfg.window_epochs + 1
         anchors = self._anchors(view.vehicles)
@@ -140,18 +180,18 @@ class ClusterSolver:
                 priors = anchors + self._strong_priors(view.blocks)
                 res = solve(cfg, view.blocks, view.ranges, priors, initial, cov_keys, oldest)
             except Exception as exc:
-                raise ClusterFailure(short_error(exc)) from exc
+                return ClusterFailure(short_error(exc))
         stats.anchors += len(anchors)
         return res
 
-    def _solve_smoother(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> ClusterResult:
+    def _attempts(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> Attempts:
         """Feed the cluster's smoother the new epoch, or (re)build one from the window.
 
         A smoother can take the new epoch when it already owns exactly this cluster's vehicles
         (plus vehicles seen for the first time). A merge of clusters, a split, a vehicle whose
         earlier states belong to no smoother, or a failed update rebuild it from the window with
         the same anchor priors as lm-window, since what was marginalised cannot be moved between
-        smoothers.
+        smoothers. Yields each attempt's task and receives its result.
         """
         cfg = self.cfg
         k = self.state.step
@@ -168,22 +208,25 @@ class ClusterSolver:
                 ranges = [r for r in rec.ranges if r.a in members]
                 stamps = {key: float(k) for b in blocks for key in b.keys}
                 fresh = any(len(by_vehicle[b.vehicle_id]) == 1 for b in blocks)  # from SPP
-                try:
-                    res = slot.smoother.update(
-                        blocks,
-                        ranges,
-                        [],
-                        self._initial(blocks),
-                        stamps,
-                        cov_keys,
-                        oldest,
-                        keys,
-                        converge=fresh,
-                    )
+                initial = self._initial(blocks)
+                res = yield SmootherTask(
+                    slot.id,
+                    False,
+                    view.vehicles,
+                    blocks,
+                    ranges,
+                    [],
+                    initial,
+                    stamps,
+                    cov_keys,
+                    oldest,
+                    keys,
+                    fresh,
+                )
+                if not isinstance(res, Exception):
                     slot.vehicles |= members
                     return res
-                except Exception:
-                    pass  # rebuild below; the smoother's state is unknown after a failed update
+                # rebuild below; the smoother's state is unknown after a failed update
         for s in slots:
             s.vehicles -= members
             s.dirty = True  # what remains of it was split off: rebuild before solving it again
@@ -191,21 +234,32 @@ class ClusterSolver:
         anchors = self._anchors(view.vehicles)
         stamps = {key: float(b.step) for b in view.blocks for key in b.keys}
         initial = self._initial(view.blocks)
-        last_exc: Exception | None = None
+        last: Exception | None = None
         for priors in (anchors, anchors + self._strong_priors(view.blocks)):
-            sm = SmootherCluster(cfg, members)
-            try:
-                res = sm.update(
-                    view.blocks, view.ranges, priors, initial, stamps, cov_keys, oldest, keys, converge=True
-                )
-            except Exception as exc:
-                last_exc = exc
+            sid = self._next_slot
+            self._next_slot += 1
+            res = yield SmootherTask(
+                sid,
+                True,
+                view.vehicles,
+                view.blocks,
+                view.ranges,
+                priors,
+                initial,
+                stamps,
+                cov_keys,
+                oldest,
+                keys,
+                True,
+            )
+            if isinstance(res, Exception):
+                last = res
                 continue
-            self._slots.append(_Slot(sm, set(members)))
+            self._slots.append(_Slot(sid, set(members)))
             stats.anchors += len(anchors)
             return res
-        assert last_exc is not None
-        raise ClusterFailure(short_error(last_exc)) from last_exc
+        assert last is not None
+        raise ClusterFailure(short_error(last))
 
 
 def short_error(exc: BaseException) -> str:

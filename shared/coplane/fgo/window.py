@@ -7,10 +7,10 @@ Python cost is proportional to what is new, not to the window.
 Solvers, one instance per cluster of vehicles (connected by ranges within the window):
   - `solve_lm_window`: the paper's scheme, stateless: graph = the window's blocks + ranges +
     anchor priors, Levenberg-Marquardt, gtsam.Marginals for the covariances.
-  - `SmootherCluster`: a gtsam.IncrementalFixedLagSmoother (iSAM2) or gtsam.BatchFixedLagSmoother
-    with lag window_epochs - 1, fed only the new epoch's factors; states leaving the window are
-    marginalised by GTSAM. Created ("rebuilt") from the whole window + anchors when the cluster is
-    new, merges or splits.
+  - `coplane.fgo.smoother.SmootherCluster`: a gtsam.IncrementalFixedLagSmoother (iSAM2) or
+    gtsam.BatchFixedLagSmoother with lag window_epochs - 1, fed only the new epoch's factors;
+    states leaving the window are marginalised by GTSAM. Created ("rebuilt") from the whole window
+    + anchors when the cluster is new, merges or splits.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import Counter, deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar, cast
+from typing import Protocol, TypeVar
 
 import gtsam
 import numpy as np
@@ -26,7 +26,6 @@ from numpy.typing import NDArray
 
 from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.keys import relinearize_thresholds
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
 
@@ -304,95 +303,3 @@ def solve_lm_window(
         raise RuntimeError(f"LM returned a non-finite error {after}")
     covs = marginal_covariances(gtsam.Marginals(graph, values), cov_keys) if cov_keys else {}
     return ClusterResult(values, covs, int(opt.iterations()), float(before), float(after))
-
-
-class SmootherCluster:
-    """One cluster's GTSAM fixed-lag smoother (iSAM2 or batch LM), timestamps = epoch steps."""
-
-    def __init__(self, cfg: FgoConfig, vehicles: Iterable[str]) -> None:
-        self.cfg = cfg
-        self.vehicles: set[str] = set(vehicles)
-        self.incremental = cfg.solver == "isam2-fixed-lag"
-        self.smoother: gtsam.IncrementalFixedLagSmoother | gtsam.BatchFixedLagSmoother
-        if self.incremental:
-            p = gtsam.ISAM2Params()
-            p.setRelinearizeThreshold(relinearize_thresholds(cfg.isam2_relinearize_threshold))
-            p.relinearizeSkip = 1
-            p.enablePartialRelinearizationCheck = cfg.isam2_partial_relinearization_check
-            p.findUnusedFactorSlots = True
-            # IncrementalFixedLagSmoother's result never carries iSAM2's error (getError() is 0
-            # whatever the graph), so evaluating it (the whole graph at two full estimates per
-            # update) was CPU spent for nothing; the estimates are checked for divergence instead
-            # (`update`)
-            p.evaluateNonlinearError = False
-            self.smoother = gtsam.IncrementalFixedLagSmoother(cfg.lag, p)
-        else:
-            self.smoother = gtsam.BatchFixedLagSmoother(cfg.lag, lm_params(cfg))
-
-    def update(
-        self,
-        blocks: Sequence[StateBlock],
-        ranges: Sequence[RangeEdge],
-        priors: Sequence[gtsam.NonlinearFactor],
-        initial: gtsam.Values,
-        timestamps: dict[int, float],
-        cov_keys: Sequence[int],
-        oldest_step: int,
-        estimate_keys: Sequence[int],
-        converge: bool = False,
-    ) -> ClusterResult:
-        """Add factors and new variables (the whole window on creation, else one epoch).
-
-        Returns the estimates of `estimate_keys` (the cluster's window states) only: the smoother
-        may still hold states the window already dropped, until its next marginalisation.
-        """
-        graph = build_graph(blocks, ranges, priors, oldest_step)
-        res = self.smoother.update(graph, initial, cast(Any, timestamps))
-        iterations = int(res.getIterations())
-        keys = list(estimate_keys)
-        if self.incremental:
-            for _ in range(self.cfg.isam2_extra_iterations):
-                res = self.smoother.update()
-                iterations += int(res.getIterations())
-            if converge:
-                # iSAM2 makes one Gauss-Newton step per update: from an SPP start (new cluster or
-                # vehicle) iterate until the positions settle, as batch LM would
-                pos_keys = [b.pos_key for b in blocks]
-                before = self.smoother.calculateEstimate(pos_keys)
-                for _ in range(self.cfg.isam2_converge_iterations):
-                    res = self.smoother.update()
-                    iterations += int(res.getIterations())
-                    after = self.smoother.calculateEstimate(pos_keys)
-                    moved = max(
-                        float(np.linalg.norm(after.atPoint3(k) - before.atPoint3(k))) for k in pos_keys
-                    )
-                    before = after
-                    if moved < self.cfg.isam2_converged_m:
-                        break
-        values = self.smoother.calculateEstimate(keys)
-        if not np.isfinite(gtsam.utilities.extractPoint3(values)).all():
-            raise RuntimeError("smoother returned a non-finite position")
-        error = float("nan")  # iSAM2's result has no error (not evaluated); batch LM's has
-        if not self.incremental:
-            error = float(res.getError())
-            if not np.isfinite(error):
-                raise RuntimeError(f"smoother returned a non-finite error {error}")
-        covs = self.covariances(cov_keys) if cov_keys else {}
-        return ClusterResult(values, covs, iterations, float("nan"), error)
-
-    def covariances(self, keys: Sequence[int]) -> dict[int, NDArray[np.float64]]:
-        """Marginal covariances: iSAM2 has them in its Bayes tree; batch needs gtsam.Marginals."""
-        sm = self.smoother
-        if isinstance(sm, gtsam.IncrementalFixedLagSmoother):
-            return marginal_covariances(sm.getISAM2(), keys)
-        graph = _non_null(sm.getFactors())
-        return marginal_covariances(gtsam.Marginals(graph, self.smoother.calculateEstimate()), keys)
-
-
-def _non_null(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
-    """The smoother's factor graph without the empty slots left by marginalisation."""
-    out = gtsam.NonlinearFactorGraph()
-    for i in range(graph.size()):
-        if graph.exists(i):
-            out.add(graph.at(i))
-    return out

@@ -104,13 +104,15 @@ def fleet_services(
     map_path: Path | str | None = "auto",
     servers: int = 1,
     routers: Sequence[str] = (),
+    cluster_workers: int = 1,
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
     agents of a map method take it from (they need no access to the file); None: no map. `servers` > 1: that
     many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N.
     `routers`: the endpoints of a router mesh; the servers and the agents take them in turn (the
-    API takes `connect`)."""
+    API takes `connect`). `cluster_workers` > 1: each server solves its clusters on that many
+    processes."""
     rec = str(recording)
     mesh = list(routers) or [connect]
 
@@ -122,6 +124,7 @@ def fleet_services(
     # each keeps its own replica beside the file (docs/scale.md, "The road map across servers")
     road_map = [] if map_path == "auto" else ["--map", str(map_path) if map_path is not None else "none"]
     regional = ["--regions", "true"] if servers > 1 else []
+    workers = ["--cluster_workers", str(cluster_workers)] if cluster_workers > 1 else []
     out = [
         ServiceSpec(
             fusion_name(i, servers),
@@ -142,6 +145,7 @@ def fleet_services(
                 "--deadline_s",
                 str(max(0.05, 0.5 / speed)),
                 *road_map,
+                *workers,
                 *(
                     [*regional, "--server_id", f"s{i}", "--expected_servers", str(servers)]
                     if servers > 1

@@ -75,6 +75,7 @@ class FleetOptions:
     nmea_port: int | None = None  # NMEA 0183 GGA + RMC per vehicle on this port and the next ones
     servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
     routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
+    cluster_workers: int = 1  # processes per fusion server solving its clusters (same estimates)
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
@@ -155,6 +156,8 @@ def run_fleet(
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
     if not 1 <= o.routers <= MAX_FLEET_ROUTERS:
         raise ConfigError(f"--routers must be in 1..{MAX_FLEET_ROUTERS}, got {o.routers}")
+    if o.cluster_workers < 1:
+        raise ConfigError(f"--cluster-workers must be at least 1, got {o.cluster_workers}")
     # with --servers > 1 each server keeps its own replica beside this file (docs/scale.md)
     road_map = map_path(o.map if o.map is not None else "auto", fleet_name)
     if method.plane_map and road_map is None:
@@ -212,6 +215,7 @@ def run_fleet(
                 map_path=road_map.resolve() if road_map is not None else None,
                 servers=o.servers,
                 routers=mesh,
+                cluster_workers=o.cluster_workers,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]

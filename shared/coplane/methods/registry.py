@@ -59,13 +59,14 @@ class MethodSpec:
         """The 1-sigma given to each node's Doppler velocity in the estimator's input."""
         return self.fgo.sigma_v if self.fgo is not None else self.velocity_sigma
 
-    def build_estimator(self) -> Estimator:
-        """A fresh estimator for this method."""
+    def build_estimator(self, workers: int = 1) -> Estimator:
+        """A fresh estimator for this method. `workers` > 1: a factor graph solves its clusters
+        on that many processes (`coplane.fgo.pool`); the filters are cheap and ignore it."""
         if self.factory is not None:
             return self.factory()
         from coplane.fgo.engine import FusionEstimator  # GTSAM is imported only when used
 
-        return FusionEstimator(self.fgo)
+        return FusionEstimator(self.fgo, workers=workers)
 
     def with_solver(self, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
         """The same method on another solver and/or window length (FGO methods only)."""

@@ -81,12 +81,20 @@ def bounded_ranges(
 class FusionStep:
     """The server's epoch: node messages -> factor-graph inputs -> solution message (pure)."""
 
-    def __init__(self, fleet: str, method: MethodSpec, config: FusionStepConfig | None = None) -> None:
+    def __init__(
+        self, fleet: str, method: MethodSpec, config: FusionStepConfig | None = None, workers: int = 1
+    ) -> None:
         self.fleet = fleet
         self.method = method
         self.config = config or FusionStepConfig()
-        self.estimator = method.build_estimator()
+        self.estimator = method.build_estimator(workers=workers)
         self.seq = 0
+
+    def close(self) -> None:
+        """Stop what the estimator runs besides this process (the factor graph's cluster workers)."""
+        close = getattr(self.estimator, "close", None)
+        if close is not None:
+            close()
 
     def inputs(self, t: GpsTime, messages: Mapping[str, NodeMessage]) -> EpochInput:
         vehicles: dict[str, VehicleEpochInput] = {}

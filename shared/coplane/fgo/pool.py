@@ -1,0 +1,295 @@
+"""Clusters solved on several cores: each cluster's smoother lives in one of a few processes.
+
+GTSAM's Python wrapper keeps the GIL while it optimises (docs/performance-scale.md, "Threads and
+GTSAM"), so threads cannot solve two clusters at once, and GTSAM's own TBB threading works inside
+one elimination, not across our independent clusters. A smoother's iSAM2 state cannot be moved
+cheaply either. So each smoother is pinned to a process for its life: the estimator
+keeps the window and builds every graph, and a slot's epoch goes, as a graph and its new values,
+to the process that holds the slot's smoother. A smoother rebuilt for a merged or split cluster is
+a new slot and goes to the least loaded process. The estimator's own process is worker 0, so
+`workers=N` uses N cores with N - 1 child processes.
+
+The solution is the sequential one, bit for bit: a smoother's results depend only on its own
+inputs, which the same graphs and values reach in every process (GTSAM's serialisation keeps
+doubles exact; tests/fgo/test_pool.py). A dead child costs its clusters a rebuild on the others,
+never the estimator.
+
+Written here because nothing fits: `multiprocessing.Pool` and `concurrent.futures` hand a task to
+any free worker, while a smoother must stay where its state is.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import pickle
+import time
+from collections.abc import Sequence
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gtsam
+import numpy as np
+
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.keys import POSITION_CHR
+from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
+from coplane.fgo.window import ClusterResult, build_graph
+
+_POSITION = ord(POSITION_CHR)
+CLOSE_TIMEOUT_S = 5.0
+COST_SMOOTHING = 0.2  # weight of the newest epoch in each worker's running cost per vehicle
+
+Packed = tuple[list[int], list[list[float]], list[int], list[float]]
+
+
+def pack_values(values: gtsam.Values) -> Packed:
+    """Positions and clocks as plain lists: GTSAM serialises Point3 values but not doubles."""
+    pk: list[int] = []
+    pos: list[list[float]] = []
+    ck: list[int] = []
+    clk: list[float] = []
+    for key in values.keys():  # noqa: SIM118 (gtsam.Values has keys(), no iteration)
+        if gtsam.Symbol(key).chr() == _POSITION:
+            pk.append(key)
+            pos.append([float(x) for x in values.atPoint3(key)])
+        else:
+            ck.append(key)
+            clk.append(float(values.atDouble(key)))
+    return pk, pos, ck, clk
+
+
+def unpack_values(packed: Packed) -> gtsam.Values:
+    pk, pos, ck, clk = packed
+    out = gtsam.Values()
+    for key, p in zip(pk, pos, strict=True):
+        out.insertPoint3(key, np.asarray(p, dtype=float))
+    for key, c in zip(ck, clk, strict=True):
+        out.insert(key, c=c)
+    return out
+
+
+_ERRORS: dict[str, type[RuntimeError]] = {}
+
+
+def remote_error(name: str, message: str) -> RuntimeError:
+    """The worker's exception as one of the same class name, so a skipped reason reads the same."""
+    cls = _ERRORS.setdefault(name, type(name, (RuntimeError,), {}))
+    return cls(message)
+
+
+def _serve(conn: Connection, cfg: FgoConfig) -> None:
+    """A child process: solve the tasks of each request on the smoothers it holds, until told to stop."""
+    smoothers: dict[int, SmootherCluster] = {}
+    while True:
+        try:
+            raw = conn.recv_bytes()
+        except EOFError:  # the estimator's process is gone
+            return
+        t0 = time.perf_counter()
+        request = pickle.loads(raw)
+        if request is None:
+            return
+        drops, tasks = request
+        for slot in drops:
+            smoothers.pop(slot, None)
+        replies: list[tuple[Any, ...]] = []
+        for slot, create, vehicles, graph, initial, stamps, cov_keys, keys, pos_keys, converge in tasks:
+            if create:
+                smoothers[slot] = SmootherCluster(cfg, vehicles)
+            try:
+                res = smoothers[slot].solve_graph(
+                    graph, unpack_values(initial), stamps, cov_keys, keys, pos_keys, converge
+                )
+                replies.append(
+                    ("ok", pack_values(res.values), res.covariances, res.iterations, res.error_after)
+                )
+            except Exception as exc:
+                smoothers.pop(slot, None)
+                replies.append(("error", type(exc).__name__, str(exc)))
+        conn.send((time.perf_counter() - t0, replies))
+
+
+class SmootherPool:
+    """The smoothers of every slot, spread over this process and `workers - 1` child processes."""
+
+    def __init__(self, cfg: FgoConfig, workers: int) -> None:
+        if workers < 2:
+            raise ValueError(f"a pool needs at least 2 workers, got {workers}")
+        self.cfg = cfg
+        self._local = LocalSmoothers(cfg)
+        ctx = mp.get_context("spawn")  # fork would copy a server's Zenoh threads in a broken state
+        self._conns: list[Connection | None] = [None]  # worker 0 is this process
+        self._procs: list[Any] = [None]
+        for _ in range(workers - 1):
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_serve, args=(child, cfg), daemon=True, name="coplane-smoothers")
+            proc.start()
+            child.close()
+            self._conns.append(parent)
+            self._procs.append(proc)
+        self._worker_of: dict[int, int] = {}  # slot -> worker
+        self._load = [0] * workers  # vehicles of the slots each worker holds
+        # seconds per vehicle of a task's solve, per worker, as measured. Shipping is left out: it
+        # is paid before and after the solves whoever takes the next smoother, so the epoch ends
+        # soonest when the solves themselves end together
+        self._cost = [1e-3] * workers  # a first guess, the same for all: the first epochs replace it
+        self._size: dict[int, int] = {}
+        self._drops: list[list[int]] = [[] for _ in range(workers)]
+        self.dead: set[int] = set()
+        self.tasks = [0] * workers  # tasks each worker was given: how the load spread
+        self.shipping_s = 0.0  # this process's seconds spent packing and unpacking children's tasks
+
+    @property
+    def workers(self) -> int:
+        return len(self._conns)
+
+    def _place(self, task: SmootherTask) -> int:
+        """The worker of the task's slot: where its smoother is, or the least loaded for a new one."""
+        if task.create:  # a new slot id: never one the pool holds
+            alive = [w for w in range(self.workers) if w not in self.dead]
+            n = len(task.vehicles)
+            w = min(alive, key=lambda i: ((self._load[i] + n) * self._cost[i], i))
+            self._worker_of[task.slot] = w
+            self._size[task.slot] = len(task.vehicles)
+            self._load[w] += len(task.vehicles)
+            return w
+        return self._worker_of[task.slot]
+
+    def _forget(self, slot: int) -> None:
+        w = self._worker_of.pop(slot)
+        self._load[w] -= self._size.pop(slot)
+        if w > 0 and w not in self.dead:
+            self._drops[w].append(slot)
+
+    def run(self, tasks: Sequence[SmootherTask]) -> list[ClusterResult | Exception]:
+        """Each task's result or exception, in order; the workers solve their share at once."""
+        out: list[ClusterResult | Exception | None] = [None] * len(tasks)
+        by_worker: dict[int, list[int]] = {}
+        for i, task in enumerate(tasks):
+            w = self._place(task)
+            by_worker.setdefault(w, []).append(i)
+            self.tasks[w] += 1
+        sent: dict[int, float] = {}  # worker -> seconds this process spent shipping its tasks
+        for w, idx in sorted(by_worker.items()):
+            if w == 0:
+                continue
+            if w in self.dead:
+                for i in idx:
+                    out[i] = RuntimeError(f"smoother worker {w} is gone")
+                continue
+            t0 = time.perf_counter()
+            wire = [_wire(tasks[i]) for i in idx]
+            try:
+                self._send(w, (self._drops[w], wire))
+                self._drops[w] = []
+                sent[w] = time.perf_counter() - t0
+            except (OSError, EOFError) as exc:
+                self._lost(w, idx, out, exc)
+        t0 = time.perf_counter()
+        for i in by_worker.get(0, []):
+            out[i] = self._local.run_one(tasks[i])
+        if by_worker.get(0):
+            self._measured(0, time.perf_counter() - t0, [tasks[i] for i in by_worker[0]])
+        for w, shipping_s in sent.items():
+            idx = by_worker[w]
+            try:
+                raw = self._recv_bytes(w)
+            except (OSError, EOFError) as exc:
+                self._lost(w, idx, out, exc)
+                continue
+            t0 = time.perf_counter()
+            busy_s, replies = pickle.loads(raw)
+            for i, reply in zip(idx, replies, strict=True):
+                out[i] = _result(reply)
+            unpack_s = time.perf_counter() - t0
+            self._measured(w, busy_s, [tasks[i] for i in idx])
+            self.shipping_s += shipping_s + unpack_s
+        for i, res in enumerate(out):
+            if isinstance(res, Exception) and tasks[i].slot in self._worker_of:
+                self._forget(tasks[i].slot)  # the worker dropped a smoother that failed
+        return [r if r is not None else RuntimeError("no reply") for r in out]
+
+    def _measured(self, w: int, seconds: float, tasks: list[SmootherTask]) -> None:
+        vehicles = sum(len(t.vehicles) for t in tasks)
+        if vehicles:
+            a = COST_SMOOTHING
+            self._cost[w] = (1 - a) * self._cost[w] + a * seconds / vehicles
+
+    def wait_ready(self) -> None:
+        """Block until every child has started (imported GTSAM): for benchmarks that time steps."""
+        for w in range(1, self.workers):
+            if w in self.dead:
+                continue
+            try:
+                self._send(w, (self._drops[w], []))
+                self._drops[w] = []
+                self._recv_bytes(w)
+            except (OSError, EOFError) as exc:
+                self._lost(w, [], [], exc)
+
+    def _send(self, w: int, request: Any) -> None:
+        conn = self._conns[w]
+        assert conn is not None
+        conn.send(request)
+
+    def _recv_bytes(self, w: int) -> bytes:
+        conn = self._conns[w]
+        assert conn is not None
+        return conn.recv_bytes()
+
+    def _lost(self, w: int, idx: list[int], out: list[Any], exc: BaseException) -> None:
+        """A child died: its tasks fail (their clusters are rebuilt elsewhere), it gets no more."""
+        self.dead.add(w)
+        for i in idx:
+            out[i] = RuntimeError(f"smoother worker {w} is gone: {type(exc).__name__}")
+        for slot in [s for s, ww in self._worker_of.items() if ww == w]:
+            self._forget(slot)
+
+    def keep(self, slots: set[int]) -> None:
+        """Forget the smoothers of every other slot (the children drop theirs with the next request)."""
+        for slot in [s for s in self._worker_of if s not in slots]:
+            self._forget(slot)
+        self._local.keep({s for s, w in self._worker_of.items() if w == 0})
+
+    def close(self) -> None:
+        """Stop the children; a child that does not stop in time is terminated."""
+        for w, conn in enumerate(self._conns):
+            if conn is None:
+                continue
+            with contextlib.suppress(OSError, EOFError):
+                conn.send(None)
+            proc = self._procs[w]
+            proc.join(CLOSE_TIMEOUT_S)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(CLOSE_TIMEOUT_S)
+            conn.close()
+        self._conns = [None]
+        self._procs = [None]
+        self._local.close()
+
+
+def _wire(t: SmootherTask) -> tuple[Any, ...]:
+    """A task as a child receives it: the graph built here, the new values as plain lists."""
+    graph = build_graph(t.blocks, t.ranges, t.priors, t.oldest_step)
+    pos_keys = [b.pos_key for b in t.blocks]
+    return (
+        t.slot,
+        t.create,
+        t.vehicles,
+        graph,
+        pack_values(t.initial),
+        t.timestamps,
+        t.cov_keys,
+        t.estimate_keys,
+        pos_keys,
+        t.converge,
+    )
+
+
+def _result(reply: tuple[Any, ...]) -> ClusterResult | Exception:
+    if reply[0] == "ok":
+        _, values, covs, iterations, error = reply
+        return ClusterResult(unpack_values(values), covs, iterations, float("nan"), error)
+    return remote_error(reply[1], reply[2])

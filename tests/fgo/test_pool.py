@@ -1,0 +1,155 @@
+"""Clusters solved on several processes (`FusionEstimator(workers=N)`, `coplane.fgo.pool`).
+
+The pool must give the sequential estimates bit for bit, survive a worker that dies, and leave no
+process behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+from support.e2e_fleet import running
+from support.fgo_synthetic import SyntheticFleet, make_fleet
+
+from coplane.estimation.contract import FleetSolution
+from coplane.fgo import pool as P
+from coplane.fgo.engine import FusionEstimator
+from coplane.fgo.keys import clock_key, position_key
+from coplane.methods.registry import get_method
+
+
+def _fleet() -> SyntheticFleet:
+    """Three groups of four on their own roads (three clusters), one vehicle absent for a while
+    (its cluster splits and merges again: rebuilt smoothers) and one with a GNSS outage."""
+    return make_fleet(12, 14, seed=3, group_size=4, absent={"v02": range(4, 7)}, outages={"v07": range(5, 9)})
+
+
+def _solve(
+    fleet: SyntheticFleet, workers: int, kill_at: int | None = None, tasks: list[int] | None = None
+) -> list[FleetSolution]:
+    cfg = get_method("pc").fgo
+    assert cfg is not None and cfg.solver != "lm-window"
+    est = FusionEstimator(cfg, workers=workers)
+    try:
+        out = []
+        for i, epoch in enumerate(fleet.epochs):
+            if i == kill_at:
+                pool = est._smoothers
+                assert isinstance(pool, P.SmootherPool)
+                os.kill(pool._procs[1].pid, signal.SIGKILL)
+                pool._procs[1].join(5.0)
+            out.append(est.step(epoch))
+        if tasks is not None and isinstance(est._smoothers, P.SmootherPool):
+            tasks += est._smoothers.tasks
+        return out
+    finally:
+        est.close()
+
+
+def test_two_workers_give_the_sequential_estimates_bit_for_bit() -> None:
+    fleet = _fleet()
+    seq = _solve(fleet, 1)
+    tasks: list[int] = []
+    par = _solve(fleet, 2, tasks=tasks)
+    assert min(tasks) > 10  # both processes solved clusters
+    assert max(s.n_clusters for s in seq) >= 3
+    for a, b in zip(seq, par, strict=True):
+        assert sorted(a.estimates) == sorted(b.estimates)
+        assert a.skipped == b.skipped and a.rejected == b.rejected
+        for vid, ea in a.estimates.items():
+            eb = b.estimates[vid]
+            assert np.array_equal(ea.position_m, eb.position_m), (a.time, vid)
+            assert np.array_equal(ea.covariance_m2, eb.covariance_m2, equal_nan=True), (a.time, vid)
+            assert ea.clocks_s == eb.clocks_s
+
+
+def test_a_dead_worker_costs_its_clusters_a_rebuild_not_the_estimator() -> None:
+    fleet = _fleet()
+    seq = _solve(fleet, 1)
+    par = _solve(fleet, 2, kill_at=6)
+    for a, b in zip(seq, par, strict=True):
+        assert sorted(a.estimates) == sorted(b.estimates)
+        assert not set(b.skipped) - set(a.skipped)
+        for vid, ea in a.estimates.items():
+            d = np.linalg.norm(b.estimates[vid].position_m - ea.position_m)
+            assert d < 1.0, (a.time, vid, d)  # rebuilt from the window: the same graph, re-solved
+
+
+def test_close_stops_the_worker_processes() -> None:
+    cfg = get_method("pc").fgo
+    est = FusionEstimator(cfg, workers=3)
+    pool = est._smoothers
+    assert isinstance(pool, P.SmootherPool)
+    procs = pool._procs[1:]
+    assert all(p.is_alive() for p in procs)
+    est.close()
+    assert not any(p.is_alive() for p in procs)
+
+
+def test_lm_window_keeps_no_pool_and_workers_must_be_positive() -> None:
+    cfg = get_method("pc", solver="lm-window").fgo
+    est = FusionEstimator(cfg, workers=4)
+    assert not isinstance(est._smoothers, P.SmootherPool)
+    with pytest.raises(ValueError, match="workers"):
+        FusionEstimator(cfg, workers=0)
+
+
+def test_values_cross_processes_exactly() -> None:
+    """GTSAM serialises Point3 values but not doubles: the clocks go as Python floats."""
+    rng = np.random.default_rng(0)
+    v = gtsam.Values()
+    for i in range(5):
+        v.insert(position_key(i, 7), rng.normal(size=3) * 6e6)
+        v.insert(clock_key(i, 7, "G"), float(rng.normal() * 1e-3))
+    back = P.unpack_values(P.pack_values(v))
+    assert sorted(back.keys()) == sorted(v.keys())
+    for key in v.keys():  # noqa: SIM118 (gtsam.Values has keys(), no iteration)
+        if gtsam.Symbol(key).chr() == ord("p"):
+            assert np.array_equal(back.atPoint3(key), v.atPoint3(key))
+        else:
+            assert back.atDouble(key) == v.atDouble(key)
+
+
+def test_a_workers_error_keeps_its_class_name() -> None:
+    """A skipped reason names GTSAM's exception the same whichever process raised it."""
+    exc = P.remote_error("IndeterminantLinearSystemException", "near variable p7")
+    assert isinstance(exc, RuntimeError)
+    assert f"{type(exc).__name__}: {exc}" == "IndeterminantLinearSystemException: near variable p7"
+
+
+_PARENT = """
+import sys, time
+from coplane.fgo.engine import FusionEstimator
+from coplane.methods.registry import get_method
+if __name__ == "__main__":
+    est = FusionEstimator(get_method("pc").fgo, workers=2)
+    est._smoothers.wait_ready()
+    print(est._smoothers._procs[1].pid, flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_worker_ends_when_its_estimator_is_killed(tmp_path: Path) -> None:
+    """kill -9 of the server leaves no solver behind: the child reads end-of-file and returns."""
+    script = tmp_path / "parent.py"
+    script.write_text(_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        parent.kill()
+        parent.wait(10)
+        deadline = time.monotonic() + 10
+        while running(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not running(child)
+    finally:
+        parent.kill()
