@@ -23,6 +23,9 @@ from coplane.estimation.contract import FleetSolution
 from coplane.fgo import pool as P
 from coplane.fgo.engine import FusionEstimator
 from coplane.fgo.keys import clock_key, position_key
+from coplane.fgo.smoother import SmootherTask
+from coplane.fgo.window import StateBlock
+from coplane.gtime import GpsTime
 from coplane.methods.registry import get_method
 
 
@@ -153,3 +156,41 @@ def test_a_worker_ends_when_its_estimator_is_killed(tmp_path: Path) -> None:
         assert not running(child)
     finally:
         parent.kill()
+
+
+def _prior_task(slot: int, create: bool, step: int) -> SmootherTask:
+    """A one-vehicle task: a prior on one position (enough for a smoother to solve)."""
+    pk = position_key(0, step)
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.PriorFactorPoint3(pk, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    init = gtsam.Values()
+    init.insert(pk, np.zeros(3))
+    blk = StateBlock(
+        vehicle_id="a", step=step, time=GpsTime(2100, float(step)), pos_key=pk, clock_keys={},
+        init_pos=np.zeros(3), init_clocks={}, graph=g, counts={}, links=[], n_pseudoranges=0,
+        plane_used=False, velocity=None, clock_drift_mps=None, has_fix=True,
+    )  # fmt: skip
+    return SmootherTask(slot, create, ["a"], [blk], [], [], init, {pk: float(step)}, [pk], 0, [pk], False)
+
+
+def test_a_smoother_lost_with_its_worker_fails_its_tasks_every_time() -> None:
+    """A child's smoothers go with it: later tasks for them fail (their clusters are rebuilt)
+    instead of raising in the estimator."""
+    cfg = get_method("pc").fgo
+    pool = P.SmootherPool(cfg, 2)
+    try:
+        pool.wait_ready()
+        pool._cost = [1.0, 1e-9]  # the child looks fastest: the new smoother goes there
+        first = pool.run([_prior_task(7, True, 0)])[0]
+        assert not isinstance(first, Exception)
+        assert np.allclose(first.values.atPoint3(position_key(0, 0)), 1.0)
+        assert pool.tasks == [0, 1]
+        os.kill(pool._procs[1].pid, signal.SIGKILL)
+        pool._procs[1].join(5.0)
+        for step in (1, 2):
+            out = pool.run([_prior_task(7, False, step)])[0]
+            assert isinstance(out, RuntimeError)
+        again = pool.run([_prior_task(8, True, 3)])[0]  # a rebuild goes to the process left
+        assert not isinstance(again, Exception) and pool.tasks[0] == 1 and pool.dead == {1}
+    finally:
+        pool.close()

@@ -144,8 +144,9 @@ class SmootherPool:
     def workers(self) -> int:
         return len(self._conns)
 
-    def _place(self, task: SmootherTask) -> int:
-        """The worker of the task's slot: where its smoother is, or the least loaded for a new one."""
+    def _place(self, task: SmootherTask) -> int | None:
+        """The worker of the task's slot: where its smoother is, or the least loaded for a new one;
+        None for a smoother that was lost with its worker."""
         if task.create:  # a new slot id: never one the pool holds
             alive = [w for w in range(self.workers) if w not in self.dead]
             n = len(task.vehicles)
@@ -154,7 +155,7 @@ class SmootherPool:
             self._size[task.slot] = len(task.vehicles)
             self._load[w] += len(task.vehicles)
             return w
-        return self._worker_of[task.slot]
+        return self._worker_of.get(task.slot)
 
     def _forget(self, slot: int) -> None:
         w = self._worker_of.pop(slot)
@@ -168,6 +169,9 @@ class SmootherPool:
         by_worker: dict[int, list[int]] = {}
         for i, task in enumerate(tasks):
             w = self._place(task)
+            if w is None:
+                out[i] = RuntimeError(f"smoother {task.slot} was lost with its worker")
+                continue
             by_worker.setdefault(w, []).append(i)
             self.tasks[w] += 1
         sent: dict[int, float] = {}  # worker -> seconds this process spent shipping its tasks
