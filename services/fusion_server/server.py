@@ -334,6 +334,8 @@ class FusionServer(Pacing):
             node_payloads=self.node_payloads,
             pending_epochs=len(self.pending),
             pending_limit=self.admission.config.pending_limit,
+            cluster_workers=self.step.workers[0],
+            cluster_workers_lost=self.step.workers[1],
             generation=self.generation,
             **(self.regions.diagnostics() if self.regions is not None else {}),
         )

@@ -293,6 +293,9 @@ class DiagnosticsMessage(_Model):
     node_payloads: int = Field(default=0, ge=0)  # every payload seen on node keys
     pending_epochs: int = Field(default=0, ge=0)  # epochs waiting to be solved
     pending_limit: int = Field(default=0, ge=0)  # the bound on pending_epochs (0: not reported)
+    # processes solving the factor graph's clusters (`--cluster_workers`), and how many of them died
+    cluster_workers: int = Field(default=1, ge=1, le=64)
+    cluster_workers_lost: int = Field(default=0, ge=0, le=64)
     generation: Generation | None = None
     # regions (docs/scale.md): this server, the live servers it sees, the shards it owns and the
     # regions its vehicles were last in

@@ -50,6 +50,8 @@ def _solve(
                 os.kill(pool._procs[1].pid, signal.SIGKILL)
                 pool._procs[1].join(5.0)
             out.append(est.step(epoch))
+        if kill_at is not None:
+            assert est.workers == (workers, 1)  # what the server's diagnostics report
         if tasks is not None and isinstance(est._smoothers, P.SmootherPool):
             tasks += est._smoothers.tasks
         return out

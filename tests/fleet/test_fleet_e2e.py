@@ -62,6 +62,11 @@ def test_lockstep_over_bus_equals_in_process(
         wait_until(lambda: agents_done(procs), 240, "agents to finish")
         time.sleep(0.5)
         bus = col.run.positions
+        wait_until(lambda: col.diag is not None and col.diag.epochs_solved > 0, 10, "diagnostics")
+        assert col.diag is not None and (col.diag.cluster_workers, col.diag.cluster_workers_lost) == (
+            workers,
+            0,
+        )
         children = descendants(server.pid)
         # the worker, and with it multiprocessing's resource tracker
         assert (len(children) >= workers - 1) and (workers > 1 or not children), children

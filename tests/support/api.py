@@ -147,6 +147,8 @@ class SyntheticFleet:
             },
             rejected_by_reason={"invalid-json": len(self.ids)},
             live_vehicles=self.ids,
+            cluster_workers=3,
+            cluster_workers_lost=1,
         )
 
     def state(self, history: int = 3600, window: int = 86_400, clock_now: float = 0.0) -> FleetState:

@@ -125,6 +125,15 @@ class FleetCollector(Collector):
         fus = GaugeMetricFamily("coplane_fusion_servers_alive", "Fusion server liveliness tokens present")
         fus.add_metric([], float(len(st.fusion_alive)))
         yield fus
+        workers = GaugeMetricFamily(
+            "coplane_fusion_cluster_workers",
+            "Processes solving a fusion server's clusters (--cluster_workers), running or lost, from its diagnostics",
+            labels=["server", "state"],
+        )
+        for server, d in sorted(st.server_diagnostics.items()):
+            workers.add_metric([server, "running"], float(d.cluster_workers - d.cluster_workers_lost))
+            workers.add_metric([server, "lost"], float(d.cluster_workers_lost))
+        yield workers
         sol = CounterMetricFamily("coplane_api_solutions", "Solutions the API took into its state")
         sol.add_metric([], float(st.solutions))
         yield sol

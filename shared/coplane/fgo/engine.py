@@ -34,6 +34,7 @@ from coplane.fgo.config import FgoConfig
 from coplane.fgo.cooperative import cooperative_exclusion
 from coplane.fgo.height_links import height_links
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
+from coplane.fgo.pool import SmootherPool
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.smoother import LocalSmoothers
 from coplane.fgo.solve import ClusterSolver, Smoothers
@@ -58,8 +59,6 @@ class FusionEstimator:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self._smoothers: Smoothers = LocalSmoothers(self.config)
         if workers > 1 and self.config.solver != "lm-window":
-            from coplane.fgo.pool import SmootherPool  # starts processes: only when asked for
-
             self._smoothers = SmootherPool(self.config, workers)
         self.reset()
 
@@ -71,6 +70,12 @@ class FusionEstimator:
         self._last_time: GpsTime | None = None
         self._interval_s: float | None = None  # the smallest epoch interval seen
         self._seeds: dict[str, VehicleSeed] = {}
+
+    @property
+    def workers(self) -> tuple[int, int]:
+        """(processes the clusters are solved on, how many of them died): for diagnostics."""
+        pool = self._smoothers
+        return (pool.workers, len(pool.dead)) if isinstance(pool, SmootherPool) else (1, 0)
 
     def close(self) -> None:
         """Stop the smoothers' worker processes, if any; the estimator is unusable after."""

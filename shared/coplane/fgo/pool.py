@@ -21,6 +21,7 @@ any free worker, while a smoother must stay where its state is.
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing as mp
 import pickle
 import time
@@ -36,6 +37,7 @@ from coplane.fgo.keys import POSITION_CHR
 from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
 from coplane.fgo.window import ClusterResult, build_graph
 
+log = logging.getLogger("coplane.fgo.pool")
 _POSITION = ord(POSITION_CHR)
 CLOSE_TIMEOUT_S = 5.0
 COST_SMOOTHING = 0.2  # weight of the newest epoch in each worker's running cost per vehicle
@@ -244,6 +246,11 @@ class SmootherPool:
 
     def _lost(self, w: int, idx: list[int], out: list[Any], exc: BaseException) -> None:
         """A child died: its tasks fail (their clusters are rebuilt elsewhere), it gets no more."""
+        if w not in self.dead:
+            log.warning(
+                "cluster worker lost; its clusters are rebuilt in the processes left",
+                extra={"worker": w, "error": type(exc).__name__, "left": self.workers - len(self.dead) - 1},
+            )
         self.dead.add(w)
         for i in idx:
             out[i] = RuntimeError(f"smoother worker {w} is gone: {type(exc).__name__}")

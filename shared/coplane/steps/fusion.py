@@ -90,6 +90,12 @@ class FusionStep:
         self.estimator = method.build_estimator(workers=workers)
         self.seq = 0
 
+    @property
+    def workers(self) -> tuple[int, int]:
+        """(processes solving the estimator's clusters, how many died); (1, 0) for a filter."""
+        got = getattr(self.estimator, "workers", None)
+        return got if isinstance(got, tuple) else (1, 0)
+
     def close(self) -> None:
         """Stop what the estimator runs besides this process (the factor graph's cluster workers)."""
         close = getattr(self.estimator, "close", None)
