@@ -5,7 +5,7 @@
 
 A simulated city (`coplane simulate --scenario city`), the pc estimator's epoch inputs recorded
 once (an in-process replay, as `bench_window_clusters.py` does); then the estimator alone over
-them with `FusionEstimator(workers=N)` for each N, `--repeats` times in turn so that every N
+them with its cluster smoothers on N processes (`coplane.parallel.SmootherPool`) for each N, `--repeats` times in turn so that every N
 shares the host's drift. Wall time is `step` over every epoch (the pool's processes are started
 and ready before it); CPU is this process's plus the children's (counted once they exit), and
 shipping is what this process spent serialising the children's graphs and values and reading
@@ -37,9 +37,9 @@ def run_once(config: Any, inputs: list[Any], workers: int) -> dict[str, Any]:
     import numpy as np
 
     from coplane.fgo.engine import FusionEstimator
-    from coplane.fgo.pool import SmootherPool
+    from coplane.parallel import SmootherPool, smoothers_for
 
-    est = FusionEstimator(config, workers=workers)
+    est = FusionEstimator(config, smoothers=smoothers_for(config, workers))
     pool = est._smoothers
     if isinstance(pool, SmootherPool):
         pool.wait_ready()

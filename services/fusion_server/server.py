@@ -29,6 +29,7 @@ from coplane.bus import (
 from coplane.estimation.contract import seed_estimator
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
+from coplane.parallel import smoothers_for
 from coplane.recording.manifest import load_manifest
 from coplane.replay import replay_setup
 from coplane.runtime import RateLimitedLog
@@ -64,7 +65,7 @@ class FusionServer(Pacing):
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)
         self.spec = setup.method
-        self.step = setup.fusion_step(workers=settings.cluster_workers)
+        self.step = setup.fusion_step(smoothers_for(setup.method.fgo, settings.cluster_workers))
         self.pending: dict[GpsTime, dict[str, NodeMessage]] = defaultdict(dict)
         self.first_arrival: dict[GpsTime, float] = {}
         self.last_arrival: dict[GpsTime, float] = {}  # lockstep: an epoch still coming in

@@ -26,6 +26,7 @@ from coplane.recording.problems import RecordingError
 from coplane.typing import AnyArray
 
 if TYPE_CHECKING:
+    from coplane.fgo.solve import Smoothers
     from coplane.gnss.dgnss import DgnssCorrections
     from coplane.methods import MethodSpec
     from coplane.plane.config import PlaneConfig
@@ -139,11 +140,11 @@ class ReplaySetup:
             self.fleet, v.id, v.antenna_height_m, recording.nav, self.method, self.vehicle_config
         )
 
-    def fusion_step(self, workers: int = 1) -> FusionStep:
-        """`workers` > 1: the factor graph's clusters solved on that many processes (same estimates)."""
+    def fusion_step(self, smoothers: Smoothers | None = None) -> FusionStep:
+        """`smoothers`: where the factor graph's cluster smoothers run (`coplane.parallel`)."""
         from coplane.steps import FusionStep
 
-        return FusionStep(self.fleet, self.method, self.fusion_config, workers=workers)
+        return FusionStep(self.fleet, self.method, self.fusion_config, smoothers)
 
 
 def replay_setup(

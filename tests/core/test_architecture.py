@@ -45,6 +45,7 @@ LAYERS: dict[str, int] = {
     "runtime": 12,
     "store": 12,  # the solution log (SQLite) the services and the fleet collector keep
     "live": 12,  # live receiver streams, NTRIP and UWB input (transports and stream decoding)
+    "parallel": 12,  # a fusion server's cluster smoothers on child processes (injected into fgo)
     "bus": 13,
     "fleet": 14,
     "vehicle_agent": 15,

@@ -34,7 +34,6 @@ from coplane.fgo.config import FgoConfig
 from coplane.fgo.cooperative import cooperative_exclusion
 from coplane.fgo.height_links import height_links
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
-from coplane.fgo.pool import SmootherPool
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
 from coplane.fgo.smoother import LocalSmoothers
 from coplane.fgo.solve import ClusterSolver, Smoothers
@@ -51,15 +50,11 @@ SEED_CLOCK_FLOOR_M = 1.0  # smallest sigma of a seed's clock prior (m of range)
 class FusionEstimator:
     """Sliding-window cooperative positioning over GTSAM; `step()` once per epoch, in time order."""
 
-    def __init__(self, config: FgoConfig | None = None, workers: int = 1) -> None:
-        """`workers` > 1 solves the clusters' smoothers on that many processes (`coplane.fgo.pool`),
-        with the same estimates; `lm-window` keeps no smoothers and always solves here."""
+    def __init__(self, config: FgoConfig | None = None, smoothers: Smoothers | None = None) -> None:
+        """`smoothers`: where the clusters' smoothers run, e.g. `coplane.parallel.SmootherPool`
+        for several processes (the same estimates); default: in this process."""
         self.config = config or FgoConfig()
-        if workers < 1:
-            raise ValueError(f"workers must be at least 1, got {workers}")
-        self._smoothers: Smoothers = LocalSmoothers(self.config)
-        if workers > 1 and self.config.solver != "lm-window":
-            self._smoothers = SmootherPool(self.config, workers)
+        self._smoothers: Smoothers = smoothers if smoothers is not None else LocalSmoothers(self.config)
         self.reset()
 
     def reset(self) -> None:
@@ -74,8 +69,7 @@ class FusionEstimator:
     @property
     def workers(self) -> tuple[int, int]:
         """(processes the clusters are solved on, how many of them died): for diagnostics."""
-        pool = self._smoothers
-        return (pool.workers, len(pool.dead)) if isinstance(pool, SmootherPool) else (1, 0)
+        return self._smoothers.status()
 
     def close(self) -> None:
         """Stop the smoothers' worker processes, if any; the estimator is unusable after."""

@@ -3,10 +3,11 @@
 `SmootherCluster` wraps GTSAM's iSAM2 (or batch LM) fixed-lag smoother for the vehicles of one
 cluster. Its `update` builds the graph of what is new (the whole window on a rebuild, else one
 epoch) and `solve_graph` feeds it to GTSAM: the split lets a pool of worker processes
-(`coplane.fgo.pool`) receive a graph built by the estimator and solve it where the smoother lives.
+(`coplane.parallel`) receive a graph built by the estimator and solve it where the smoother lives.
 
 `SmootherTask` is one attempt at solving a cluster's epoch with the smoother of one slot;
-`LocalSmoothers` runs tasks on smoothers held in this process (the default, one core).
+`LocalSmoothers` runs tasks on smoothers held in this process (the default, one core);
+`coplane.parallel.SmootherPool` runs them on several.
 """
 
 from __future__ import annotations
@@ -185,6 +186,10 @@ class LocalSmoothers:
         except Exception as exc:  # GTSAM raises RuntimeError subclasses; the caller decides
             del self._smoothers[task.slot]  # its state is unknown after a failed update
             return exc
+
+    def status(self) -> tuple[int, int]:
+        """(processes, how many of them died): this one alone."""
+        return 1, 0
 
     def keep(self, slots: set[int]) -> None:
         """Forget the smoothers of every other slot."""

@@ -32,9 +32,11 @@ class ClusterFailure(RuntimeError):
 
 
 class Smoothers(Protocol):
-    """Where the clusters' smoothers live and run: `LocalSmoothers` or `coplane.fgo.pool.SmootherPool`."""
+    """Where the clusters' smoothers live and run: `LocalSmoothers` or `coplane.parallel.SmootherPool`."""
 
     def run(self, tasks: Sequence[SmootherTask]) -> list[ClusterResult | Exception]: ...
+
+    def status(self) -> tuple[int, int]: ...
 
     def keep(self, slots: set[int]) -> None: ...
 
@@ -58,7 +60,7 @@ class ClusterSolver:
     """Solves the clusters of each epoch and writes estimates and covariances into the state.
 
     The smoothers live in `smoothers`: this process (`LocalSmoothers`) or a pool of processes
-    (`coplane.fgo.pool.SmootherPool`). Either way every cluster's epoch is solved from the same
+    (`coplane.parallel.SmootherPool`). Either way every cluster's epoch is solved from the same
     graphs, and the results are written back in cluster order, so the estimates are the same.
     """
 

@@ -14,12 +14,15 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from coplane.baselines import DdCpEkf, GampConfig, GampCp, NonCpEkf
 from coplane.errors import ConfigError
 from coplane.estimation.contract import Estimator
 from coplane.fgo.config import FgoConfig, Solver
+
+if TYPE_CHECKING:
+    from coplane.fgo.solve import Smoothers  # imports GTSAM: only for the annotation
 
 PlaneSource = Literal["none", "fleet", "self"]
 
@@ -59,14 +62,14 @@ class MethodSpec:
         """The 1-sigma given to each node's Doppler velocity in the estimator's input."""
         return self.fgo.sigma_v if self.fgo is not None else self.velocity_sigma
 
-    def build_estimator(self, workers: int = 1) -> Estimator:
-        """A fresh estimator for this method. `workers` > 1: a factor graph solves its clusters
-        on that many processes (`coplane.fgo.pool`); the filters are cheap and ignore it."""
+    def build_estimator(self, smoothers: Smoothers | None = None) -> Estimator:
+        """A fresh estimator for this method. `smoothers`: where a factor graph's cluster
+        smoothers run (`coplane.parallel.smoothers_for`); filters have none."""
         if self.factory is not None:
             return self.factory()
         from coplane.fgo.engine import FusionEstimator  # GTSAM is imported only when used
 
-        return FusionEstimator(self.fgo, workers=workers)
+        return FusionEstimator(self.fgo, smoothers=smoothers)
 
     def with_solver(self, solver: Solver | None = None, window_epochs: int | None = None) -> MethodSpec:
         """The same method on another solver and/or window length (FGO methods only)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
 from coplane.methods import MethodSpec, interrupt_range
 from coplane.steps.wire import cov9, epoch_time, plane_summary, tuple3
+
+if TYPE_CHECKING:
+    from coplane.fgo.solve import Smoothers  # imports GTSAM: only for the annotation
 
 
 @dataclass
@@ -82,12 +86,16 @@ class FusionStep:
     """The server's epoch: node messages -> factor-graph inputs -> solution message (pure)."""
 
     def __init__(
-        self, fleet: str, method: MethodSpec, config: FusionStepConfig | None = None, workers: int = 1
+        self,
+        fleet: str,
+        method: MethodSpec,
+        config: FusionStepConfig | None = None,
+        smoothers: Smoothers | None = None,
     ) -> None:
         self.fleet = fleet
         self.method = method
         self.config = config or FusionStepConfig()
-        self.estimator = method.build_estimator(workers=workers)
+        self.estimator = method.build_estimator(smoothers)
         self.seq = 0
 
     @property

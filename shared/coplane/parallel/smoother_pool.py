@@ -2,16 +2,17 @@
 
 GTSAM's Python wrapper keeps the GIL while it optimises (docs/performance-scale.md, "Threads and
 GTSAM"), so threads cannot solve two clusters at once, and GTSAM's own TBB threading works inside
-one elimination, not across our independent clusters. A smoother's iSAM2 state cannot be moved
-cheaply either. So each smoother is pinned to a process for its life: the estimator
-keeps the window and builds every graph, and a slot's epoch goes, as a graph and its new values,
-to the process that holds the slot's smoother. A smoother rebuilt for a merged or split cluster is
-a new slot and goes to the least loaded process. The estimator's own process is worker 0, so
-`workers=N` uses N cores with N - 1 child processes.
+one elimination, not across our independent clusters (and the PyPI wheel has no TBB). A
+smoother's iSAM2 state cannot be moved cheaply either. So each smoother is pinned to a process for
+its life: the estimator keeps the window and builds every graph, and a slot's epoch goes, as a
+graph and its new values, to the process that holds the slot's smoother. A smoother rebuilt for a
+merged or split cluster is a new slot and goes to the process whose solves would end first (the
+vehicles it holds times its measured solve seconds per vehicle). The estimator's own process is
+worker 0, so `SmootherPool(config, N)` uses N cores with N - 1 child processes.
 
 The solution is the sequential one, bit for bit: a smoother's results depend only on its own
 inputs, which the same graphs and values reach in every process (GTSAM's serialisation keeps
-doubles exact; tests/fgo/test_pool.py). A dead child costs its clusters a rebuild on the others,
+doubles exact; tests/parallel/test_smoother_pool.py). A dead child costs its clusters a rebuild on the others,
 never the estimator.
 
 Written here because nothing fits: `multiprocessing.Pool` and `concurrent.futures` hand a task to
@@ -35,14 +36,25 @@ import numpy as np
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.keys import POSITION_CHR
 from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
+from coplane.fgo.solve import Smoothers
 from coplane.fgo.window import ClusterResult, build_graph
 
-log = logging.getLogger("coplane.fgo.pool")
+log = logging.getLogger("coplane.parallel")
 _POSITION = ord(POSITION_CHR)
 CLOSE_TIMEOUT_S = 5.0
 COST_SMOOTHING = 0.2  # weight of the newest epoch in each worker's running cost per vehicle
 
 Packed = tuple[list[int], list[list[float]], list[int], list[float]]
+
+
+def smoothers_for(config: FgoConfig | None, workers: int) -> Smoothers | None:
+    """A pool of `workers` processes for an estimator with `config`, or None where one process is
+    all there is to use: one worker, a filter (no factor graph), or `lm-window` (no smoothers)."""
+    if workers < 1:
+        raise ValueError(f"cluster workers must be at least 1, got {workers}")
+    if workers == 1 or config is None or config.solver == "lm-window":
+        return None
+    return SmootherPool(config, workers)
 
 
 def pack_values(values: gtsam.Values) -> Packed:
@@ -145,6 +157,10 @@ class SmootherPool:
     @property
     def workers(self) -> int:
         return len(self._conns)
+
+    def status(self) -> tuple[int, int]:
+        """(processes, how many of them died)."""
+        return self.workers, len(self.dead)
 
     def _place(self, task: SmootherTask) -> int | None:
         """The worker of the task's slot: where its smoother is, or the least loaded for a new one;

@@ -1,4 +1,4 @@
-"""Clusters solved on several processes (`FusionEstimator(workers=N)`, `coplane.fgo.pool`).
+"""Clusters solved on several processes (`coplane.parallel.SmootherPool`, `--cluster_workers`).
 
 The pool must give the sequential estimates bit for bit, survive a worker that dies, and leave no
 process behind.
@@ -20,13 +20,13 @@ from support.e2e_fleet import running
 from support.fgo_synthetic import SyntheticFleet, make_fleet
 
 from coplane.estimation.contract import FleetSolution
-from coplane.fgo import pool as P
 from coplane.fgo.engine import FusionEstimator
 from coplane.fgo.keys import clock_key, position_key
 from coplane.fgo.smoother import SmootherTask
 from coplane.fgo.window import StateBlock
 from coplane.gtime import GpsTime
 from coplane.methods.registry import get_method
+from coplane.parallel import smoother_pool as P
 
 
 def _fleet() -> SyntheticFleet:
@@ -40,7 +40,7 @@ def _solve(
 ) -> list[FleetSolution]:
     cfg = get_method("pc").fgo
     assert cfg is not None and cfg.solver != "lm-window"
-    est = FusionEstimator(cfg, workers=workers)
+    est = FusionEstimator(cfg, smoothers=P.smoothers_for(cfg, workers))
     try:
         out = []
         for i, epoch in enumerate(fleet.epochs):
@@ -90,7 +90,7 @@ def test_a_dead_worker_costs_its_clusters_a_rebuild_not_the_estimator() -> None:
 
 def test_close_stops_the_worker_processes() -> None:
     cfg = get_method("pc").fgo
-    est = FusionEstimator(cfg, workers=3)
+    est = FusionEstimator(cfg, smoothers=P.smoothers_for(cfg, 3))
     pool = est._smoothers
     assert isinstance(pool, P.SmootherPool)
     procs = pool._procs[1:]
@@ -99,12 +99,14 @@ def test_close_stops_the_worker_processes() -> None:
     assert not any(p.is_alive() for p in procs)
 
 
-def test_lm_window_keeps_no_pool_and_workers_must_be_positive() -> None:
-    cfg = get_method("pc", solver="lm-window").fgo
-    est = FusionEstimator(cfg, workers=4)
-    assert not isinstance(est._smoothers, P.SmootherPool)
+def test_no_pool_where_one_process_is_all_there_is_to_use() -> None:
+    """One worker, a filter (no factor graph) or lm-window (no smoothers): no processes start."""
+    assert P.smoothers_for(get_method("pc", solver="lm-window").fgo, 4) is None
+    assert P.smoothers_for(get_method("non-cp-ekf").fgo, 4) is None
+    assert P.smoothers_for(get_method("pc").fgo, 1) is None
     with pytest.raises(ValueError, match="workers"):
-        FusionEstimator(cfg, workers=0)
+        P.smoothers_for(get_method("pc").fgo, 0)
+    assert FusionEstimator(get_method("pc").fgo).workers == (1, 0)
 
 
 def test_values_cross_processes_exactly() -> None:
@@ -134,8 +136,10 @@ _PARENT = """
 import sys, time
 from coplane.fgo.engine import FusionEstimator
 from coplane.methods.registry import get_method
+from coplane.parallel import smoothers_for
 if __name__ == "__main__":
-    est = FusionEstimator(get_method("pc").fgo, workers=2)
+    cfg = get_method("pc").fgo
+    est = FusionEstimator(cfg, smoothers=smoothers_for(cfg, 2))
     est._smoothers.wait_ready()
     print(est._smoothers._procs[1].pid, flush=True)
     time.sleep(60)
