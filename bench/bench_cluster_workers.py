@@ -1,7 +1,7 @@
 """Clusters solved on several cores inside one fusion server (issue 16): speed against workers.
 
     .venv/bin/python bench/bench_cluster_workers.py [--vehicles 256] [--duration 20] [--seed 11]
-        [--workers 1,2] [--repeats 3] [--out docs/performance-scale.md]
+        [--workers 1,2] [--repeats 3] [--block NAME] [--out docs/performance-scale.md]
 
 A simulated city (`coplane simulate --scenario city`), the pc estimator's epoch inputs recorded
 once (an in-process replay, as `bench_window_clusters.py` does); then the estimator alone over
@@ -81,6 +81,7 @@ def main() -> int:
     ap.add_argument("--workers", default="1,2")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--block", default=MARK, help="the docs block to write (one per fleet size)")
     args = ap.parse_args()
     import bench_window_clusters as recorder
     from docblock import write_block
@@ -124,9 +125,11 @@ def main() -> int:
     if args.out is not None:
         cmd = (
             f"python bench/bench_cluster_workers.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
-            f"--seed {args.seed} --workers {args.workers} --repeats {args.repeats} --out {args.out}"
+            f"--seed {args.seed} --workers {args.workers} --repeats {args.repeats}"
+            + (f" --block {args.block}" if args.block != MARK else "")
+            + f" --out {args.out}"
         )
-        write_block(args.out, MARK, cmd, table)
+        write_block(args.out, args.block, cmd, table)
     return 0
 
 
