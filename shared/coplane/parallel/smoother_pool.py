@@ -15,6 +15,10 @@ inputs, which the same graphs and values reach in every process (GTSAM's seriali
 doubles exact; tests/parallel/test_smoother_pool.py). A dead child costs its clusters a rebuild on the others,
 never the estimator.
 
+Requests and replies are pickled over the anonymous `multiprocessing` pipes between the server and
+the children it started (no address anyone else can connect to), so nothing from the bus or a
+file is ever unpickled here.
+
 Written here because nothing fits: `multiprocessing.Pool` and `concurrent.futures` hand a task to
 any free worker, while a smoother must stay where its state is.
 """
