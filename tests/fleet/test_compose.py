@@ -157,6 +157,23 @@ def test_compose_scales_to_a_router_mesh_and_several_servers(tmp_path: Path) -> 
     assert r.returncode == 0, r.stderr
 
 
+def test_compose_passes_cluster_workers_to_every_server() -> None:
+    """`coplane compose --cluster-workers 2`: each server solves its clusters on 2 processes; the
+    default file starts none (the committed one is checked above)."""
+    _, vehicles = fleet_of(bundled_default_path())
+    for servers in (1, 2):
+        doc = compose_document(vehicles, servers=servers, cluster_workers=2)
+        fusion = [s for name, s in doc["services"].items() if name.startswith("fusion-server")]
+        assert len(fusion) == servers
+        for s in fusion:
+            cmd = s["command"]
+            assert cmd[cmd.index("--cluster_workers") + 1] == "2"
+    assert all(
+        "--cluster_workers" not in s.get("command", [])
+        for s in compose_document(vehicles)["services"].values()
+    )
+
+
 def test_the_launcher_passes_the_map_setting_on(tmp_path: Path) -> None:
     """`--map none` reaches the fusion servers (their own default is `auto`); `auto` is left to
     them; a file is given to every server, each of which keeps its replica beside it."""

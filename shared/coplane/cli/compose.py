@@ -27,11 +27,19 @@ def compose(
         int,
         typer.Option(min=1, help="Zenoh routers in a mesh; the further ones connect to the first."),
     ] = 1,
+    cluster_workers: Annotated[
+        int,
+        typer.Option(
+            "--cluster-workers", min=1, max=64, help="Processes per fusion server solving its clusters."
+        ),
+    ] = 1,
 ) -> None:
     """Write docker-compose.yml (and the routers' TLS + access-control configs) for the bundled
     recording from the launcher's own service list. The committed file is the default (one router,
     one server); e.g. `coplane compose --servers 2 --routers 2 --out docker-compose.scale.yml`."""
     from coplane.fleet import write_compose
 
-    result = write_compose(out, method, pace, router_config, servers=servers, routers=routers)
+    result = write_compose(
+        out, method, pace, router_config, servers=servers, routers=routers, cluster_workers=cluster_workers
+    )
     console.print(f"wrote {result.path} ({result.services} services) and {result.router_config}")

@@ -90,9 +90,11 @@ def compose_document(
     speed: float = 1.0,
     servers: int = 1,
     routers: int = 1,
+    cluster_workers: int = 1,
 ) -> dict[str, Any]:
     """The docker-compose.yml content for a fleet replay of the bundled recording: `routers` Zenoh
-    routers in a mesh and `servers` fusion servers sharing the fleet by region (docs/scale.md)."""
+    routers in a mesh and `servers` fusion servers sharing the fleet by region (docs/scale.md),
+    each solving its clusters on `cluster_workers` processes."""
     if servers < 1 or routers < 1:
         raise ConfigError(f"--servers and --routers must be >= 1, got {servers} and {routers}")
     certs_ro = f"{CERTS_VOLUME}:{CERTS_DIR}:ro"
@@ -141,6 +143,7 @@ def compose_document(
         api=True,
         servers=servers,
         routers=mesh,
+        cluster_workers=cluster_workers,
     ):
         svc: dict[str, Any] = {
             "build": ".",
@@ -203,6 +206,7 @@ def write_compose(
     router_config: Path | None = None,
     servers: int = 1,
     routers: int = 1,
+    cluster_workers: int = 1,
 ) -> ComposeResult:
     """Write the compose file and the routers' configs (default `deploy/zenoh/router.json5` beside
     it, the further routers' `router-2.json5` ... next to that) for the bundled recording's
@@ -215,7 +219,9 @@ def write_compose(
             f"--router-config {router_config}: with --routers > 1 it must be named {ROUTER_CONFIG.name}"
         )
     fleet, vehicles = bundled_fleet()
-    doc = compose_document(vehicles, method, pace, servers=servers, routers=routers)
+    doc = compose_document(
+        vehicles, method, pace, servers=servers, routers=routers, cluster_workers=cluster_workers
+    )
     out.write_text(COMPOSE_HEADER + yaml.safe_dump(doc, sort_keys=False, width=200))
     router_path = router_config or out.parent / ROUTER_CONFIG
     router_path.parent.mkdir(parents=True, exist_ok=True)
