@@ -311,6 +311,15 @@ class DiagnosticsMessage(_Model):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
+    @model_validator(mode="after")
+    def _lost_workers(self) -> DiagnosticsMessage:
+        # the API's gauge reports workers - lost as running: never a negative count
+        if self.cluster_workers_lost > self.cluster_workers:
+            raise ValueError(
+                f"cluster_workers_lost {self.cluster_workers_lost} > cluster_workers {self.cluster_workers}"
+            )
+        return self
+
 
 class MapTileState(_Model):
     """One road-map tile as the fusion server shares it (docs/roadmap.md): the plane's evidence in

@@ -200,3 +200,13 @@ def test_a_smoother_lost_with_its_worker_fails_its_tasks_every_time() -> None:
         assert not isinstance(again, Exception) and pool.tasks[0] == 1 and pool.dead == {1}
     finally:
         pool.close()
+
+
+def test_the_gtsam_wheel_has_no_tbb_so_its_own_threading_is_not_there() -> None:
+    """docs/scale.md chose processes partly because GTSAM's own threading (TBB) is absent from the
+    installed wheel: a wheel that bundles TBB would reopen that choice."""
+    libs = Path(gtsam.__file__).resolve().parent.parent / "gtsam.libs"
+    assert libs.is_dir(), libs
+    names = [p.name for p in libs.iterdir()]
+    assert any(n.startswith("libgtsam") for n in names), names
+    assert not [n for n in names if "tbb" in n.lower()], names

@@ -591,6 +591,17 @@ def test_diagnostics_pace() -> None:
     rejects(DiagnosticsMessage, {**base, "pace": "fast"}, "pace")
 
 
+def test_diagnostics_cluster_workers() -> None:
+    """A server cannot have lost more cluster workers than it has (the API's gauge subtracts)."""
+    base = {"fleet": "f", "method": "pc", "pace": "lockstep", "epochs_solved": 0}
+    d = DiagnosticsMessage.model_validate({**base, "cluster_workers": 3, "cluster_workers_lost": 3})
+    assert (d.cluster_workers, d.cluster_workers_lost) == (3, 3)
+    rejects(
+        DiagnosticsMessage, {**base, "cluster_workers": 2, "cluster_workers_lost": 3}, "cluster_workers_lost"
+    )
+    rejects(DiagnosticsMessage, {**base, "cluster_workers": 0}, "cluster_workers")
+
+
 # -- the wire bounds against the estimators' input check ----------------------------------------
 
 
