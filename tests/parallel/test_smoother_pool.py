@@ -21,7 +21,7 @@ from support.fgo_synthetic import SyntheticFleet, make_fleet
 
 from coplane.estimation.contract import FleetSolution
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.keys import clock_key, position_key
+from coplane.fgo.keys import clock_key, is_position_key, position_key
 from coplane.fgo.smoother import SmootherTask
 from coplane.fgo.window import StateBlock
 from coplane.gtime import GpsTime
@@ -119,7 +119,8 @@ def test_values_cross_processes_exactly() -> None:
     back = P.unpack_values(P.pack_values(v))
     assert sorted(back.keys()) == sorted(v.keys())
     for key in v.keys():  # noqa: SIM118 (gtsam.Values has keys(), no iteration)
-        if gtsam.Symbol(key).chr() == ord("p"):
+        assert is_position_key(key) == (gtsam.Symbol(key).chr() == ord("p"))
+        if is_position_key(key):
             assert np.array_equal(back.atPoint3(key), v.atPoint3(key))
         else:
             assert back.atDouble(key) == v.atDouble(key)

@@ -61,6 +61,12 @@ def clock_key(slot: int, step: int, system: str) -> int:
     return int(gtsam.symbol(c, _index(slot, step)))
 
 
+def is_position_key(key: int) -> bool:
+    """Whether a key made here is a position (Point3) rather than a clock (double): its character
+    is the top byte, read without building a gtsam.Symbol (called per key when values are packed)."""
+    return key >> (SLOT_BITS + STEP_BITS) == ord(POSITION_CHR)
+
+
 def decode_key(key: int) -> tuple[str, int, int]:
     """(kind, slot, step) of a key made here, e.g. ("clock-G", 3, 120)."""
     s = gtsam.Symbol(key)

@@ -38,13 +38,12 @@ import gtsam
 import numpy as np
 
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.keys import POSITION_CHR
+from coplane.fgo.keys import is_position_key
 from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
 from coplane.fgo.solve import Smoothers
 from coplane.fgo.window import ClusterResult, build_graph
 
 log = logging.getLogger("coplane.parallel")
-_POSITION = ord(POSITION_CHR)
 CLOSE_TIMEOUT_S = 5.0
 COST_SMOOTHING = 0.2  # weight of the newest epoch in each worker's running cost per vehicle
 
@@ -68,7 +67,7 @@ def pack_values(values: gtsam.Values) -> Packed:
     ck: list[int] = []
     clk: list[float] = []
     for key in values.keys():  # noqa: SIM118 (gtsam.Values has keys(), no iteration)
-        if gtsam.Symbol(key).chr() == _POSITION:
+        if is_position_key(key):
             pk.append(key)
             pos.append([float(x) for x in values.atPoint3(key)])
         else:
