@@ -146,12 +146,11 @@ class SmootherPool:
             self._conns.append(parent)
             self._procs.append(proc)
         self._worker_of: dict[int, int] = {}  # slot -> worker
-        self._load = [0] * workers  # vehicles of the slots each worker holds
         # seconds per vehicle of a task's solve, per worker, as measured. Shipping is left out: it
         # is paid before and after the solves whoever takes the next smoother, so the epoch ends
         # soonest when the solves themselves end together
         self._cost = [1e-3] * workers  # a first guess, the same for all: the first epochs replace it
-        self._size: dict[int, int] = {}
+        self._size: dict[int, int] = {}  # slot -> its vehicles
         self._drops: list[list[int]] = [[] for _ in range(workers)]
         self.dead: set[int] = set()
         self.tasks = [0] * workers  # tasks each worker was given: how the load spread
@@ -169,18 +168,20 @@ class SmootherPool:
         """The worker of the task's slot: where its smoother is, or the least loaded for a new one;
         None for a smoother that was lost with its worker."""
         if task.create:  # a new slot id: never one the pool holds
+            load = [0] * self.workers  # vehicles each worker's smoothers hold
+            for slot, held_by in self._worker_of.items():
+                load[held_by] += self._size[slot]
             alive = [w for w in range(self.workers) if w not in self.dead]
             n = len(task.vehicles)
-            w = min(alive, key=lambda i: ((self._load[i] + n) * self._cost[i], i))
+            w = min(alive, key=lambda i: ((load[i] + n) * self._cost[i], i))
             self._worker_of[task.slot] = w
-            self._size[task.slot] = len(task.vehicles)
-            self._load[w] += len(task.vehicles)
+            self._size[task.slot] = n
             return w
         return self._worker_of.get(task.slot)
 
     def _forget(self, slot: int) -> None:
         w = self._worker_of.pop(slot)
-        self._load[w] -= self._size.pop(slot)
+        del self._size[slot]
         if w > 0 and w not in self.dead:
             self._drops[w].append(slot)
 
