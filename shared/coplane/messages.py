@@ -6,6 +6,9 @@ over the bus and `coplane eval` compute on identical inputs (JSON floats round-t
 Every field is validated at the boundary: non-finite numbers, absurd magnitudes, malformed ids and
 oversized lists are rejected with a reason. The bounds are `coplane.estimation.limits`, the
 same the estimators apply, so what passes here is never rejected there for another limit.
+
+It stays one file: it is one format, the bus's versioned wire schema, whose models nest in one
+another and share their bounds.
 """
 
 from __future__ import annotations
@@ -313,11 +316,8 @@ class DiagnosticsMessage(_Model):
 
     @model_validator(mode="after")
     def _lost_workers(self) -> DiagnosticsMessage:
-        # the API's gauge reports workers - lost as running: never a negative count
-        if self.cluster_workers_lost > self.cluster_workers:
-            raise ValueError(
-                f"cluster_workers_lost {self.cluster_workers_lost} > cluster_workers {self.cluster_workers}"
-            )
+        if self.cluster_workers_lost > self.cluster_workers:  # the API's gauge subtracts them
+            raise ValueError(f"cluster_workers_lost > cluster_workers ({self.cluster_workers})")
         return self
 
 
