@@ -30,6 +30,12 @@ from coplane.roadmap import RoadMapConfig
         ("half_life_s", math.nan),
         ("min_passes", 0),
         ("max_use_sigma_m", 0.0),
+        ("change_reference", "yes"),
+        ("change_reference", 1),
+        ("change_reference_window_s", 0.0),
+        ("change_reference_window_s", math.inf),
+        ("change_reference_passes", 0),
+        ("change_reference_min_passes", -3),
     ],
 )
 def test_invalid_values_name_the_field(field: str, value: float) -> None:

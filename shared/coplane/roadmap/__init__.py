@@ -3,6 +3,8 @@
 - `grid`: a global grid of square tiles of `tile_size_m` (keys "r{row}c{col}");
 - `tile.TilePlane`: one tile's road plane in information form, and the update rule for one pass
   (in-pass outlier removal, outlier passes, CUSUM change detection and re-learning, decay);
+- `reference.CommonResidual`: the recent passes' median residual, what the whole fleet shares,
+  which the change detection takes off so that it is not taken for a change of every tile;
 - `builder.MapBuilder`: fused solutions -> trust filter, de-mapping -> passes;
 - `roadmap.RoadMap`: the tiles in memory; `plane_at` gives a vehicle the plane under it;
 - `geojson.tiles_geojson`: the tiles for viewers.

@@ -55,6 +55,27 @@ class RoadMapConfig:
     """CUSUM decision limit (in sigma). With z clipped to +-3 a shift well beyond the pass sigma is
     flagged on the third pass; an isolated outlier adds at most 2.5 and never flags alone."""
 
+    change_reference: bool = True
+    """Test each pass for a change against the fleet's common residual (`coplane.roadmap.reference`):
+    the median residual of the recent passes on usable tiles is taken off first. False: the pass's
+    own z, as before 2026-11-27. On the training seeds of bench/roadmap_acceptance.py (sharpening
+    121-126, change 141-144) it removed the 9 false changes the raised-road runs made and added
+    none (docs/roadmap.md)."""
+
+    change_reference_window_s: float = 120.0
+    """The recent passes of the reference: those up to this many seconds (evidence time) before the
+    pass. The fleet's common error (the base station's multipath, the atmosphere's residual) drifts
+    by tenths of a metre within a 5-minute drive on the simulated ones; 120 s (about 240 passes of
+    4 vehicles) follows it. 120 and 600 s made no difference on the training seeds."""
+
+    change_reference_passes: int = 2000
+    """At most this many recent passes are kept for the reference (the newest): bounds memory and
+    the cost of its medians in a big fleet."""
+
+    change_reference_min_passes: int = 30
+    """Fewer recent passes than this (the start of a drive, a restarted server): no reference, and
+    the pass is not tested for a change (it is still added to its tile)."""
+
     recent_passes: int = 16
     """Per-tile buffer of recent pass summaries: after a change the tile is re-learned from the
     passes that showed it, which must still be at hand."""
@@ -86,6 +107,7 @@ class RoadMapConfig:
             "outlier_z",
             "cusum_h",
             "max_use_sigma_m",
+            "change_reference_window_s",
         )
         for name in positive:
             value = getattr(self, name)
@@ -97,10 +119,15 @@ class RoadMapConfig:
             raise ValueError(f"RoadMapConfig.cusum_k must be >= 0 and finite, got {self.cusum_k!r}")
         if not (self.half_life_s > 0.0):  # inf allowed (no decay), NaN rejected
             raise ValueError(f"RoadMapConfig.half_life_s must be > 0, got {self.half_life_s!r}")
-        for name in ("recent_passes", "min_passes"):
+        for name in ("recent_passes", "min_passes", "change_reference_passes", "change_reference_min_passes"):
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
                 raise ValueError(f"RoadMapConfig.{name} must be an integer >= 1, got {value!r}")
+
+        if not isinstance(self.change_reference, bool):
+            raise ValueError(
+                f"RoadMapConfig.change_reference must be true or false, got {self.change_reference!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values, for the map database's `meta` table."""

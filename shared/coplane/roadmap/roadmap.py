@@ -19,6 +19,7 @@ from coplane.plane.fit import antenna_offset
 from coplane.plane.history import project_to_road
 from coplane.roadmap.config import RoadMapConfig
 from coplane.roadmap.grid import TileKey, tile_frame, tile_of_ecef
+from coplane.roadmap.reference import CommonResidual
 from coplane.roadmap.tile import ChangeEvent, PassEvidence, TilePlane
 from coplane.typing import Vec
 
@@ -60,6 +61,9 @@ class RoadMap:
         self.mapped_until: dict[str, float] = dict(mapped_until) if mapped_until else {}
         self.dirty: set[TileKey] = set()
         self.rejected: Counter[str] = Counter()  # planes plane_at refused to give, by reason
+        # the recent passes' residuals on usable tiles: what the fleet shares, which the change
+        # detector must not take for a change (`coplane.roadmap.reference`); not persisted
+        self.common = CommonResidual(self.config)
         # plane of each tile as of (tile object, version): see _plane
         self._planes: dict[TileKey, tuple[TilePlane, tuple[int, Vec, float, float, float]]] = {}
 
@@ -75,7 +79,8 @@ class RoadMap:
 
     def apply(self, passes: Iterable[PassEvidence]) -> list[ChangeEvent]:
         """Add passes in (time, vehicle, tile) order, creating tiles as needed (h0 from the first
-        pass's mean height); returns the changes they caused. Touched tiles become dirty."""
+        pass's mean height); returns the changes they caused. Touched tiles become dirty. Each
+        pass is tested for a change against the fleet's common residual of the passes before it."""
         ordered = sorted(passes, key=_order)
         changes: list[ChangeEvent] = []
         for p in ordered:
@@ -87,7 +92,10 @@ class RoadMap:
                     raise ValueError(f"pass of {p.vehicle_id} for new tile {key}: h_ref_m is needed for h0")
                 u = np.asarray(p.points_enu, dtype=float)[:, 2]
                 tile = self.tiles[key] = TilePlane(key, float(p.h_ref_m + float(u.mean())))
-            upd = tile.add_pass(p, self.config)
+            usable = tile.usable(self.config)
+            upd = tile.add_pass(p, self.config, self.common.reference(p.time_s))
+            if usable:
+                self.common.add(p.time_s, upd.residual_m)
             self.dirty.add(key)
             self.mapped_until[p.vehicle_id] = max(self.mapped_until.get(p.vehicle_id, -math.inf), p.time_s)
             if upd.change is not None:

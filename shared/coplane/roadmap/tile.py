@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from coplane.geo import geodetic_to_ecef
 from coplane.roadmap.config import RoadMapConfig
 from coplane.roadmap.grid import TileKey, tile_centre, tile_frame
+from coplane.roadmap.reference import NO_REFERENCE, ZReference
 from coplane.typing import Mat, Vec
 
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per unit of median absolute deviation
@@ -51,7 +52,8 @@ class PassEvidence:
 class PassSummary:
     """What a tile remembers of a recent pass: its information (in the tile frame, undecayed), its
     standardized mean residual against the tile when it arrived (nan for the tile's first pass) and
-    whether it was added. Kept so that a change can be re-learned from the passes that showed it."""
+    whether it was added. Kept so that a change can be re-learned from the passes that showed it.
+    `z` is the one the change detector tested (corrected by the fleet's `ZReference`)."""
 
     time_s: float
     vehicle_id: str
@@ -75,11 +77,14 @@ class ChangeEvent:
 
 @dataclass(frozen=True)
 class TileUpdate:
-    """The outcome of one pass: added or not, its z against the tile, and a change if it made one."""
+    """The outcome of one pass: added or not, its z against the tile, and a change if it made one.
+    `residual_m`: the pass's mean height residual against the tile (nan for a tile's first pass),
+    which `RoadMap` feeds to the fleet's common reference."""
 
     accepted: bool
     z: float
     change: ChangeEvent | None = None
+    residual_m: float = math.nan
 
 
 def _zeros3x3() -> Mat:
@@ -197,9 +202,16 @@ class TilePlane:
         return self.n_passes >= config.min_passes
 
     # -- updating ------------------------------------------------------------------------------
-    def add_pass(self, pass_: PassEvidence, config: RoadMapConfig) -> TileUpdate:
+    def add_pass(
+        self, pass_: PassEvidence, config: RoadMapConfig, reference: ZReference | None = NO_REFERENCE
+    ) -> TileUpdate:
         """Add one pass (docs/roadmap.md, "Update rule"): in-pass outlier removal, the pass's
-        information, its z against the tile, CUSUM change detection, then add or reject."""
+        information, its z against the tile, CUSUM change detection, then add or reject.
+
+        The outlier test uses the pass's own z; the CUSUM tests it against `reference`, the fleet's
+        common residual (`coplane.roadmap.reference`), so that an error every tile shares at once is
+        not taken for a change of this one. None: the common residual is not known yet, so the pass
+        is not tested for a change at all (it is still added)."""
         e, n, u, w = _kept_points(pass_, self.h0_m, config)
         jac = np.column_stack([np.ones_like(e), e, n])
         info_p = jac.T @ (w[:, None] * jac)
@@ -209,15 +221,17 @@ class TilePlane:
         # keep the evidence "as of updated_s" whether or not this pass is added, so that a rejected
         # pass advancing updated_s does not skip the decay of the interval before it
         self._decay_to(t, config)
-        z = math.nan
+        z = z_change = rbar = sigma = math.nan
         if self.n_passes > 0:
             theta, cov = self.estimate(config)
             wsum = float(w.sum())
             jbar = (w @ jac) / wsum
             rbar = float(w @ (u - jac @ theta)) / wsum
-            z = rbar / math.sqrt(1.0 / float(info_p[0, 0]) + float(jbar @ cov @ jbar))
-        summary = PassSummary(t, pass_.vehicle_id, info_p, eta_p, int(e.shape[0]), z, True)
-        change = self._cusum(z, summary, config)
+            sigma = math.sqrt(1.0 / float(info_p[0, 0]) + float(jbar @ cov @ jbar))
+            z = rbar / sigma
+            z_change = reference.z(rbar, sigma) if reference is not None else math.nan
+        summary = PassSummary(t, pass_.vehicle_id, info_p, eta_p, int(e.shape[0]), z_change, True)
+        change = self._cusum(z_change, summary, config)
         if change is not None:
             accepted = True
         elif math.isnan(z) or abs(z) <= config.outlier_z:
@@ -230,11 +244,11 @@ class TilePlane:
         else:
             accepted = False
             self.outlier_passes += 1
-            summary = PassSummary(t, pass_.vehicle_id, info_p, eta_p, int(e.shape[0]), z, False)
+            summary = PassSummary(t, pass_.vehicle_id, info_p, eta_p, int(e.shape[0]), z_change, False)
         self.recent = [*self.recent, summary][-config.recent_passes :]
         self.version += 1
         self.updated_s = max(self.updated_s, t) if self.version > 1 else t
-        return TileUpdate(accepted, z, change)
+        return TileUpdate(accepted, z, change, rbar)
 
     def _decay_to(self, t: float, config: RoadMapConfig) -> None:
         if self.version > 0 and t > self.updated_s:
