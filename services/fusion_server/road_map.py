@@ -25,6 +25,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from coplane.bus import BadMessage, BusNode, decode, encode
 from coplane.messages import MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
@@ -109,6 +110,12 @@ class LiveRoadMap:
         except Exception:
             self.counts["errors"] += 1
             log.exception("road map: solution not added", extra={"seq": sol.seq})
+
+    def diagnostics(self) -> dict[str, Any]:
+        """The map fields of the server's diagnostics message: the map's common residual and the
+        passes behind it (`DiagnosticsMessage.map_common_offset_m`), none while there is none."""
+        ref = self.map.common.latest
+        return {} if ref is None else {"map_common_offset_m": ref.offset_m, "map_common_passes": ref.passes}
 
     @property
     def cache_size(self) -> int:

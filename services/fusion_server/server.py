@@ -339,6 +339,7 @@ class FusionServer(Pacing):
             cluster_workers_lost=self.step.workers[1],
             generation=self.generation,
             **(self.regions.diagnostics() if self.regions is not None else {}),
+            **(self.road_map.diagnostics() if self.road_map is not None else {}),
         )
 
     def run(self) -> None:

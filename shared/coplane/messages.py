@@ -312,12 +312,20 @@ class DiagnosticsMessage(_Model):
         default_factory=dict, max_length=64
     )
 
+    # the road map's common residual (docs/roadmap.md): the median height of recent passes against
+    # the map over every usable tile (+: the fleet's heights are above the map), and the passes it
+    # rests on; None while the server has no map or too few recent passes
+    map_common_offset_m: float | None = Field(default=None, ge=-1000.0, le=1000.0)
+    map_common_passes: int = Field(default=0, ge=0)
+
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 
     @model_validator(mode="after")
     def _lost_workers(self) -> DiagnosticsMessage:
         if self.cluster_workers_lost > self.cluster_workers:  # the API's gauge subtracts them
             raise ValueError(f"cluster_workers_lost > cluster_workers ({self.cluster_workers})")
+        if (self.map_common_offset_m is None) != (self.map_common_passes == 0):
+            raise ValueError("map_common_offset_m needs map_common_passes >= 1, and passes need an offset")
         return self
 
 

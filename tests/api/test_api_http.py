@@ -150,6 +150,7 @@ def test_metrics_text(fleet: SyntheticFleet) -> None:
     assert m["coplane_fusion_servers_alive", ()] == 1
     assert m["coplane_fusion_cluster_workers", (("server", ""), ("state", "running"))] == 2
     assert m["coplane_fusion_cluster_workers", (("server", ""), ("state", "lost"))] == 1
+    assert m["coplane_map_common_offset_metres", (("server", ""),)] == 0.25
 
 
 def test_sse_stream_delivers_solutions_and_limits_clients(fleet: SyntheticFleet) -> None:

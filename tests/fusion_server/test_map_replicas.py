@@ -95,6 +95,16 @@ def test_a_server_writes_its_own_tiles_and_takes_the_others(tmp_path: Path) -> N
     a.close()
 
 
+def test_diagnostics_report_the_fleets_common_residual_against_the_map(tmp_path: Path) -> None:
+    m = LiveRoadMap(_base(tmp_path), {}, fleet="f1")
+    assert m.diagnostics() == {}
+    # 40 passes, a second apart, 0.2 m above both tiles: the tiles follow, the residuals shrink
+    m._commit([_pass(k % 2, f"v{k % 3}", 1.5e9 + k, 0.2) for k in range(40)])
+    d = m.diagnostics()
+    assert d["map_common_passes"] == 39 and 0.0 < d["map_common_offset_m"] <= 0.2 + 1e-9
+    m.close()
+
+
 def test_snapshot_parts_are_counted_per_server() -> None:
     """Every server numbers its snapshots from 1: parts of two servers' snapshot 1 are not one."""
 

@@ -149,6 +149,8 @@ class SyntheticFleet:
             live_vehicles=self.ids,
             cluster_workers=3,
             cluster_workers_lost=1,
+            map_common_offset_m=0.25,
+            map_common_passes=80,
         )
 
     def state(self, history: int = 3600, window: int = 86_400, clock_now: float = 0.0) -> FleetState:

@@ -602,6 +602,22 @@ def test_diagnostics_cluster_workers() -> None:
     rejects(DiagnosticsMessage, {**base, "cluster_workers": 0}, "cluster_workers")
 
 
+def test_diagnostics_map_common_offset() -> None:
+    """The road map's common residual: an offset comes with the passes it rests on, finite, bounded."""
+    base = {"fleet": "f", "method": "pc", "pace": "lockstep", "epochs_solved": 0}
+    assert DiagnosticsMessage.model_validate(base).map_common_offset_m is None
+    d = DiagnosticsMessage.model_validate({**base, "map_common_offset_m": -0.4, "map_common_passes": 120})
+    assert (d.map_common_offset_m, d.map_common_passes) == (-0.4, 120)
+    for bad in (
+        {"map_common_offset_m": 0.3},  # an offset resting on no passes
+        {"map_common_passes": 30},  # passes without an offset
+        {"map_common_offset_m": float("nan"), "map_common_passes": 30},
+        {"map_common_offset_m": 5000.0, "map_common_passes": 30},
+        {"map_common_offset_m": 0.1, "map_common_passes": -1},
+    ):
+        rejects(DiagnosticsMessage, {**base, **bad}, "map_common")
+
+
 # -- the wire bounds against the estimators' input check ----------------------------------------
 
 

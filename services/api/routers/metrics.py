@@ -134,6 +134,15 @@ class FleetCollector(Collector):
             workers.add_metric([server, "running"], float(d.cluster_workers - d.cluster_workers_lost))
             workers.add_metric([server, "lost"], float(d.cluster_workers_lost))
         yield workers
+        offset = GaugeMetricFamily(
+            "coplane_map_common_offset_metres",
+            "Median height of recent passes against the road map, every usable tile (+: fleet above the map)",
+            labels=["server"],
+        )
+        for server, d in sorted(st.server_diagnostics.items()):
+            if d.map_common_offset_m is not None:
+                offset.add_metric([server], d.map_common_offset_m)
+        yield offset
         sol = CounterMetricFamily("coplane_api_solutions", "Solutions the API took into its state")
         sol.add_metric([], float(st.solutions))
         yield sol

@@ -60,6 +60,13 @@ class CommonResidual:
         # over minutes
         self._cached: tuple[int, ZReference | None] | None = None
 
+    @property
+    def latest(self) -> ZReference | None:
+        """The newest reference computed (None before the first, or while too few passes were at
+        hand): what a server reports, since a large common offset says the fleet's heights and the
+        map disagree as a whole (a biased map, or a drive with a biased base station)."""
+        return self._cached[1] if self._cached is not None else None
+
     def add(self, time_s: float, residual_m: float) -> None:
         """One pass's mean residual against a usable tile (non-finite ones are ignored)."""
         if math.isfinite(time_s) and math.isfinite(residual_m):
