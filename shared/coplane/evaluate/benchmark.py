@@ -111,17 +111,19 @@ def pooled_by_environment(
     on_run: Callable[[str, float], None] | None = None,
     tail: list[TailEpoch] | None = None,
     tail_m: float = 20.0,
+    dgnss: bool | None = None,
 ) -> tuple[dict[str, PooledStats], Consistency]:
     """One method's errors pooled over every vehicle of every recording, overall and per
     environment, and the consistency of its reported covariances (NaN share when it has none).
-    Epochs with a horizontal error above `tail_m` are appended to `tail` when it is given."""
+    Epochs with a horizontal error above `tail_m` are appended to `tail` when it is given.
+    `dgnss`: as `run_method` (None: with the recording's base when it has one)."""
     sol: dict[str, dict] = {}
     truth: dict[str, dict] = {}
     env: dict[str, dict] = {}
     h_in: list[bool] = []
     v_in: list[bool] = []
     for k, rec in enumerate(recs):
-        run = run_method(rec, method, jobs=jobs)
+        run = run_method(rec, method, jobs=jobs, dgnss=dgnss)
         if on_run is not None:
             on_run(run.method, run.wall_time_s)
         for v in rec.manifest.vehicles:
