@@ -15,6 +15,7 @@ Writes docs/reliability/security.md.
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import os
 import subprocess
@@ -135,6 +136,9 @@ def render(access: list[Attempt], connections: list[Attempt], seconds: float) ->
 
 
 def main() -> int:
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     with tempfile.TemporaryDirectory(prefix="coplane-security-") as tmp:
         access, connections, seconds = run(Path(tmp))
     OUT.parent.mkdir(parents=True, exist_ok=True)

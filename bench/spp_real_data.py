@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import os
 from dataclasses import replace
@@ -30,6 +31,9 @@ CASES = [
 
 
 def main() -> None:
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     print("# SPP on real data\n")
     print(
         f"Output of `bench/spp_real_data.py` ({dt.date.today()}). GPS L1 C/A + BeiDou B1I, 10 deg mask, "

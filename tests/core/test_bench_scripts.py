@@ -41,3 +41,13 @@ def test_every_bench_script_imports() -> None:
         cwd=ROOT,
     )
     assert proc.returncode == 0, f"bench scripts that do not import:\n{proc.stdout}{proc.stderr[-2000:]}"
+
+
+def test_every_bench_script_answers_help_without_running() -> None:
+    """`--help` must print the usage, not start a run that rewrites a page of docs/ (one did)."""
+    silent = [
+        p.name
+        for p in sorted(BENCH.glob("*.py"))
+        if '__name__ == "__main__"' in p.read_text() and "argparse" not in p.read_text()
+    ]
+    assert not silent, f"scripts that run whatever their arguments: {silent}"
