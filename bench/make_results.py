@@ -77,18 +77,19 @@ def _run(name: str, rec_path: Path, methods: list[str], rates: list[float], vehi
 def _held_out(tmp: Path, duration_s: float, dgnss: bool = True) -> list[str]:
     """The held-out benchmark: every method pooled over 5 fresh seeds per scenario (`dgnss` False:
     the same recordings without their base station, as a fleet without one would run)."""
-    out = [
-        "## Held-out benchmark (the acceptance of the robust-fusion work)\n",
-        f"Made on {dt.date.today()} with {numeric_versions()}. Defaults were chosen on the training seeds {_seeds(TRAINING)} (`bench/tune_fgo.py`); "
-        f"choices the training seeds could not settle were checked on the validation seeds {_seeds(VALIDATION)} "
-        "(`bench/tune_fgo.py --validation`; the reported seeds until 2026-11-27). They are "
-        f"reported here on seeds that decided nothing, {_seeds(HELD_OUT)}: 4 vehicles, {duration_s:.0f} s each, DGNSS "
-        "base, UWB. Errors are pooled over every vehicle of every seed of a scenario, overall and per "
-        "environment of the truth; the ratios are the orderings issue 12 asks for "
-        "(`coplane.evaluate.benchmark.acceptance`).\n",
-    ]
-    if not dgnss:
-        out = [
+    if dgnss:
+        head = (
+            "## Held-out benchmark (the acceptance of the robust-fusion work)\n",
+            f"Made on {dt.date.today()} with {numeric_versions()}. Defaults were chosen on the training seeds {_seeds(TRAINING)} (`bench/tune_fgo.py`); "
+            f"choices the training seeds could not settle were checked on the validation seeds {_seeds(VALIDATION)} "
+            "(`bench/tune_fgo.py --validation`; the reported seeds until 2026-11-27). They are "
+            f"reported here on seeds that decided nothing, {_seeds(HELD_OUT)}: 4 vehicles, {duration_s:.0f} s each, DGNSS "
+            "base, UWB. Errors are pooled over every vehicle of every seed of a scenario, overall and per "
+            "environment of the truth; the ratios are the orderings issue 12 asks for "
+            "(`coplane.evaluate.benchmark.acceptance`).\n",
+        )
+    else:
+        head = (
             "## Held-out benchmark without a base station (standalone)\n",
             f"Made on {dt.date.today()} with {numeric_versions()}. The recordings of the held-out benchmark above, "
             "every method without DGNSS, as a fleet without a reference station runs: the broadcast "
@@ -96,7 +97,8 @@ def _held_out(tmp: Path, duration_s: float, dgnss: bool = True) -> list[str]:
             "They are common to the vehicles and drift over minutes, so neither ranging nor planes can see "
             "them, and the vertical errors of every method are dominated by them. No default was chosen "
             "on this set, or on any standalone simulation: they were chosen with DGNSS (above).\n",
-        ]
+        )
+    out = list(head)
     methods = ["non-cp", "mci", "pc", "pc-no-ir", *BASELINES]
     for scen, seeds in HELD_OUT.items():
         recs = make_recordings(scen, seeds, tmp, 4, duration_s)
