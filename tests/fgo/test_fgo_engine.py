@@ -34,6 +34,10 @@ from coplane.estimation.contract import (
 )
 from coplane.fgo.config import FgoConfig, Solver
 from coplane.fgo.engine import FusionEstimator
+from coplane.fgo.prepare import clock_drift
+from coplane.fgo.state import GraphState
+from coplane.fgo.window import Window
+from coplane.gtime import GpsTime
 from coplane.methods import INTERRUPTION_BLOCK, METHODS, MethodSpec, get_method, interrupt_range
 
 SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
@@ -447,6 +451,49 @@ def test_fewer_than_four_satellites(solver: Solver) -> None:
             est = sol.estimates["v01"]
             assert est.has_gnss_fix == (k not in range(10, 16))
             assert np.linalg.norm(est.position_m - fleet.truth[k]["v01"]) < 20.0
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_undetermined_epochs_are_dead_reckoned(solver: Solver) -> None:
+    """Opt-in: a tracked vehicle with fewer pseudoranges than a fix needs (4, 3 with a plane) uses
+    none of them and each is counted; by default they are kept (docs/fgo.md)."""
+    limits = {("v01", k): (2 if k % 2 else 3) for k in range(10, 16)}
+    fleet = make_fleet(4, 22, seed=8, sat_limit=limits, **NLOS)
+    for method, used_with_three in (("non-cp", 0), ("pc", 3)):
+        cfg = get_method(method, solver=solver).fgo
+        assert cfg is not None and not cfg.drop_undetermined_pseudoranges
+        dropping = dataclasses.replace(cfg, drop_undetermined_pseudoranges=True)
+        for drop, sols in ((False, run(fleet, cfg)), (True, run(fleet, dropping))):
+            for k in range(10, 16):
+                est, n = sols[k].estimates["v01"], limits[("v01", k)]
+                dropped = sols[k].rejected.get("undetermined_pseudorange", 0)
+                if not drop:
+                    assert (est.n_pseudoranges, dropped) == (n, 0)
+                elif n == 3 and used_with_three:
+                    assert (est.n_pseudoranges, dropped) == (3, 0)
+                else:
+                    assert (est.n_pseudoranges, dropped) == (0, n)
+
+
+def test_clock_drift_without_doppler() -> None:
+    """Without a Doppler drift the clock steps by zero with the loose sigma; with
+    `clock_drift_carry` by the last measured drift (its sigma growing by `clock_drift_wander` per
+    second when set)."""
+    cfg = FgoConfig()
+    state = GraphState(window=Window(cfg.window_epochs))
+    t0 = GpsTime(2300, 1000.0)
+    assert clock_drift("v01", None, None, t0, state, cfg) == (0.0, cfg.clock_drift_sigma)
+    assert clock_drift("v01", 220.0, 218.0, t0, state, cfg) == (219.0, 0.0)
+    state.drift_seen["v01"] = (220.0, t0)
+    assert clock_drift("v01", None, None, t0 + 10.0, state, cfg) == (0.0, cfg.clock_drift_sigma)
+    carry = dataclasses.replace(cfg, clock_drift_carry=True)
+    assert clock_drift("v01", None, None, t0 + 10.0, state, carry) == (220.0, cfg.clock_drift_sigma)
+    tight = dataclasses.replace(carry, clock_drift_wander=0.2)
+    mean, sigma = clock_drift("v01", None, None, t0 + 10.0, state, tight)
+    assert mean == 220.0 and sigma == pytest.approx(2.0)
+    assert clock_drift("v01", None, None, t0 + 1e6, state, tight)[1] == cfg.clock_drift_sigma
+    with pytest.raises(ValueError, match="clock_drift_wander"):
+        FgoConfig(clock_drift_wander=-1.0)
 
 
 def _first_epoch(fleet: SyntheticFleet, changes: dict[str, dict[str, object]]) -> EpochInput:

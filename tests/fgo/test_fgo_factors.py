@@ -207,9 +207,9 @@ def test_displacement_factor_is_p2_minus_p1_minus_displacement() -> None:
 
 
 def test_clock_factor_works_in_seconds() -> None:
-    sigma_m = F.clock_step_sigma_m(1.0, True, 1.0, 300.0)
+    sigma_m = F.clock_step_sigma_m(1.0, 0.0, 1.0)
     assert sigma_m == pytest.approx(1.0)
-    assert F.clock_step_sigma_m(2.0, False, 1.0, 300.0) == pytest.approx(math.sqrt(2.0 + 600.0**2))
+    assert F.clock_step_sigma_m(2.0, 300.0, 1.0) == pytest.approx(math.sqrt(2.0 + 600.0**2))
     f = F.clock_factor(1, 2, 50.0, sigma_m)  # the clock advanced 50 m (drift 50 m/s over 1 s)
     b1 = 1e-4
     b2 = b1 + 52.0 / C  # 2 m more than predicted

@@ -138,9 +138,16 @@ class FgoConfig:
     # Receiver clock: random walk around the Doppler clock drift (m/sqrt(s)); converted to seconds
     # for GTSAM, whose PseudorangeFactor keys the clock in seconds.
     clock_rw_sigma: float = 1.0
-    # When no Doppler drift is known the clock step has mean 0 and this 1-sigma drift (m/s) on top:
-    # cheap TCXOs drift by up to a few hundred m/s, so this must stay loose.
+    # When no Doppler drift was ever measured the clock step has mean 0 and this 1-sigma drift
+    # (m/s) on top: cheap TCXOs drift by up to a few hundred m/s, so this must stay loose.
     clock_drift_sigma: float = 300.0
+    # Opt-in: an epoch without a Doppler drift steps the clock by the vehicle's last measured drift
+    # instead of zero (`prepare.clock_drift`), with clock_drift_sigma or, with clock_drift_wander
+    # set, a sigma growing by that much (m/s) per second since the drift was measured (capped at
+    # clock_drift_sigma). Physically right, but on the real F9P and the simulator's dense-urban
+    # training seeds neither form gained (docs/fgo.md, "Few satellites on a real receiver").
+    clock_drift_carry: bool = False
+    clock_drift_wander: float | None = None
     # A new clock this far (m) from the predicted one (or > 5 sigma) is a receiver clock jump
     # (millisecond steering: 3e5 m): the clock link is not added, the clock restarts.
     clock_jump_m: float = 1000.0
@@ -160,6 +167,13 @@ class FgoConfig:
     motion_sigma_up: float = 0.5
     max_vertical_speed: float = 3.0
     min_fix_pseudoranges: int = 4  # has_gnss_fix threshold
+    # Opt-in: a tracked vehicle's epoch with fewer pseudoranges than a fix needs
+    # (min_fix_pseudoranges, one fewer with a plane; `prepare.determining_count`) adds none of them
+    # and is carried by its Doppler / motion link. On a static F9P thinned to 3 satellites it keeps
+    # the estimate within 5.2 m where it ran up to 65 m away, but on a moving car dead reckoning
+    # without Doppler went further still (151 m against 62-137 m), and on the simulator's canyons
+    # it cost `non-cp` 1-2 % (docs/fgo.md, "Few satellites on a real receiver"). Off by default.
+    drop_undetermined_pseudoranges: bool = False
     # The reported 3x3 covariance is the marginal x this factor^2 (the estimator's own use of it,
     # anchors and the FDE prior, is not scaled). The graph treats urban multipath as white noise
     # while it is correlated over tens of seconds, so the marginal is over-confident; 1.0 reports
@@ -219,6 +233,10 @@ class FgoConfig:
                 raise ValueError(
                     f"gnc_inlier_probability must be in (0, 1), got {self.gnc_inlier_probability!r}"
                 )
+        if self.clock_drift_wander is not None and not (
+            math.isfinite(self.clock_drift_wander) and self.clock_drift_wander > 0.0
+        ):
+            raise ValueError(f"clock_drift_wander must be None or > 0, got {self.clock_drift_wander!r}")
         if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
             raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
         positive = {

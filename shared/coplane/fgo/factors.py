@@ -249,12 +249,9 @@ def displacement_factor(
     return gtsam.BetweenFactorPoint3(prev_key, key, d, with_kernel(noise, robust, robust_k))
 
 
-def clock_step_sigma_m(dt_s: float, drift_known: bool, rw_sigma: float, drift_sigma: float) -> float:
-    """1-sigma (m) of the receiver-clock change over dt: random walk, plus the drift if unknown."""
-    var = rw_sigma * rw_sigma * dt_s
-    if not drift_known:
-        var += (drift_sigma * dt_s) ** 2
-    return math.sqrt(var)
+def clock_step_sigma_m(dt_s: float, drift_sigma: float, rw_sigma: float) -> float:
+    """1-sigma (m) of the receiver-clock change over dt: random walk, plus the drift's sigma x dt."""
+    return math.sqrt(rw_sigma * rw_sigma * dt_s + (drift_sigma * dt_s) ** 2)
 
 
 def clock_factor(prev_key: int, key: int, step_m: float, sigma_m: float) -> gtsam.BetweenFactorDouble:

@@ -112,6 +112,9 @@ def prepare_vehicle(
             stats,
             young=age < cfg.fde_warmup_epochs,
         )
+    if hist and cfg.drop_undetermined_pseudoranges and 0 < len(prs) < determining_count(plane, cfg):
+        stats.reject("undetermined_pseudorange", len(prs))
+        prs = prs.subset(np.zeros(len(prs), dtype=bool))
     systems = sorted(set(prs.systems))
     # initial clock per system: median residual at the initial position (robust to NLOS)
     clock_init: dict[str, float] = {}
@@ -128,9 +131,8 @@ def prepare_vehicle(
         if prev is None:
             continue
         dt = t - prev.time
-        drifts = [d for d in (v.drift, prev.clock_drift_mps) if d is not None]
-        mean = sum(drifts) / len(drifts) if v.drift is not None else 0.0  # mean of both when known
-        sigma = F.clock_step_sigma_m(dt, v.drift is not None, cfg.clock_rw_sigma, cfg.clock_drift_sigma)
+        mean, drift_sigma = clock_drift(v.vehicle_id, v.drift, prev.clock_drift_mps, t, state, cfg)
+        sigma = F.clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
         ck = prev.clock_keys[s]
         predicted_m = C * state.clock(ck) + mean * dt
         if abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * sigma):
@@ -140,9 +142,48 @@ def prepare_vehicle(
     rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
+    if v.drift is not None:
+        state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(
         v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank, fde_w
     )
+
+
+def determining_count(plane: PlaneObs | None, cfg: FgoConfig) -> int:
+    """How many pseudoranges a tracked vehicle's epoch needs for them to be used: a fix's
+    (`min_fix_pseudoranges`, 4), one fewer with a road plane, which fixes the height.
+
+    With fewer the epoch is dead-reckoned (`drop_undetermined_pseudoranges`): with 3 satellites the
+    position along the geometry's weak direction is set by their multipath and the clock
+    prediction alone, dozens of metres per metre of error, and the window takes the same biased
+    geometry epoch after epoch as independent information. Clock links count as constraints here
+    (they do in the determinacy check too): 3 GPS + 1 BeiDou satellite with both clocks linked fix
+    a position, and dropping such epochs lost much of the vertical accuracy in the simulator's
+    canyons (docs/fgo.md).
+    """
+    return cfg.min_fix_pseudoranges - (1 if plane is not None else 0)
+
+
+def clock_drift(
+    vid: str, drift: float | None, prev_drift: float | None, t: GpsTime, state: GraphState, cfg: FgoConfig
+) -> tuple[float, float]:
+    """The clock drift (m/s) to step a vehicle's receiver clock by, and its 1-sigma (m/s).
+
+    With this epoch's Doppler drift: the mean of it and the previous state's (exact for a linear
+    drift), sigma 0. Without one (fewer than 5 Doppler measurements, as in a canyon): zero with
+    `clock_drift_sigma`, or with `clock_drift_carry` the vehicle's last measured drift, with that
+    sigma or, when `clock_drift_wander` is set, a sigma growing with the drift's age up to it.
+    docs/fgo.md ("Few satellites on a real receiver") has why carrying is not the default.
+    """
+    if drift is not None:
+        return (0.5 * (drift + prev_drift) if prev_drift is not None else drift), 0.0
+    seen = state.drift_seen.get(vid) if cfg.clock_drift_carry else None
+    if seen is None:
+        return 0.0, cfg.clock_drift_sigma
+    last, at = seen
+    if cfg.clock_drift_wander is None:
+        return last, cfg.clock_drift_sigma
+    return last, min(cfg.clock_drift_sigma, cfg.clock_drift_wander * max(t - at, 0.0))
 
 
 def gate(
