@@ -57,6 +57,12 @@ VARIANTS: dict[str, dict[str, object]] = {
     "coop-2.5": {"coop_fde_k": 2.5},
     "coop-3.29-r200": {"coop_fde_k": 3.29, "coop_fde_radius_m": 200.0},
     "huber-planes-links": {"robust_planes_links": True},  # the kernel on planes and Doppler links too
+    # epochs with fewer pseudoranges than a fix dead-reckoned; the clock stepped by the last
+    # measured drift without one, loosely or with a sigma growing with its age (docs/fgo.md,
+    # "Few satellites on a real receiver")
+    "drop-undetermined": {"drop_undetermined_pseudoranges": True},
+    "carry-drift": {"clock_drift_carry": True},
+    "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},
     "sigma-v-0.2": {"sigma_v": 0.2},

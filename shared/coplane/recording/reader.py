@@ -61,6 +61,11 @@ class Recording:
         self._fleet: list[FleetEpoch] | None = None
 
     @property
+    def signals(self) -> Mapping[str, SignalCodes] | None:
+        """The signal selection the recording was opened with (None: the defaults)."""
+        return self._signals
+
+    @property
     def interval_s(self) -> float:
         return self.manifest.interval_s
 

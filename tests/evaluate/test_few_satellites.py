@@ -1,0 +1,78 @@
+"""A real static receiver thinned to 3 satellites for stretches of 20, 45 and 90 s.
+
+bench/few_satellites_real.py prints the table behind docs/fgo.md ("Few satellites on a real
+receiver"). With the opt-in `drop_undetermined_pseudoranges`, `non-cp` stays within 5.2 m
+horizontally and 9.2 m vertically inside the stretches for every seed; with the defaults it ran
+45-65 m away in four of six seeds (56 m with seed 1, the one tested here). The bounds here are
+issue 12's 15 m vertical limit and 10 m horizontally. (On a moving car the opt-in does worse:
+dead reckoning without Doppler is not exact there.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coplane.evaluate.few_satellites import FewSatelliteRecording, Stretch
+from coplane.evaluate.real_data import truth_of
+from coplane.evaluate.runner import run_method
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.methods import get_method
+from coplane.recording.reader import open_recording
+
+pytestmark = pytest.mark.realdata
+
+TST = "urbannav_hk_tst_20200603_static_f9p"
+
+
+def test_thinning_keeps_a_few_satellites_inside_a_stretch_only(real_data: Path) -> None:
+    stretch = [Stretch(10.0, 5.0)]
+    rec = FewSatelliteRecording(open_recording(real_data / TST), stretch, keep=3, systems="G", seed=7)
+    vid = rec.manifest.vehicles[0].id
+    raw = open_recording(real_data / TST).vehicle_epochs(vid)
+    thinned = rec.vehicle_epochs(vid)
+    assert [e.time for e in thinned] == [e.time for e in raw]
+    t0 = raw[0].time.seconds
+    kept: set[str] = set()
+    for before, after in zip(raw, thinned, strict=True):
+        gps = [s for s in before.sats if s.sat.startswith("G")]
+        if rec.in_stretch(after.time.seconds - t0):
+            assert len(after.sats) == 3 and set(after.sats) <= set(gps)
+            kept |= {s.sat for s in after.sats}
+        else:
+            assert list(after.sats) == gps
+    assert len(kept) == 3  # the same three while they stay tracked
+    again = FewSatelliteRecording(open_recording(real_data / TST), stretch, keep=3, systems="G", seed=7)
+    assert again.vehicle_epochs(vid) == thinned  # the seed decides
+
+
+def test_dead_reckoning_carries_a_static_receiver_through_three_satellite_stretches(real_data: Path) -> None:
+    rec = FewSatelliteRecording(open_recording(real_data / TST), seed=1)
+    vid = rec.manifest.vehicles[0].id
+    truth = truth_of(rec, vid)
+    t0 = min(truth).seconds
+
+    def worst(spec_changes: dict[str, object]) -> tuple[float, float, float]:
+        spec = get_method("non-cp")
+        assert spec.fgo is not None
+        spec = dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **spec_changes))  # type: ignore[arg-type]
+        run = run_method(rec, spec, dgnss=False, vehicles=[vid], jobs=1)
+        h, v = [], []
+        for t, x in truth.items():
+            p = run.positions[vid].get(t)
+            if p is None or not rec.in_stretch(t.seconds - t0):
+                continue
+            d = enu_rotation(*ecef_to_geodetic(np.asarray(x))[:2]) @ (np.asarray(p) - np.asarray(x))
+            h.append(float(np.hypot(d[0], d[1])))
+            v.append(abs(float(d[2])))
+        return max(h), max(v), len(run.positions[vid]) / len(truth)
+
+    h_max, v_max, avail = worst({"drop_undetermined_pseudoranges": True})
+    assert avail >= 0.99
+    assert h_max <= 10.0 and v_max <= 15.0, (h_max, v_max)
+    # the defaults, for the record that the bound tests the rule: they run away here
+    h_kept, _, _ = worst({})
+    assert h_kept > 5 * h_max
