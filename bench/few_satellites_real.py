@@ -122,9 +122,10 @@ KEEPS = (3, 4)
 
 
 def stretch_worst(rec: FewSatelliteRecording, positions: dict, truth: dict) -> tuple[float, float, float]:
-    """Largest horizontal and vertical error inside the stretches, and the availability."""
+    """Largest horizontal and vertical error inside the stretches (NaN: none solved there), and
+    the availability."""
     t0 = min(truth).seconds
-    h, v = [0.0], [0.0]
+    h, v = [float("nan")], [float("nan")]
     for t, x in truth.items():
         p = positions.get(t)
         if p is None or not rec.in_stretch(t.seconds - t0):
@@ -132,7 +133,7 @@ def stretch_worst(rec: FewSatelliteRecording, positions: dict, truth: dict) -> t
         d = enu_rotation(*ecef_to_geodetic(np.asarray(x))[:2]) @ (np.asarray(p) - np.asarray(x))
         h.append(float(np.hypot(d[0], d[1])))
         v.append(abs(float(d[2])))
-    return max(h), max(v), sum(1 for t in truth if t in positions) / len(truth)
+    return float(np.nanmax(h)), float(np.nanmax(v)), sum(1 for t in truth if t in positions) / len(truth)
 
 
 def few_satellites_table() -> str:

@@ -47,6 +47,8 @@ def test_thinning_keeps_a_few_satellites_inside_a_stretch_only(real_data: Path) 
     assert len(kept) == 3  # the same three while they stay tracked
     again = FewSatelliteRecording(open_recording(real_data / TST), stretch, keep=3, systems="G", seed=7)
     assert again.vehicle_epochs(vid) == thinned  # the seed decides
+    with pytest.raises(ValueError, match="positive length"):
+        Stretch(10.0, 0.0)
 
 
 def test_dead_reckoning_carries_a_static_receiver_through_three_satellite_stretches(real_data: Path) -> None:

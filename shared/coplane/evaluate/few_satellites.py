@@ -28,6 +28,10 @@ class Stretch:
     start_s: float
     length_s: float
 
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.start_s) and np.isfinite(self.length_s) and self.length_s > 0.0):
+            raise ValueError(f"a stretch needs a finite start and a positive length, got {self}")
+
     def covers(self, dt_s: float) -> bool:
         return self.start_s <= dt_s < self.start_s + self.length_s
 

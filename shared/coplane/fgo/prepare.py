@@ -142,7 +142,7 @@ def prepare_vehicle(
     rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
-    if v.drift is not None:
+    if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(
         v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank, fde_w

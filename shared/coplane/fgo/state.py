@@ -34,8 +34,8 @@ class GraphState:
     step: int = 0  # index of the epoch being solved
     # step at which each vehicle's current track started (its state came from its SPP)
     track_start: dict[str, int] = field(default_factory=dict)
-    # each vehicle's last Doppler clock drift (m/s) and its epoch: the clock's step through epochs
-    # without one (`prepare.clock_drift`); it outlives the window, as a canyon can
+    # with FgoConfig.clock_drift_carry, each vehicle's last Doppler clock drift (m/s) and its epoch:
+    # the clock's step through epochs without one (`prepare.clock_drift`); it outlives the window
     drift_seen: dict[str, tuple[float, GpsTime]] = field(default_factory=dict)
 
     def position(self, key: int) -> Vec:
