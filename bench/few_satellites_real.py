@@ -7,22 +7,25 @@ Two checks the simulator cannot make, because its receiver clocks are far steadi
 TCXO and it shares its multipath model with the library:
 
 1. **Clock drift.** Per set of ../shared/data/real with a static receiver or a drive, the Doppler
-   clock drift of every epoch with a velocity solution, and how much it changes over a lag: the
-   standard deviation, 99th percentile and maximum of drift(t + lag) - drift(t).
+   clock drift of every epoch with a full-sky velocity solution, and how much it changes over a
+   lag: the standard deviation, 99th percentile and maximum of drift(t + lag) - drift(t).
 2. **Few satellites.** The static F9P in HK TST, GPS + BeiDou only (as a u-blox M8T tracks), with
    three stretches of 20, 45 and 90 s in which only 3 or 4 satellites remain, drawn per seed
    (`coplane.evaluate.few_satellites`). Per seed: the largest horizontal and vertical error inside
-   the stretches, for `non-cp` with its defaults and with each opt-in (bench/tune_fgo.py's
-   variants `drop-undetermined`, `carry-drift`, `carry-drift-wander`: 0.2 m/s per second, twice
-   part 1's wander), and for the EKF baseline `non-cp-ekf`.
+   the stretches, for `non-cp` with its defaults, with the paper's GNSS front end (a Doppler
+   velocity needs 5 satellites; the default solves 3-4 with a level-road and a carried-drift row,
+   `coplane.gnss.doppler`), with each factor-graph opt-in (bench/tune_fgo.py's variants
+   `drop-undetermined`, `carry-drift`, `carry-drift-wander`: 0.2 m/s per second, twice part 1's
+   wander), and for the EKF baseline `non-cp-ekf` with either front end.
    2b. **A moving car.** The Kowloon Tong drive has no truth: the full-sky DGNSS `non-cp`
-   solution is the reference, and the drive is thinned to 3 satellites in three stretches.
-3. **The cost on the simulator** (`--sim`): `non-cp` and `pc`, with DGNSS, on the dense-urban
-   training seeds (coplane.evaluate.benchmark.TRAINING), whose canyons leave vehicles with few
-   satellites, and `pc` on urban-loop 101-103: the defaults against the same opt-ins.
+   solution is the reference, and the drive is thinned to 3 or 4 satellites in three stretches.
+3. **The simulator** (`--sim`): `non-cp` and `pc`, with DGNSS, on the dense-urban training seeds
+   (coplane.evaluate.benchmark.TRAINING), whose canyons leave vehicles with few satellites, and
+   `pc` on urban-loop 101-103: the defaults against the same alternatives.
 
-The defaults stayed as they were: no opt-in gained on the moving car and the training seeds
-together (docs/fgo.md). No held-out seed was looked at.
+The few-satellite front end became the default on parts 2, 2b and 3 together: it gained on the
+car with 4 satellites, on the static antenna and on the training seeds (docs/fgo.md). No factor-
+graph opt-in did. No held-out seed was looked at.
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,8 +48,10 @@ from coplane.evaluate.benchmark import TRAINING, make_recordings, pooled_by_envi
 from coplane.evaluate.few_satellites import DEFAULT_STRETCHES, FewSatelliteRecording, Stretch
 from coplane.evaluate.real_data import truth_of
 from coplane.evaluate.runner import run_method
+from coplane.evaluate.spp_run import run_spp
 from coplane.geo import ecef_to_geodetic, enu_rotation
-from coplane.gnss.epoch_solver import solve_epoch
+from coplane.gnss.doppler import DopplerOptions
+from coplane.gnss.epoch_solver import EpochSolverOptions, solve_epoch
 from coplane.methods import MethodSpec, get_method
 from coplane.recording.reader import Recording, open_recording
 
@@ -56,30 +62,46 @@ DRIFT_SETS = (
     "hk_klt_20210610_f9p_rover_hksc_base",
 )
 THINNED_SET = "urbannav_hk_tst_20200603_static_f9p"
+MOVING_SET = "hk_klt_20210610_f9p_rover_hksc_base"
+MOVING_STRETCHES = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
 LAGS_S = (1, 5, 10, 30, 60, 90)
 
 
-# The defaults and two alternatives, as bench/tune_fgo.py variants of the factor-graph methods.
+# The defaults and the alternatives: bench/tune_fgo.py variants of the factor graph, and the GNSS
+# front end of the paper (a Doppler velocity needs 5 satellites) instead of the few-satellite mode.
 FGO_VARIANTS = {
     "default": "defaults",
     "drop-undetermined": "undetermined epochs dead-reckoned",
     "carry-drift": "last drift carried",
     "carry-drift-wander": "last drift carried, sigma from its wander",
 }
+PAPER_FRONT_END = EpochSolverOptions(doppler=DopplerOptions(few_satellites=False))
 
-VARIANTS: dict[str, Callable[[], MethodSpec]] = {
+
+@dataclass(frozen=True)
+class Variant:
+    """A method and the vehicles' GNSS front end it runs with (None: the default one)."""
+
+    method: Callable[[], MethodSpec]
+    front_end: EpochSolverOptions | None = None
+
+
+VARIANTS: dict[str, Variant] = {
+    "non-cp (defaults)": Variant(lambda: get_method("non-cp")),
+    "non-cp, paper front end": Variant(lambda: get_method("non-cp"), PAPER_FRONT_END),
     **{
-        ("non-cp (defaults)" if name == "default" else f"non-cp, {label}"): (
-            lambda n=name: apply_variant(get_method("non-cp"), n)
-        )
+        f"non-cp, {label}": Variant(lambda n=name: apply_variant(get_method("non-cp"), n))
         for name, label in FGO_VARIANTS.items()
+        if name != "default"
     },
-    "non-cp-ekf": lambda: get_method("non-cp-ekf"),
+    "non-cp-ekf": Variant(lambda: get_method("non-cp-ekf")),
+    "non-cp-ekf, paper front end": Variant(lambda: get_method("non-cp-ekf"), PAPER_FRONT_END),
 }
 
 
 def drift_series(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) and Doppler clock drifts (m/s) of the first receiver's epochs with a velocity."""
+    """Times (s) and Doppler clock drifts (m/s) of the first receiver's epochs with a full-sky
+    velocity (5 or more Doppler measurements: no drift memory in it)."""
     vid = rec.manifest.vehicles[0].id
     times, drifts = [], []
     at = None
@@ -87,7 +109,7 @@ def drift_series(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
         r = solve_epoch(e, rec.nav, initial_position=at)
         if r.spp.ok:
             at = r.spp.position
-        if r.velocity is not None and r.velocity.ok:
+        if r.velocity is not None and r.velocity.ok and not r.velocity.few_satellites:
             times.append(e.time.seconds)
             drifts.append(r.velocity.drift_mps)
     return np.asarray(times), np.asarray(drifts)
@@ -117,6 +139,38 @@ def drift_table() -> str:
     return "\n".join(rows)
 
 
+def velocity_strength_table() -> str:
+    """Part 1b: how strong the Doppler velocities are, full-sky and few-satellite, in their weakest
+    direction (the 1-sigma that `DopplerOptions.few_max_sigma_mps` bounds for the few-satellite
+    ones): the unthinned drive and static set, and both thinned with seed 1."""
+    rows = [
+        "| set | velocities: full sky / few satellites | full sky: p10 / median / p90 / p99 (m/s) | few satellites: median / max (m/s) |",
+        "|---|---|---|---|",
+    ]
+    for name, dgnss, stretches in (
+        (MOVING_SET, True, MOVING_STRETCHES),
+        (THINNED_SET, False, DEFAULT_STRETCHES),
+    ):
+        raw = open_recording(REAL / name)
+        for label, rec in (
+            (f"`{name}`", raw),
+            (f"`{name}`, 4 satellites, seed 1", FewSatelliteRecording(raw, stretches, keep=4)),
+        ):
+            full, few = [], []
+            for run in run_spp(rec, dgnss=dgnss).values():
+                for res in run.results.values():
+                    v = res.velocity
+                    if v is not None and v.ok:
+                        worst = float(np.sqrt(np.linalg.eigvalsh(v.covariance)[-1]))
+                        (few if v.few_satellites else full).append(worst)
+            p = np.percentile(full, [10, 50, 90, 99])
+            few_cells = f"{np.median(few):.2f} / {max(few):.2f}" if few else "-"
+            rows.append(
+                f"| {label} | {len(full)} / {len(few)} | {p[0]:.2f} / {p[1]:.2f} / {p[2]:.2f} / {p[3]:.2f} | {few_cells} |"
+            )
+    return "\n".join(rows)
+
+
 SEEDS = (1, 2, 3, 4, 5, 6)
 KEEPS = (3, 4)
 
@@ -136,60 +190,62 @@ def stretch_worst(rec: FewSatelliteRecording, positions: dict, truth: dict) -> t
     return float(np.nanmax(h)), float(np.nanmax(v)), sum(1 for t in truth if t in positions) / len(truth)
 
 
+def worst_rows(
+    thinned: Iterable[tuple[str, FewSatelliteRecording]], reference: dict, dgnss: bool
+) -> tuple[list[str], float]:
+    """A Markdown row per (label, thinned recording): every variant's largest horizontal / vertical
+    error inside the stretches against `reference`; and the least availability of any run."""
+    rows, least_avail = [], 1.0
+    for label, rec in thinned:
+        vid = rec.manifest.vehicles[0].id
+        cells = []
+        for var in VARIANTS.values():
+            run = run_method(rec, var.method(), dgnss=dgnss, vehicles=[vid], jobs=1, front_end=var.front_end)
+            h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), reference)
+            least_avail = min(least_avail, avail)
+            cells.append(f"{h:.1f} / {v:.1f}")
+        rows.append(f"| {label} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    return rows, least_avail
+
+
 def few_satellites_table() -> str:
     raw = open_recording(REAL / THINNED_SET)
-    vid = raw.manifest.vehicles[0].id
-    truth = truth_of(raw, vid)
-    rows = [
-        "| satellites left | seed | " + " | ".join(VARIANTS) + " |",
-        "|---|---|" + "---|" * len(VARIANTS),
-    ]
-    least_avail = 1.0
-    for keep in KEEPS:
-        for seed in SEEDS:
-            rec = FewSatelliteRecording(raw, keep=keep, seed=seed)
-            cells = []
-            for make in VARIANTS.values():
-                run = run_method(rec, make(), dgnss=False, vehicles=[vid], jobs=1)
-                h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), truth)
-                least_avail = min(least_avail, avail)
-                cells.append(f"{h:.1f} / {v:.1f}")
-            rows.append(f"| {keep} | {seed} | " + " | ".join(cells) + " |")
-            print(rows[-1], flush=True)
+    truth = truth_of(raw, raw.manifest.vehicles[0].id)
+    thinned = (
+        (f"{keep} | {seed}", FewSatelliteRecording(raw, keep=keep, seed=seed))
+        for keep in KEEPS
+        for seed in SEEDS
+    )
+    rows, least_avail = worst_rows(thinned, truth, dgnss=False)
+    head = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
     stretches = ", ".join(f"{s.start_s:.0f}-{s.start_s + s.length_s:.0f} s" for s in DEFAULT_STRETCHES)
     return (
         f"`{THINNED_SET}`, GPS + BeiDou, standalone; stretches {stretches} after the first epoch, in which "
         "each epoch keeps the first 3 or 4 tracked satellites of a ranking drawn from the seed. Largest "
         f"horizontal / vertical error inside the stretches (m). Every method solved at least "
-        f"{least_avail:.1%} of the {len(truth)} truth epochs.\n\n" + "\n".join(rows)
+        f"{least_avail:.1%} of the {len(truth)} truth epochs.\n\n" + "\n".join(head + rows)
     )
 
 
-MOVING_SET = "hk_klt_20210610_f9p_rover_hksc_base"
-MOVING_STRETCHES = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
-
-
 def moving_table() -> str:
-    """Part 2b: the moving F9P (no truth), thinned to 3 satellites; the deviation from the full-sky
-    DGNSS `non-cp` solution inside the stretches (a pseudo-truth: metres, not decimetres)."""
+    """Part 2b: the moving F9P (no truth), thinned to 3 or 4 satellites; the deviation from the
+    full-sky DGNSS `non-cp` solution inside the stretches (a pseudo-truth: metres, not decimetres)."""
     raw = open_recording(REAL / MOVING_SET)
     vid = raw.manifest.vehicles[0].id
     reference = run_method(raw, get_method("non-cp"), dgnss=True, vehicles=[vid], jobs=1).positions[vid]
-    rows = ["| seed | " + " | ".join(VARIANTS) + " |", "|---|" + "---|" * len(VARIANTS)]
-    for seed in SEEDS:
-        rec = FewSatelliteRecording(raw, MOVING_STRETCHES, keep=3, seed=seed)
-        cells = []
-        for make in VARIANTS.values():
-            run = run_method(rec, make(), dgnss=True, vehicles=[vid], jobs=1)
-            h, v, _ = stretch_worst(rec, run.positions.get(vid, {}), reference)
-            cells.append(f"{h:.1f} / {v:.1f}")
-        rows.append(f"| {seed} | " + " | ".join(cells) + " |")
-        print(rows[-1], flush=True)
+    thinned = (
+        (f"{keep} | {seed}", FewSatelliteRecording(raw, MOVING_STRETCHES, keep=keep, seed=seed))
+        for keep in KEEPS
+        for seed in SEEDS
+    )
+    rows, _ = worst_rows(thinned, reference, dgnss=True)
+    head = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
     stretches = ", ".join(f"{s.start_s:.0f}-{s.start_s + s.length_s:.0f} s" for s in MOVING_STRETCHES)
     return (
-        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretches} with 3 satellites. Largest horizontal / "
+        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretches} with 3 or 4 satellites. Largest horizontal / "
         "vertical distance (m) inside the stretches from the full-sky `non-cp` solution.\n\n"
-        + "\n".join(rows)
+        + "\n".join(head + rows)
     )
 
 
@@ -198,20 +254,25 @@ SIM_SEEDS = {"dense-urban": TRAINING["dense-urban"], "urban-loop": TRAINING["urb
 
 
 def simulator_table() -> str:
-    """Part 3: pooled H / V RMSE of the defaults and the former behaviours on training seeds."""
+    """Part 3: pooled H / V RMSE of the defaults and the alternatives on training seeds."""
+    columns: dict[str, tuple[str, EpochSolverOptions | None]] = {
+        **{label: (name, None) for name, label in FGO_VARIANTS.items()},
+        "paper front end": ("default", PAPER_FRONT_END),
+    }
     rows = [
-        "| scenario, seeds | method | "
-        + " | ".join(f"{label} H / V (m)" for label in FGO_VARIANTS.values())
-        + " |",
-        "|---|---|" + "---|" * len(FGO_VARIANTS),
+        "| scenario, seeds | method | " + " | ".join(f"{label} H / V (m)" for label in columns) + " |",
+        "|---|---|" + "---|" * len(columns),
     ]
     with tempfile.TemporaryDirectory() as tmp:
         for scen, methods in SIM_RUNS.items():
             recs = make_recordings(scen, SIM_SEEDS[scen], Path(tmp), 4, 200.0)
             for method in methods:
                 cells = []
-                for name in FGO_VARIANTS:
-                    stats = pooled_by_environment(recs, apply_variant(get_method(method), name))[0]["all"]
+                for name, front_end in columns.values():
+                    spec = (
+                        get_method(method) if name == "default" else apply_variant(get_method(method), name)
+                    )
+                    stats = pooled_by_environment(recs, spec, front_end=front_end)[0]["all"]
                     cells.append(f"{stats.h_rmse_m:.2f} / {stats.v_rmse_m:.2f}")
                 seeds = ", ".join(map(str, SIM_SEEDS[scen]))
                 rows.append(f"| {scen} {seeds} | {method} | " + " | ".join(cells) + " |")
@@ -226,6 +287,10 @@ def main() -> int:
     args = ap.parse_args()
     drift = drift_table()
     print(drift, flush=True)
+    strength = velocity_strength_table()
+    print(strength, flush=True)
+    if args.out is not None:
+        write_block(args.out, "velocity_strength_real", COMMAND, strength)
     few = few_satellites_table()
     print(few)
     if args.out is not None:

@@ -125,6 +125,9 @@ class VelocityReport(_Model):
     sigma_mps: float = Field(gt=0.0, le=100.0)
     clock_drift_mps: float = Field(ge=-MAX_DRIFT_MPS, le=MAX_DRIFT_MPS)
     n_used: int = Field(ge=0, le=MAX_SATELLITES)
+    # solved from 3-4 satellites with a level-road and a carried-drift pseudo-measurement
+    # (coplane.gnss.doppler, few-satellite mode): users see where a velocity came from
+    few_satellites: bool = False
 
     @model_validator(mode="after")
     def _plausible(self) -> VelocityReport:

@@ -28,6 +28,7 @@ from coplane.typing import AnyArray
 if TYPE_CHECKING:
     from coplane.fgo.solve import Smoothers
     from coplane.gnss.dgnss import DgnssCorrections
+    from coplane.gnss.epoch_solver import EpochSolverOptions
     from coplane.methods import MethodSpec
     from coplane.plane.config import PlaneConfig
     from coplane.recording.manifest import Manifest
@@ -157,9 +158,11 @@ def replay_setup(
     plane_config: PlaneConfig | None = None,
     fleet: str | None = None,
     road_map: RoadMap | None = None,
+    front_end: EpochSolverOptions | None = None,
 ) -> ReplaySetup:
     """The replay's setup. DGNSS is used when the recording has a base (`dgnss=None`); asking for
-    it without one is a ConfigError. `fleet` overrides the id derived from the recording's name."""
+    it without one is a ConfigError. `fleet` overrides the id derived from the recording's name.
+    `front_end`: the vehicles' GNSS front-end options (SPP, Doppler), the defaults when None."""
     from coplane.methods import get_method
     from coplane.steps import FusionStepConfig, VehicleStepConfig
 
@@ -169,6 +172,8 @@ def replay_setup(
         raise ConfigError(f"recording {manifest.name!r} has no [base]: cannot run with DGNSS")
     uwb_sigma = manifest.uwb.sigma_m if manifest.uwb else DEFAULT_UWB_SIGMA_M
     vcfg = VehicleStepConfig(uwb_sigma_m=uwb_sigma, seed=seed)
+    if front_end is not None:
+        vcfg.solver = front_end
     if plane_config is not None:
         vcfg.plane = plane_config
     vcfg.road_map = road_map

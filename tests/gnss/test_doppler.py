@@ -21,8 +21,9 @@ import pytest
 
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import OMEGA_E_GPS, WAVELENGTH, C
-from coplane.gnss.doppler import DopplerOptions, solve_doppler_velocity
+from coplane.gnss.doppler import DopplerOptions, DriftPrior, solve_doppler_velocity
 from coplane.gnss.ephemeris import SatState
+from coplane.gnss.epoch_solver import EpochResult, next_drift_prior
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.weighting import doppler_sigma_mps
 from coplane.gtime import GpsTime
@@ -218,8 +219,8 @@ def test_fault_without_exclusions_allowed_is_not_ok() -> None:
 
 
 def test_too_few_satellites_is_not_ok_with_reason() -> None:
-    """Four satellites (four unknowns, no redundancy) give not-ok and say how many were available."""
-    res = solve_doppler_velocity(_epoch(SKY[:4]), RX)
+    """Paper mode: four satellites (four unknowns, no redundancy) give not-ok and say how many."""
+    res = solve_doppler_velocity(_epoch(SKY[:4]), RX, DopplerOptions(few_satellites=False))
     assert not res.ok
     assert res.reason == "too few Doppler measurements: 4 < 5"
     assert res.used == ()
@@ -228,7 +229,9 @@ def test_too_few_satellites_is_not_ok_with_reason() -> None:
 
 def test_too_few_after_exclusion_reports_the_exclusion() -> None:
     """Six satellites, one corrupted, min_satellites 6: the exclusion leaves too few and is reported."""
-    res = solve_doppler_velocity(_epoch(SKY[:6], {"G05": 40.0}), RX, DopplerOptions(min_satellites=6))
+    res = solve_doppler_velocity(
+        _epoch(SKY[:6], {"G05": 40.0}), RX, DopplerOptions(min_satellites=6, few_satellites=False)
+    )
     assert not res.ok
     assert res.excluded == ("G05",)
     assert res.reason == "too few Doppler measurements: 5 < 6"
@@ -275,3 +278,66 @@ def test_static_receiver_without_drift() -> None:
     assert res.ok
     np.testing.assert_allclose(res.velocity_mps, 0.0, atol=1e-5)
     assert res.drift_mps == pytest.approx(0.0, abs=1e-5)
+
+
+# -- few-satellite mode: a level road and the receiver's drift memory ----------------------------
+
+FEW = DopplerOptions()
+PAPER = DopplerOptions(few_satellites=False)
+V_LEVEL = enu_rotation(LAT, LON).T @ np.array([11.0, -6.0, 0.0])  # a car on a level road, ECEF
+OPEN4 = [("G02", 0.0, 45.0), ("G05", 90.0, 30.0), ("C21", 250.0, 25.0), ("G13", 135.0, 80.0)]
+
+
+def test_paper_mode_needs_five_satellites() -> None:
+    """With the few-satellite mode off, four satellites stay too few, as in the paper."""
+    res = solve_doppler_velocity(_epoch(OPEN4, v_rx=V_LEVEL), RX, PAPER, DriftPrior(DRIFT, T0 + -1.0))
+    assert not res.ok and "too few" in (res.reason or "")
+
+
+def test_four_satellites_on_a_level_road() -> None:
+    """Four Doppler plus the level-road row: the velocity and drift come back, flagged few-satellite."""
+    res = solve_doppler_velocity(_epoch(OPEN4, v_rx=V_LEVEL), RX, FEW)
+    assert res.ok, res.reason
+    assert res.few_satellites
+    np.testing.assert_allclose(res.velocity_mps, V_LEVEL, atol=1e-4)
+    assert res.drift_mps == pytest.approx(DRIFT, abs=1e-4)
+
+
+def test_three_satellites_need_a_recent_drift() -> None:
+    """Three satellites solve only with the drift memory, and only while it is recent."""
+    ep = _epoch(OPEN4[:3], v_rx=V_LEVEL)
+    assert not solve_doppler_velocity(ep, RX, FEW).ok
+    stale = DriftPrior(DRIFT, T0 + -(FEW.drift_max_age_s + 1.0))
+    assert not solve_doppler_velocity(ep, RX, FEW, stale).ok
+    res = solve_doppler_velocity(ep, RX, FEW, DriftPrior(DRIFT, T0 + -2.0))
+    assert res.ok, res.reason
+    np.testing.assert_allclose(res.velocity_mps, V_LEVEL, atol=1e-3)
+
+
+def test_weak_few_satellite_velocity_is_refused() -> None:
+    """Three satellites nearly in one vertical plane (east, west, zenith) leave the north speed to
+    the drift memory alone: weaker than a full-sky velocity, so no velocity, with why."""
+    weak = [("G13", 135.0, 80.0), ("G05", 90.0, 30.0), ("G09", 270.0, 20.0)]
+    res = solve_doppler_velocity(_epoch(weak, v_rx=V_LEVEL), RX, FEW, DriftPrior(DRIFT, T0 + -2.0))
+    assert not res.ok
+    assert "too weak" in (res.reason or "")
+
+
+def test_few_satellites_fault_is_not_a_silent_velocity() -> None:
+    """A 40 Hz fault among four satellites: excluded or refused, never a wrong velocity passed on."""
+    ep = _epoch(OPEN4, {"G05": 40.0}, v_rx=V_LEVEL)
+    res = solve_doppler_velocity(ep, RX, FEW, DriftPrior(DRIFT, T0 + -1.0))
+    assert not res.ok or float(np.linalg.norm(res.velocity_mps - V_LEVEL)) < 0.05
+
+
+def test_drift_memory_is_renewed_by_a_full_sky_only() -> None:
+    """A few-satellite drift leans on the memory: it must not reset the memory's age."""
+    old = DriftPrior(DRIFT, T0 + -10.0)
+    few = EpochResult(
+        PreparedEpoch(T0, (), ()), None, solve_doppler_velocity(_epoch(OPEN4, v_rx=V_LEVEL), RX, FEW), None
+    )  # type: ignore[arg-type]
+    assert few.velocity is not None and few.velocity.ok
+    assert next_drift_prior(old, few) is old
+    full = EpochResult(PreparedEpoch(T0, (), ()), None, solve_doppler_velocity(_epoch(), RX), None)  # type: ignore[arg-type]
+    renewed = next_drift_prior(old, full)
+    assert renewed is not None and renewed.time == T0 and renewed.drift_mps == pytest.approx(DRIFT, abs=1e-4)

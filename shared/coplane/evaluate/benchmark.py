@@ -19,6 +19,7 @@ import numpy as np
 from coplane.evaluate.metrics import PooledStats, accuracy_by_environment, enu_errors
 from coplane.evaluate.runner import run_method
 from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.gnss.epoch_solver import EpochSolverOptions
 from coplane.methods import MethodSpec
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
@@ -112,18 +113,20 @@ def pooled_by_environment(
     tail: list[TailEpoch] | None = None,
     tail_m: float = 20.0,
     dgnss: bool | None = None,
+    front_end: EpochSolverOptions | None = None,
 ) -> tuple[dict[str, PooledStats], Consistency]:
     """One method's errors pooled over every vehicle of every recording, overall and per
     environment, and the consistency of its reported covariances (NaN share when it has none).
     Epochs with a horizontal error above `tail_m` are appended to `tail` when it is given.
-    `dgnss`: as `run_method` (None: with the recording's base when it has one)."""
+    `dgnss`, `front_end`: as `run_method` (None: with the recording's base when it has one; the
+    default GNSS front end)."""
     sol: dict[str, dict] = {}
     truth: dict[str, dict] = {}
     env: dict[str, dict] = {}
     h_in: list[bool] = []
     v_in: list[bool] = []
     for k, rec in enumerate(recs):
-        run = run_method(rec, method, jobs=jobs, dgnss=dgnss)
+        run = run_method(rec, method, jobs=jobs, dgnss=dgnss, front_end=front_end)
         if on_run is not None:
             on_run(run.method, run.wall_time_s)
         for v in rec.manifest.vehicles:

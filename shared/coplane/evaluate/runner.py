@@ -19,7 +19,7 @@ from tqdm import tqdm
 from coplane.errors import ConfigError
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.epoch_solver import EpochResult
+from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
 from coplane.methods import MethodSpec
@@ -76,6 +76,7 @@ def run_method(
     plane_config: PlaneConfig | None = None,
     jobs: int | None = None,
     road_map: RoadMap | None = None,
+    front_end: EpochSolverOptions | None = None,
 ) -> MethodRun:
     """Run one method over the recording. DGNSS is used when the recording has a base (default).
 
@@ -93,6 +94,7 @@ def run_method(
         dgnss=dgnss,
         plane_config=plane_config,
         road_map=road_map,
+        front_end=front_end,
     )
     if setup.method.plane_map and road_map is None:
         raise ConfigError(

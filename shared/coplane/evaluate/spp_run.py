@@ -18,7 +18,14 @@ from tqdm import tqdm
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats, accuracy
 from coplane.evaluate.solution_files import Q_DGPS, Q_SINGLE, PosRecord, write_pos
-from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, base_corrections, solve_epoch
+from coplane.gnss.doppler import DriftPrior
+from coplane.gnss.epoch_solver import (
+    EpochResult,
+    EpochSolverOptions,
+    base_corrections,
+    next_drift_prior,
+    solve_epoch,
+)
 from coplane.gtime import GpsTime
 from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import Recording, open_recording
@@ -60,6 +67,7 @@ def run_spp(
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base] station: DGNSS is not possible")
     runs = {vid: VehicleSppRun(vid) for vid in ids}
     last: dict[str, np.ndarray] = {}
+    drift: dict[str, DriftPrior | None] = {}
     epochs = rec.fleet_epochs()
     for fe in tqdm(epochs, desc="spp", unit="epoch", disable=not progress):
         corr = None
@@ -75,7 +83,8 @@ def run_spp(
             ep = fe.vehicles.get(vid)
             if ep is None:
                 continue
-            res = solve_epoch(ep, rec.nav, corr, opt, last.get(vid))
+            res = solve_epoch(ep, rec.nav, corr, opt, last.get(vid), drift.get(vid))
+            drift[vid] = next_drift_prior(drift.get(vid), res)
             runs[vid].results[fe.time] = res
             if res.spp.ok:
                 last[vid] = res.spp.position

@@ -5,6 +5,14 @@ Range-rate model per satellite (RINEX Doppler sign: range rate = -lambda * D):
 with e_i the unit vector receiver->satellite at the SPP position (eq. 29) and one common clock
 drift (the oscillator is shared by all constellations). Outliers (e.g. NLOS Doppler) are removed by
 the same global test + w-test exclusion as SPP.
+
+Few satellites (`DopplerOptions.few_satellites`, on by default; the paper needs 5): with 3 or 4
+Doppler measurements the four unknowns have no redundancy. A road vehicle adds two
+pseudo-measurements: its vertical speed is about zero (grade x speed), and its oscillator's drift
+wanders slowly from the last value measured with a full sky (`DriftPrior`; about 0.1 m/s per
+second on a u-blox F9P TCXO, docs/fgo.md). Without a velocity in such stretches the fusion graph
+can only carry the last one forward, and a real car's track ran 50-140 m away (docs/fgo.md, "Few
+satellites on a real receiver", which also has what it did on the simulator's training seeds).
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
 from coplane.gnss.lsq import chi2_threshold, w_tests
@@ -29,6 +38,31 @@ class DopplerOptions:
     false_alarm_probability: float = 1e-3
     max_exclusions: int = 4
     min_satellites: int = 5  # 4 unknowns + 1 for a residual test
+    # Few-satellite solve (module docstring): with fewer than min_satellites but at least
+    # few_min_satellites measurements, solve with a vertical-speed pseudo-measurement of sigma
+    # vertical_speed_sigma_mps (a 6 % grade at 30 km/h) and, when a drift was measured within
+    # drift_max_age_s, a drift pseudo-measurement whose sigma grows by drift_wander_mps_per_s per
+    # second of its age (the F9P's measured wander). At least one redundant row is required.
+    few_satellites: bool = True
+    few_min_satellites: int = 3
+    vertical_speed_sigma_mps: float = 0.5
+    drift_wander_mps_per_s: float = 0.1
+    drift_max_age_s: float = 60.0
+    # ... and keep a few-satellite velocity only when its weakest direction's 1-sigma is within
+    # this (m/s). The estimators weigh every node velocity alike (the methods' sigma_v), so it
+    # must be about as strong as a full-sky one (median 0.47, p90 0.73 m/s on the KLT car, docs/fgo.md).
+    # Three satellites nearly in one plane leave one horizontal speed to the drift memory alone,
+    # at several m/s with errors correlated over the whole stretch: dead reckoning on it ran a
+    # static antenna 420 m away.
+    few_max_sigma_mps: float = 0.6
+
+
+@dataclass(frozen=True)
+class DriftPrior:
+    """A receiver's last clock drift measured with a full sky (m/s), and when."""
+
+    drift_mps: float
+    time: GpsTime
 
 
 @dataclass
@@ -42,6 +76,7 @@ class DopplerVelocity:
     used: tuple[str, ...] = ()
     excluded: tuple[str, ...] = ()
     residuals_mps: dict[str, float] = field(default_factory=dict)
+    few_satellites: bool = False  # solved with the pseudo-measurements of the few-satellite mode
 
 
 def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
@@ -74,26 +109,57 @@ def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeas
     return use, a, y, doppler_sigma_mps(el, cn0, [m.system for m in use])
 
 
+def _pseudo_rows(t: GpsTime, p: Vec, opt: DopplerOptions, prior: DriftPrior | None) -> tuple[Vec, Vec, Vec]:
+    """The few-satellite mode's pseudo-measurements (module docstring): rows, values, sigmas."""
+    rows, ys, sig = [np.append(up_vector(p), 0.0)], [0.0], [opt.vertical_speed_sigma_mps]
+    age = t - prior.time if prior is not None else math.inf
+    if prior is not None and 0.0 <= age <= opt.drift_max_age_s:
+        rows.append(np.array([0.0, 0.0, 0.0, 1.0]))
+        ys.append(prior.drift_mps)
+        sig.append(opt.drift_wander_mps_per_s * max(age, 1.0))
+    return np.array(rows), np.array(ys), np.array(sig)
+
+
 def solve_doppler_velocity(
-    epoch: PreparedEpoch, position: Vec, options: DopplerOptions | None = None
+    epoch: PreparedEpoch,
+    position: Vec,
+    options: DopplerOptions | None = None,
+    drift_prior: DriftPrior | None = None,
 ) -> DopplerVelocity:
-    """Velocity and drift at a known (SPP) position. Linear: one weighted solve per exclusion."""
+    """Velocity and drift at a known (SPP) position. Linear: one weighted solve per exclusion.
+
+    `drift_prior` (the receiver's drift memory, `epoch_solver.next_drift_prior`) is used only by
+    the few-satellite mode (`DopplerOptions.few_satellites`).
+    """
     opt = options or DopplerOptions()
     p = np.asarray(position, dtype=float)
-    sats, a, y, sig = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
+    sats, a_sat, y_sat, sig_sat = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
+    pseudo = _pseudo_rows(epoch.time, p, opt, drift_prior) if opt.few_satellites else None
     excluded: list[str] = []
     while True:
-        if len(sats) < opt.min_satellites:
+        n = len(sats)
+        few = n < opt.min_satellites
+        if few and (
+            pseudo is None or n < opt.few_min_satellites or n + len(pseudo[1]) < 5  # 4 unknowns + a test
+        ):
             return DopplerVelocity(
                 epoch.time,
                 False,
-                f"too few Doppler measurements: {len(sats)} < {opt.min_satellites}",
+                f"too few Doppler measurements: {n} < {opt.min_satellites}",
                 excluded=tuple(excluded),
             )
+        if few and pseudo is not None:
+            a, y, sig = (
+                np.vstack([a_sat, pseudo[0]]),
+                np.concatenate([y_sat, pseudo[1]]),
+                np.concatenate([sig_sat, pseudo[2]]),
+            )
+        else:
+            a, y, sig = a_sat, y_sat, sig_sat
         w = 1.0 / sig
         x, *_ = np.linalg.lstsq(a * w[:, None], y * w, rcond=None)
         v = y - a @ x
-        dof = len(sats) - 4
+        dof = len(y) - 4
         chi = float(np.sum((v / sig) ** 2))
         if chi <= chi2_threshold(opt.false_alarm_probability, dof):
             break
@@ -104,12 +170,20 @@ def solve_doppler_velocity(
                 f"Doppler residual test failed after {len(excluded)} exclusions",
                 excluded=tuple(excluded),
             )
-        worst = int(np.argmax(np.abs(w_tests(a, v, sig))))
+        worst = int(np.argmax(np.abs(w_tests(a, v, sig)[:n])))  # satellites only, never a pseudo row
         excluded.append(sats[worst].sat)
-        keep = np.arange(len(sats)) != worst
+        keep = np.arange(n) != worst
         sats = [m for k, m in enumerate(sats) if keep[k]]
-        a, y, sig = a[keep], y[keep], sig[keep]
+        a_sat, y_sat, sig_sat = a_sat[keep], y_sat[keep], sig_sat[keep]
     q = np.linalg.inv(a.T @ (a / sig[:, None] ** 2))
+    worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(q[:3, :3])[-1]), 0.0))
+    if few and worst_sigma > opt.few_max_sigma_mps:
+        return DopplerVelocity(
+            epoch.time,
+            False,
+            f"few-satellite velocity too weak: 1-sigma {worst_sigma:.2f} m/s > {opt.few_max_sigma_mps} m/s",
+            excluded=tuple(excluded),
+        )
     return DopplerVelocity(
         time=epoch.time,
         ok=True,
@@ -119,4 +193,5 @@ def solve_doppler_velocity(
         used=tuple(m.sat for m in sats),
         excluded=tuple(excluded),
         residuals_mps={m.sat: float(v[k]) for k, m in enumerate(sats)},
+        few_satellites=few,
     )

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
-from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, solve_doppler_velocity
+from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, DriftPrior, solve_doppler_velocity
 from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
 from coplane.gnss.spp import SppOptions, SppSolution, solve_spp
 from coplane.recording.model import NavData, ObsEpoch
@@ -47,8 +47,13 @@ def solve_epoch(
     corrections: DgnssCorrections | None = None,
     options: EpochSolverOptions | None = None,
     initial_position: Vec | None = None,
+    drift_prior: DriftPrior | None = None,
 ) -> EpochResult:
-    """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity."""
+    """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity.
+
+    `drift_prior` is the receiver's drift memory (`next_drift_prior`), for the Doppler solve's
+    opt-in few-satellite mode.
+    """
     opt = options or EpochSolverOptions()
     prepared = prepare_epoch(epoch, nav, opt.systems)
     spp = solve_spp(
@@ -64,8 +69,20 @@ def solve_epoch(
     # is still solved at the receiver's previous fix instead of being dropped with the position.
     at = spp.position if spp.ok else initial_position
     vel = (
-        solve_doppler_velocity(prepared, at, opt.doppler)
+        solve_doppler_velocity(prepared, at, opt.doppler, drift_prior)
         if at is not None and np.all(np.isfinite(at))
         else None
     )
     return EpochResult(prepared, spp, vel, corrections)
+
+
+def next_drift_prior(prev: DriftPrior | None, res: EpochResult) -> DriftPrior | None:
+    """A receiver's drift memory after epoch `res`: a drift solved with a full sky replaces it.
+
+    A few-satellite drift leans on the memory itself, so it must not renew it (its age, and so
+    its sigma, would stop growing).
+    """
+    v = res.velocity
+    if v is not None and v.ok and not v.few_satellites:
+        return DriftPrior(v.drift_mps, v.time)
+    return prev

@@ -19,7 +19,8 @@ import numpy as np
 from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import up_vector
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, solve_epoch
+from coplane.gnss.doppler import DriftPrior
+from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, next_drift_prior, solve_epoch
 from coplane.gnss.geometry import broadcast_delays, sky_view
 from coplane.gnss.weighting import pseudorange_sigma_m, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
@@ -96,6 +97,7 @@ class VehicleStep:
         self.first_epoch: GpsTime | None = None
         self._last_fused: tuple[GpsTime, Vec] | None = None
         self._last_spp: Vec | None = None
+        self._drift: DriftPrior | None = None
 
     # -- the fleet's solution feeds the plane history (paper eq. 2) --------------------------
     def ingest(self, solution: SolutionMessage) -> None:
@@ -139,7 +141,8 @@ class VehicleStep:
         previous epoch. Call once per epoch, in order, before `process`.
         """
         ep = epoch if epoch is not None else ObsEpoch(t, ())
-        res = solve_epoch(ep, self.nav, corrections, self.config.solver, self._last_spp)
+        res = solve_epoch(ep, self.nav, corrections, self.config.solver, self._last_spp, self._drift)
+        self._drift = next_drift_prior(self._drift, res)
         if res.spp.ok:
             self._last_spp = res.spp.position
         return res
@@ -217,6 +220,7 @@ class VehicleStep:
             sigma_mps=min(sig, 100.0),
             clock_drift_mps=v.drift_mps,
             n_used=len(v.used),
+            few_satellites=v.few_satellites,
         )
 
     def _satellites(
