@@ -6,8 +6,8 @@ with e_i the unit vector receiver->satellite at the SPP position (eq. 29) and on
 drift (the oscillator is shared by all constellations). Outliers (e.g. NLOS Doppler) are removed by
 the same global test + w-test exclusion as SPP.
 
-Few satellites (`DopplerOptions.few_satellites`, on by default; the paper needs 5): with 3 or 4
-Doppler measurements the four unknowns have no redundancy. A road vehicle adds two
+Few satellites (`DopplerOptions.few_satellites`, on by default; the paper needs 5): 3 or 4
+Doppler measurements leave the four unknowns without redundancy. A road vehicle adds two
 pseudo-measurements: its vertical speed is about zero (grade x speed), and its oscillator's drift
 wanders slowly from the last value measured with a full sky (`DriftPrior`; about 0.1 m/s per
 second on a u-blox F9P TCXO, docs/fgo.md). Without a velocity in such stretches the fusion graph

@@ -52,7 +52,7 @@ def solve_epoch(
     """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity.
 
     `drift_prior` is the receiver's drift memory (`next_drift_prior`), for the Doppler solve's
-    opt-in few-satellite mode.
+    few-satellite mode (`DopplerOptions.few_satellites`).
     """
     opt = options or EpochSolverOptions()
     prepared = prepare_epoch(epoch, nav, opt.systems)
