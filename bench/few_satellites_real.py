@@ -33,7 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -190,41 +190,46 @@ def stretch_worst(rec: FewSatelliteRecording, positions: dict, truth: dict) -> t
     return float(np.nanmax(h)), float(np.nanmax(v)), sum(1 for t in truth if t in positions) / len(truth)
 
 
-def worst_rows(
-    thinned: Iterable[tuple[str, FewSatelliteRecording]], reference: dict, dgnss: bool
+def stretch_list(stretches: Iterable[Stretch]) -> str:
+    """'100-120 s, 300-345 s, ...': where the thinned stretches lie, for a table's caption."""
+    return ", ".join(f"{s.start_s:.0f}-{s.start_s + s.length_s:.0f} s" for s in stretches)
+
+
+def worst_table(
+    raw: Recording, stretches: Sequence[Stretch], reference: dict, dgnss: bool
 ) -> tuple[list[str], float]:
-    """A Markdown row per (label, thinned recording): every variant's largest horizontal / vertical
-    error inside the stretches against `reference`; and the least availability of any run."""
-    rows, least_avail = [], 1.0
-    for label, rec in thinned:
-        vid = rec.manifest.vehicles[0].id
-        cells = []
-        for var in VARIANTS.values():
-            run = run_method(rec, var.method(), dgnss=dgnss, vehicles=[vid], jobs=1, front_end=var.front_end)
-            h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), reference)
-            least_avail = min(least_avail, avail)
-            cells.append(f"{h:.1f} / {v:.1f}")
-        rows.append(f"| {label} | " + " | ".join(cells) + " |")
-        print(rows[-1], flush=True)
+    """`raw` thinned to each of KEEPS satellites for each of SEEDS: a Markdown table (header
+    included) with every variant's largest horizontal / vertical error inside the stretches
+    against `reference`; and the least availability of any run."""
+    vid = raw.manifest.vehicles[0].id
+    rows = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
+    least_avail = 1.0
+    for keep in KEEPS:
+        for seed in SEEDS:
+            rec = FewSatelliteRecording(raw, stretches, keep=keep, seed=seed)
+            cells = []
+            for var in VARIANTS.values():
+                run = run_method(
+                    rec, var.method(), dgnss=dgnss, vehicles=[vid], jobs=1, front_end=var.front_end
+                )
+                h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), reference)
+                least_avail = min(least_avail, avail)
+                cells.append(f"{h:.1f} / {v:.1f}")
+            rows.append(f"| {keep} | {seed} | " + " | ".join(cells) + " |")
+            print(rows[-1], flush=True)
     return rows, least_avail
 
 
 def few_satellites_table() -> str:
+    """Part 2: the static F9P against its surveyed truth, standalone."""
     raw = open_recording(REAL / THINNED_SET)
     truth = truth_of(raw, raw.manifest.vehicles[0].id)
-    thinned = (
-        (f"{keep} | {seed}", FewSatelliteRecording(raw, keep=keep, seed=seed))
-        for keep in KEEPS
-        for seed in SEEDS
-    )
-    rows, least_avail = worst_rows(thinned, truth, dgnss=False)
-    head = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
-    stretches = ", ".join(f"{s.start_s:.0f}-{s.start_s + s.length_s:.0f} s" for s in DEFAULT_STRETCHES)
+    rows, least_avail = worst_table(raw, DEFAULT_STRETCHES, truth, dgnss=False)
     return (
-        f"`{THINNED_SET}`, GPS + BeiDou, standalone; stretches {stretches} after the first epoch, in which "
-        "each epoch keeps the first 3 or 4 tracked satellites of a ranking drawn from the seed. Largest "
-        f"horizontal / vertical error inside the stretches (m). Every method solved at least "
-        f"{least_avail:.1%} of the {len(truth)} truth epochs.\n\n" + "\n".join(head + rows)
+        f"`{THINNED_SET}`, GPS + BeiDou, standalone; stretches {stretch_list(DEFAULT_STRETCHES)} after the "
+        "first epoch, in which each epoch keeps the first 3 or 4 tracked satellites of a ranking drawn from "
+        "the seed. Largest horizontal / vertical error inside the stretches (m). Every method solved at "
+        f"least {least_avail:.1%} of the {len(truth)} truth epochs.\n\n" + "\n".join(rows)
     )
 
 
@@ -234,18 +239,11 @@ def moving_table() -> str:
     raw = open_recording(REAL / MOVING_SET)
     vid = raw.manifest.vehicles[0].id
     reference = run_method(raw, get_method("non-cp"), dgnss=True, vehicles=[vid], jobs=1).positions[vid]
-    thinned = (
-        (f"{keep} | {seed}", FewSatelliteRecording(raw, MOVING_STRETCHES, keep=keep, seed=seed))
-        for keep in KEEPS
-        for seed in SEEDS
-    )
-    rows, _ = worst_rows(thinned, reference, dgnss=True)
-    head = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
-    stretches = ", ".join(f"{s.start_s:.0f}-{s.start_s + s.length_s:.0f} s" for s in MOVING_STRETCHES)
+    rows, _ = worst_table(raw, MOVING_STRETCHES, reference, dgnss=True)
     return (
-        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretches} with 3 or 4 satellites. Largest horizontal / "
-        "vertical distance (m) inside the stretches from the full-sky `non-cp` solution.\n\n"
-        + "\n".join(head + rows)
+        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretch_list(MOVING_STRETCHES)} with 3 or 4 satellites. "
+        "Largest horizontal / vertical distance (m) inside the stretches from the full-sky `non-cp` "
+        "solution.\n\n" + "\n".join(rows)
     )
 
 
