@@ -134,11 +134,13 @@ def solve_doppler_velocity(
     opt = options or DopplerOptions()
     p = np.asarray(position, dtype=float)
     sats, a_sat, y_sat, sig_sat = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
-    pseudo = _pseudo_rows(epoch.time, p, opt, drift_prior) if opt.few_satellites else None
+    pseudo: tuple[Vec, Vec, Vec] | None = None  # built only when an epoch has too few satellites
     excluded: list[str] = []
     while True:
         n = len(sats)
         few = n < opt.min_satellites
+        if few and opt.few_satellites and pseudo is None:
+            pseudo = _pseudo_rows(epoch.time, p, opt, drift_prior)
         if few and (
             pseudo is None or n < opt.few_min_satellites or n + len(pseudo[1]) < 5  # 4 unknowns + a test
         ):
@@ -176,8 +178,8 @@ def solve_doppler_velocity(
         sats = [m for k, m in enumerate(sats) if keep[k]]
         a_sat, y_sat, sig_sat = a_sat[keep], y_sat[keep], sig_sat[keep]
     q = np.linalg.inv(a.T @ (a / sig[:, None] ** 2))
-    worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(q[:3, :3])[-1]), 0.0))
-    if few and worst_sigma > opt.few_max_sigma_mps:
+    worst_sigma = math.sqrt(max(float(np.linalg.eigvalsh(q[:3, :3])[-1]), 0.0)) if few else 0.0
+    if worst_sigma > opt.few_max_sigma_mps:
         return DopplerVelocity(
             epoch.time,
             False,
