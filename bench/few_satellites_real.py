@@ -19,13 +19,19 @@ TCXO and it shares its multipath model with the library:
    wander), and for the EKF baseline `non-cp-ekf` with either front end.
    2b. **A moving car.** The Kowloon Tong drive has no truth: the full-sky DGNSS `non-cp`
    solution is the reference, and the drive is thinned to 3 or 4 satellites in three stretches.
+   2c. **Recovery.** Both sets again, with the largest errors *outside* the stretches, where the
+   full sky is back: the defaults, without the FDE's restart of a diverged track
+   (`fde-no-restart`), and with the rule before both (`fde-first-test-only`: the prediction was
+   rejected only on its first test's failures).
 3. **The simulator** (`--sim`): `non-cp` and `pc`, with DGNSS, on the dense-urban training seeds
    (coplane.evaluate.benchmark.TRAINING), whose canyons leave vehicles with few satellites, and
    `pc` on urban-loop 101-103: the defaults against the same alternatives.
 
 The few-satellite front end became the default on parts 2, 2b and 3 together: it gained on the
 car with 4 satellites, on the static antenna and on the training seeds (docs/fgo.md). No factor-
-graph opt-in did. No held-out seed was looked at.
+graph opt-in did. No held-out seed was looked at. The FDE's divergence rules (part 2c) became
+defaults on parts 2c and 3 and the training seeds of bench/tune_fgo.py, checked on the validation
+seeds.
 """
 
 from __future__ import annotations
@@ -175,14 +181,16 @@ SEEDS = (1, 2, 3, 4, 5, 6)
 KEEPS = (3, 4)
 
 
-def stretch_worst(rec: FewSatelliteRecording, positions: dict, truth: dict) -> tuple[float, float, float]:
-    """Largest horizontal and vertical error inside the stretches (NaN: none solved there), and
-    the availability."""
+def stretch_worst(
+    rec: FewSatelliteRecording, positions: dict, truth: dict, inside: bool = True
+) -> tuple[float, float, float]:
+    """Largest horizontal and vertical error inside the stretches (`inside=False`: outside them,
+    where the full sky is back; NaN: none solved there), and the availability."""
     t0 = min(truth).seconds
     h, v = [float("nan")], [float("nan")]
     for t, x in truth.items():
         p = positions.get(t)
-        if p is None or not rec.in_stretch(t.seconds - t0):
+        if p is None or rec.in_stretch(t.seconds - t0) != inside:
             continue
         d = enu_rotation(*ecef_to_geodetic(np.asarray(x))[:2]) @ (np.asarray(p) - np.asarray(x))
         h.append(float(np.hypot(d[0], d[1])))
@@ -196,23 +204,30 @@ def stretch_list(stretches: Iterable[Stretch]) -> str:
 
 
 def worst_table(
-    raw: Recording, stretches: Sequence[Stretch], reference: dict, dgnss: bool
+    raw: Recording,
+    stretches: Sequence[Stretch],
+    reference: dict,
+    dgnss: bool,
+    variants: dict[str, Variant] | None = None,
+    inside: bool = True,
 ) -> tuple[list[str], float]:
     """`raw` thinned to each of KEEPS satellites for each of SEEDS: a Markdown table (header
-    included) with every variant's largest horizontal / vertical error inside the stretches
-    against `reference`; and the least availability of any run."""
+    included) with every variant's (default: VARIANTS) largest horizontal / vertical error inside
+    the stretches (`inside=False`: outside them) against `reference`; and the least availability
+    of any run."""
+    variants = VARIANTS if variants is None else variants
     vid = raw.manifest.vehicles[0].id
-    rows = ["| satellites left | seed | " + " | ".join(VARIANTS) + " |", "|---|---|" + "---|" * len(VARIANTS)]
+    rows = ["| satellites left | seed | " + " | ".join(variants) + " |", "|---|---|" + "---|" * len(variants)]
     least_avail = 1.0
     for keep in KEEPS:
         for seed in SEEDS:
             rec = FewSatelliteRecording(raw, stretches, keep=keep, seed=seed)
             cells = []
-            for var in VARIANTS.values():
+            for var in variants.values():
                 run = run_method(
                     rec, var.method(), dgnss=dgnss, vehicles=[vid], jobs=1, front_end=var.front_end
                 )
-                h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), reference)
+                h, v, avail = stretch_worst(rec, run.positions.get(vid, {}), reference, inside)
                 least_avail = min(least_avail, avail)
                 cells.append(f"{h:.1f} / {v:.1f}")
             rows.append(f"| {keep} | {seed} | " + " | ".join(cells) + " |")
@@ -233,18 +248,54 @@ def few_satellites_table() -> str:
     )
 
 
+def moving_reference(raw: Recording) -> dict:
+    """The moving F9P's pseudo-truth: its full-sky DGNSS `non-cp` solution (metres, not decimetres)."""
+    vid = raw.manifest.vehicles[0].id
+    return run_method(raw, get_method("non-cp"), dgnss=True, vehicles=[vid], jobs=1).positions[vid]
+
+
 def moving_table() -> str:
     """Part 2b: the moving F9P (no truth), thinned to 3 or 4 satellites; the deviation from the
-    full-sky DGNSS `non-cp` solution inside the stretches (a pseudo-truth: metres, not decimetres)."""
+    full-sky DGNSS `non-cp` solution inside the stretches."""
     raw = open_recording(REAL / MOVING_SET)
-    vid = raw.manifest.vehicles[0].id
-    reference = run_method(raw, get_method("non-cp"), dgnss=True, vehicles=[vid], jobs=1).positions[vid]
-    rows, _ = worst_table(raw, MOVING_STRETCHES, reference, dgnss=True)
+    rows, _ = worst_table(raw, MOVING_STRETCHES, moving_reference(raw), dgnss=True)
     return (
         f"`{MOVING_SET}`, a car, DGNSS; stretches {stretch_list(MOVING_STRETCHES)} with 3 or 4 satellites. "
         "Largest horizontal / vertical distance (m) inside the stretches from the full-sky `non-cp` "
         "solution.\n\n" + "\n".join(rows)
     )
+
+
+# The FDE's divergence rules (docs/fgo.md, "A diverged track comes back"): the defaults, without
+# the restart, and the rule before both (the prediction rejected only on the first test's failures).
+RECOVERY_RULES = {"fde-no-restart": "no restart", "fde-first-test-only": "first test only"}
+RECOVERY_VARIANTS: dict[str, Variant] = {
+    "non-cp (defaults)": Variant(lambda: get_method("non-cp")),
+    **{
+        f"non-cp, {label}": Variant(lambda n=name: apply_variant(get_method("non-cp"), n))
+        for name, label in RECOVERY_RULES.items()
+    },
+}
+
+
+def recovery_table() -> str:
+    """Part 2c: after the stretches, when the full sky is back: the largest errors outside them,
+    for the static F9P (truth) and the car (pseudo-truth)."""
+    parts = []
+    for name, stretches, dgnss in (
+        (THINNED_SET, DEFAULT_STRETCHES, False),
+        (MOVING_SET, MOVING_STRETCHES, True),
+    ):
+        raw = open_recording(REAL / name)
+        reference = truth_of(raw, raw.manifest.vehicles[0].id) if not dgnss else moving_reference(raw)
+        rows, _ = worst_table(raw, stretches, reference, dgnss, RECOVERY_VARIANTS, inside=False)
+        against = "its full-sky `non-cp` solution" if dgnss else "the surveyed truth"
+        parts.append(
+            f"`{name}`, {'DGNSS' if dgnss else 'standalone'}, stretches {stretch_list(stretches)}: largest "
+            f"horizontal / vertical distance (m) from {against} *outside* the stretches.\n\n"
+            + "\n".join(rows)
+        )
+    return "\n\n".join(parts)
 
 
 SIM_RUNS = {"dense-urban": ("non-cp", "pc"), "urban-loop": ("pc",)}
@@ -255,6 +306,7 @@ def simulator_table() -> str:
     """Part 3: pooled H / V RMSE of the defaults and the alternatives on training seeds."""
     columns: dict[str, tuple[str, EpochSolverOptions | None]] = {
         **{label: (name, None) for name, label in FGO_VARIANTS.items()},
+        **{label: (name, None) for name, label in RECOVERY_RULES.items()},
         "paper front end": ("default", PAPER_FRONT_END),
     }
     rows = [
@@ -298,6 +350,10 @@ def main() -> int:
     print(moving)
     if args.out is not None:
         write_block(args.out, "few_satellites_moving", COMMAND, moving)
+    recovery = recovery_table()
+    print(recovery)
+    if args.out is not None:
+        write_block(args.out, "few_satellites_recovery", COMMAND, recovery)
     if args.sim:
         sim = simulator_table()
         if args.out is not None:

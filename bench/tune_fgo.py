@@ -62,6 +62,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     # "Few satellites on a real receiver")
     "drop-undetermined": {"drop_undetermined_pseudoranges": True},
     "carry-drift": {"clock_drift_carry": True},
+    # the FDE's divergence rules (docs/fgo.md, "A diverged track comes back")
+    "fde-no-restart": {"fde_restart_chi2": None},
+    "fde-first-test-only": {"fde_reject_on_exclusions": False, "fde_restart_chi2": None},
     "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},

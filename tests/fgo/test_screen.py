@@ -9,8 +9,8 @@ import pytest
 
 from coplane.estimation.validate import ValidPseudoranges
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.prepare import screen
-from coplane.fgo.screen import screen_pseudoranges, weak_rows
+from coplane.fgo.prepare import diverged, screen
+from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import StepStats
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
@@ -141,7 +141,7 @@ def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
     off = RX + np.array([12.0, 0.0, 0.0])
     cov = np.eye(3) * 4.0
     base = FgoConfig(fde_k=3.29, fde_snapshot_fallback=True, covariance_scale=4.5, fde_warmup_epochs=10)
-    old, _ = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
+    old, _, _ = screen(prs, off, cov, 0.1, base, StepStats(), young=False)
     assert len(old) < len(prs)
     for prior in ("reported", "snapshot"):
         cfg = dataclasses.replace(base, fde_warmup_prior=prior)
@@ -230,3 +230,37 @@ def test_gtsam_asymmetric_kernels_act_on_the_distance_not_the_sign() -> None:
     for e in (4.0, -4.0):
         assert asym.whiten(np.array([e]))[0] == pytest.approx(sym.whiten(np.array([e]))[0])
         assert abs(asym.whiten(np.array([e]))[0]) < 0.5 * abs(e) / 2.0  # down-weighted, both signs
+
+
+def test_a_diverged_prediction_is_rejected_when_exclusions_pile_up() -> None:
+    """A prediction 60 m off held with a 2 m covariance (a track after a long stretch on 3
+    satellites): the first w-test fits most of the offset and fails fewer than half of the 17
+    rows, and the iterated test then strips the epoch down to the few rows that agree with the
+    prior. Counting the exclusions (`count_exclusions`, FgoConfig.fde_reject_on_exclusions)
+    rejects the prediction instead, and the snapshot fallback keeps the clean epoch whole."""
+    prs = _epoch(17, 3.0, np.random.default_rng(7))
+    r = enu_rotation(LAT, LON)
+    off = RX + np.array([21.0, 60.0, 6.0]) @ r
+    cov = np.eye(3) * 4.0
+    plain = screen_pseudoranges(prs, off, cov, 3.29, snapshot_fallback=True)
+    assert not plain.prediction_rejected and int(plain.keep.sum()) <= 4
+    counted = screen_pseudoranges(prs, off, cov, 3.29, snapshot_fallback=True, count_exclusions=True)
+    assert counted.prediction_rejected and bool(counted.keep.all())
+    clean = screen_pseudoranges(prs, RX, cov, 3.29, snapshot_fallback=True, count_exclusions=True)
+    assert not clean.prediction_rejected and bool(clean.keep.all())
+
+
+def test_a_track_is_restarted_only_when_the_clean_fit_lies_far_outside_the_prediction() -> None:
+    """`prepare.diverged` (FgoConfig.fde_restart_chi2): the squared Mahalanobis distance of the
+    epoch's own fit from the prediction, the fit's covariance scaled up by its variance factor."""
+    cfg = FgoConfig(fde_restart_chi2=400.0)
+    keep = np.ones(12, dtype=bool)
+    far = ScreenResult(keep, (), True, 0.5, None, np.array([80.0, 0.0, 0.0]), np.eye(3) * 4.0)
+    p_pred = np.eye(3) * 4.0
+    assert diverged(far, p_pred, cfg)  # 80^2 / 8 = 800
+    assert not diverged(dataclasses.replace(far, prediction_rejected=False), p_pred, cfg)
+    assert not diverged(far, p_pred, FgoConfig())  # off unless set
+    assert not diverged(dataclasses.replace(far, variance_factor=3.0), p_pred, cfg)  # 6400 / 16 = 400
+    assert not diverged(dataclasses.replace(far, offset_m=np.array([40.0, 0.0, 0.0])), p_pred, cfg)
+    with pytest.raises(ValueError, match="fde_restart_chi2"):
+        FgoConfig(fde_restart_chi2=0.0)

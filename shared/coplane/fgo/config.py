@@ -124,6 +124,22 @@ class FgoConfig:
     # When most of an epoch fails against the prediction, the prediction is rejected; then test
     # the epoch on its own (snapshot RAIM) instead of keeping every pseudorange (screen.py).
     fde_snapshot_fallback: bool = False
+    # ... also when the iterated test has excluded more than half of a well-observed epoch, one
+    # row after another (screen.py, `count_exclusions`): a diverged track held by a tight
+    # covariance otherwise keeps the few rows that agree with it and never comes back.
+    fde_reject_on_exclusions: bool = False
+    # ... and a rejected prediction starts the vehicle's track anew at this epoch, with no position
+    # or clock link to its earlier states, whose window (and the marginal it leaves behind) holds
+    # the diverged estimate, when both hold:
+    # - the epoch on its own (the snapshot RAIM's fit) puts the vehicle outside the prediction's
+    #   region: squared Mahalanobis distance of the two, with both covariances, above this;
+    # - the window holds an epoch of the vehicle without redundancy (at most
+    #   min_fix_pseudoranges pseudoranges), whose errors no test could see.
+    # In the simulator's canyons a self-consistent NLOS fit lies up to 330 m (chi2 510) from a
+    # prediction that is right, but above chi2 400 never after such an epoch; restarting at every
+    # rejection doubled the canyons' errors (docs/fgo.md, "A diverged track comes back"). None:
+    # never restart.
+    fde_restart_chi2: float | None = None
     # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).
@@ -269,6 +285,7 @@ class FgoConfig:
             "fde_long_below_best_cn0_db",
             "coop_fde_k",
             "fde_max_sigma_scale",
+            "fde_restart_chi2",
         ):
             if (value := getattr(self, name)) is not None:
                 positive[name] = value

@@ -124,7 +124,7 @@ class FusionEstimator:
         if cfg.coop_fde_k is not None:
             cooperative_exclusion(preps, cfg.coop_fde_k, cfg.coop_fde_radius_m, stats)
         for vid in preps:
-            if not st.window.by_vehicle.get(vid):
+            if not st.window.by_vehicle.get(vid) or preps[vid].restarted:
                 st.track_start[vid] = k  # a new track, from the SPP
         ranges, held = self._warm(valid.ranges_between(preps), preps, k)
         for vid in undetermined(preps, ranges):

@@ -21,7 +21,7 @@ from coplane.estimation.contract import PlaneObs
 from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.screen import screen_pseudoranges, weak_rows
+from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
@@ -69,6 +69,7 @@ class Prepared:
     # the FDE's signed standardised residual of each kept pseudorange (NaN: not tested); None
     # when the FDE did not run (no prior yet) or did not pass: the cooperative check's input
     fde_w: Vec | None = None
+    restarted: bool = False  # a new track although the window holds earlier states (FgoConfig)
 
 
 def prepare_vehicle(
@@ -101,9 +102,10 @@ def prepare_vehicle(
     if hist and cfg.gate_k is not None and len(prs):
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
     fde_w: Vec | None = None
+    restarted = False
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
         age = state.step - state.track_start.get(v.vehicle_id, state.step)
-        prs, fde_w = screen(
+        prs, fde_w, restart_at = screen(
             prs,
             init,
             state.cov.get(hist[-1].pos_key),
@@ -112,6 +114,9 @@ def prepare_vehicle(
             stats,
             young=age < cfg.fde_warmup_epochs,
         )
+        if restart_at is not None and any(b.n_pseudoranges <= cfg.min_fix_pseudoranges for b in hist):
+            stats.reject("track_restart")
+            link, hist, init, restarted = None, None, restart_at, True  # no links to the diverged window
     if hist and cfg.drop_undetermined_pseudoranges and 0 < len(prs) < determining_count(plane, cfg):
         stats.reject("undetermined_pseudorange", len(prs))
         prs = prs.subset(np.zeros(len(prs), dtype=bool))
@@ -145,7 +150,19 @@ def prepare_vehicle(
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(
-        v.vehicle_id, prs, systems, plane, velocity, v.drift, init, link, clock_init, clock_links, rank, fde_w
+        v.vehicle_id,
+        prs,
+        systems,
+        plane,
+        velocity,
+        v.drift,
+        init,
+        link,
+        clock_init,
+        clock_links,
+        rank,
+        fde_w,
+        restarted,
     )
 
 
@@ -214,10 +231,12 @@ def screen(
     cfg: FgoConfig,
     stats: StepStats,
     young: bool = False,
-) -> tuple[ValidPseudoranges, Vec | None]:
-    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position, and
-    their signed standardised residuals (`ScreenResult.w_signed`, None if the test did not pass);
-    `young`: the track started less than `fde_warmup_epochs` ago (a looser prior, see FgoConfig)."""
+) -> tuple[ValidPseudoranges, Vec | None, Vec | None]:
+    """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position,
+    their signed standardised residuals (`ScreenResult.w_signed`, None if the test did not pass)
+    and, when the prediction is a diverged track's (`diverged`), where the epoch's own fit puts
+    the vehicle; `young`: the track started less than `fde_warmup_epochs` ago (a looser prior,
+    see FgoConfig)."""
     assert cfg.fde_k is not None
     if young and last_cov is not None:
         last_cov = last_cov * (cfg.covariance_scale**2 if cfg.fde_warmup_prior == "reported" else 1e12)
@@ -238,6 +257,7 @@ def screen(
         k_long=cfg.fde_k_long,
         long_rows=long_rows,
         two_sided=cfg.fde_long_two_sided,
+        count_exclusions=cfg.fde_reject_on_exclusions,
     )
     if res.prediction_rejected:
         stats.reject("fde_prediction_rejected")
@@ -248,7 +268,21 @@ def screen(
     if cfg.fde_max_sigma_scale is not None and res.variance_factor > 1.0:
         scale = min(float(np.sqrt(res.variance_factor)), cfg.fde_max_sigma_scale)
         prs = dataclasses.replace(prs, sigma=prs.sigma * scale)
-    return prs, None if res.w_signed is None else res.w_signed[res.keep]
+    restart_at = predicted + res.offset_m if diverged(res, p_pred, cfg) and res.offset_m is not None else None
+    return prs, None if res.w_signed is None else res.w_signed[res.keep], restart_at
+
+
+def diverged(res: ScreenResult, p_pred: Mat, cfg: FgoConfig) -> bool:
+    """Whether a rejected prediction is a diverged track (`fde_restart_chi2`): the epoch's own fit
+    lies outside the prediction's region, with the fit's covariance scaled by its a-posteriori
+    variance factor (never below 1), so that an NLOS-laden canyon fit, weak or inconsistent,
+    does not pass for one."""
+    if cfg.fde_restart_chi2 is None or not res.prediction_rejected or res.offset_m is None:
+        return False
+    assert res.offset_cov is not None
+    cov = res.offset_cov * max(res.variance_factor, 1.0) + p_pred
+    d2 = float(res.offset_m @ np.linalg.solve(cov, res.offset_m))
+    return d2 > cfg.fde_restart_chi2
 
 
 def displacement(

@@ -98,8 +98,11 @@ class MethodSpec:
 # on the VALIDATION seeds (coplane.evaluate.benchmark); docs/results.md reports them on others.
 #   - the estimator's own fault detection and exclusion (prior-aided w-test, fgo/screen.py) and a
 #     Huber kernel: the paper removes faults before its graph (cooperative integrity monitoring,
-#     its ref. [28]); when most of an epoch fails against the prediction, the epoch is tested on
-#     its own (snapshot RAIM) instead of being kept whole;
+#     its ref. [28]); when most of an epoch fails against the prediction (at the first test or
+#     one exclusion after another), the epoch is tested on its own (snapshot RAIM) instead of
+#     being kept whole, and a track that had epochs without redundancy and whose clean fit lies
+#     beyond chi2 400 of the prediction starts anew there (a real F9P after 45 s on 3
+#     satellites stayed 80-200 m off for a minute with a full sky back; docs/fgo.md);
 #   - states leaving the window are marginalised (iSAM2 fixed-lag smoother), not deleted: in a deep
 #     canyon with 2-5 satellites a 5-epoch window forgets where the vehicle was;
 #   - Doppler links much tighter than the paper's sigma_V (0.1 m/s instead of 0.6): the Doppler
@@ -122,6 +125,8 @@ ROBUST_FGO: dict[str, object] = {
     "robust": "huber",
     "fde_k": 3.29,
     "fde_snapshot_fallback": True,
+    "fde_reject_on_exclusions": True,
+    "fde_restart_chi2": 400.0,
     "sigma_v": DEFAULT_VELOCITY_SIGMA_MPS,
     "motion_sigma": 0.5,
     "motion_sigma_up": 0.2,
