@@ -125,7 +125,7 @@ class FusionEstimator:
             cooperative_exclusion(preps, cfg.coop_fde_k, cfg.coop_fde_radius_m, stats)
         for vid in preps:
             if not st.window.by_vehicle.get(vid) or preps[vid].restarted:
-                st.track_start[vid] = k  # a new track, from the SPP
+                st.track_start[vid] = k  # a new track: from the SPP, or restarted at the epoch's fit
         ranges, held = self._warm(valid.ranges_between(preps), preps, k)
         for vid in undetermined(preps, ranges):
             stats.skipped[vid] = "not enough measurements to determine a first position"
