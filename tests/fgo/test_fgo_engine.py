@@ -39,6 +39,7 @@ from coplane.fgo.state import GraphState
 from coplane.fgo.window import Window
 from coplane.gtime import GpsTime
 from coplane.methods import INTERRUPTION_BLOCK, METHODS, MethodSpec, get_method, interrupt_range
+from coplane.typing import Vec
 
 SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
 NLOS: dict[str, Any] = {"nlos_per_vehicle": 1, "nlos_bias": (10.0, 30.0)}
@@ -772,3 +773,48 @@ def test_innovation_gate_removes_nlos_pseudoranges_before_the_graph() -> None:
     assert e_gated.h_rmse < e_plain.h_rmse and e_gated.v_rmse < e_plain.v_rmse
     # at most the NLOS satellites (2 per vehicle per epoch) and a few clean ones are removed
     assert n_gated <= 4 * 40 * 2 * 1.2
+
+
+def _moved(fleet: SyntheticFleet, vid: str, offset_m: Vec, from_epoch: int) -> list[EpochInput]:
+    """The fleet's epochs with `vid`'s pseudoranges (and SPP) from `from_epoch` on measured as if
+    its antenna stood `offset_m` (ECEF) away from where the track says, all consistent."""
+    out = []
+    for k, ep in enumerate(fleet.epochs):
+        v = ep.vehicles.get(vid)
+        if k < from_epoch or v is None:
+            out.append(ep)
+            continue
+        p = fleet.truth[k][vid]
+        prs = tuple(
+            dataclasses.replace(
+                pr,
+                rho_m=pr.rho_m
+                + np.linalg.norm(pr.sat_pos_m - p - offset_m)
+                - np.linalg.norm(pr.sat_pos_m - p),
+            )
+            for pr in v.pseudoranges
+        )
+        spp = None if v.spp_position is None else v.spp_position + offset_m
+        moved = dataclasses.replace(v, pseudoranges=prs, spp_position=spp)
+        out.append(dataclasses.replace(ep, vehicles={**ep.vehicles, vid: moved}))
+    return out
+
+
+def test_a_diverged_track_restarts_only_after_epochs_without_redundancy() -> None:
+    """`fde_restart_chi2` (docs/fgo.md, "A diverged track comes back"): from epoch 20 every
+    pseudorange says the vehicle stands 150 m from its track. After epochs with only 4 satellites
+    in the window the track starts anew there (counted `track_restart`); after full-sky epochs the
+    prediction is rejected but the track keeps its links, as in the simulator's canyons, where such
+    a clean-looking fit was the wrong one."""
+    offset = np.array([150.0, 0.0, 0.0])
+    cfg = get_method("non-cp").fgo
+    assert cfg is not None and cfg.fde_restart_chi2 is not None
+    for weak, restarts in ((True, True), (False, False)):
+        limits = {("v01", k): 4 for k in range(16, 20)} if weak else {}
+        fleet = make_fleet(1, 26, seed=3, sat_limit=limits)
+        offset_ecef = offset @ fleet.enu  # E, N, U -> ECEF
+        sols = run(fleet, cfg, _moved(fleet, "v01", offset_ecef, 20))
+        assert sols[20].rejected.get("fde_prediction_rejected", 0) == 1
+        assert (sols[20].rejected.get("track_restart", 0) == 1) == restarts
+        err = np.linalg.norm(sols[20].estimates["v01"].position_m - fleet.truth[20]["v01"] - offset_ecef)
+        assert (err < 10.0) == restarts, err
