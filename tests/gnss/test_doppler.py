@@ -341,3 +341,17 @@ def test_drift_memory_is_renewed_by_a_full_sky_only() -> None:
     full = EpochResult(PreparedEpoch(T0, (), ()), None, solve_doppler_velocity(_epoch(), RX), None)  # type: ignore[arg-type]
     renewed = next_drift_prior(old, full)
     assert renewed is not None and renewed.time == T0 and renewed.drift_mps == pytest.approx(DRIFT, abs=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"few_min_satellites": 2}, "few_min_satellites"),
+        ({"few_max_sigma_mps": -0.6}, "few_max_sigma_mps"),
+        ({"drift_wander_mps_per_s": float("nan")}, "drift_wander_mps_per_s"),
+        ({"drift_max_age_s": 0.0}, "drift_max_age_s"),
+    ],
+)
+def test_bad_few_satellite_options_are_refused_by_name(changes: dict[str, float], field: str) -> None:
+    with pytest.raises(ValueError, match=field):
+        DopplerOptions(**changes)  # type: ignore[arg-type]

@@ -56,6 +56,22 @@ class DopplerOptions:
     # static antenna 420 m away.
     few_max_sigma_mps: float = 0.6
 
+    def __post_init__(self) -> None:
+        # 2 satellites + 2 pseudo-rows cannot leave the redundant row the solve needs
+        if self.few_min_satellites < 3:
+            raise ValueError(
+                f"DopplerOptions.few_min_satellites must be >= 3, got {self.few_min_satellites!r}"
+            )
+        for name in (
+            "vertical_speed_sigma_mps",
+            "drift_wander_mps_per_s",
+            "drift_max_age_s",
+            "few_max_sigma_mps",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"DopplerOptions.{name} must be finite and > 0, got {value!r}")
+
 
 @dataclass(frozen=True)
 class DriftPrior:
