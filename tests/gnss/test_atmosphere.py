@@ -3,9 +3,11 @@ Klobuchar against ICD properties and an independent vector re-derivation."""
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
+from typing import Literal
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from coplane.gnss.atmosphere import (
     saastamoinen_m,
 )
 from coplane.gnss.constants import C
+from coplane.gnss.geometry import SkyView, broadcast_delays
 from coplane.gtime import GpsTime
 from coplane.recording.model import IonoCoefficients, NavData
 
@@ -261,3 +264,62 @@ def test_saastamoinen_plausible_values() -> None:
     assert 2.3 < zenith < 2.5  # ~2.4 m at sea level
     assert saastamoinen_m(D(35.0), 0.0, D(10.0)) == pytest.approx(zenith / math.sin(D(10.0)), rel=1e-12)
     assert saastamoinen_m(D(35.0), 2000.0, math.pi / 2) < zenith
+
+
+# --- arrays: one call per system in geometry.broadcast_delays ---------------------------------
+
+
+def test_models_on_arrays_match_the_float_calls() -> None:
+    """Each model evaluates an epoch's satellites at once; every element must be what the float
+    call gives (numpy's SIMD asin/pow may differ from libm in the last bit), 0 at/below horizon."""
+    rng = np.random.default_rng(16)
+    az = rng.uniform(0.0, 2.0 * math.pi, 300)
+    el = np.concatenate([[0.0, -0.0, -1e-9, 1e-9, math.pi / 2, -0.3], rng.uniform(-0.4, math.pi / 2, 294)])
+    worst = 0.0
+    for (lat, lon), hour in itertools.product(
+        ((D(22.3), D(114.2)), (D(-60.0), D(-70.0)), (D(78.0), D(15.0))), (2.0, 13.0, 14.0, 20.0)
+    ):
+        t = _gpst_for_bdt_sow(86400.0 * 3 + hour * 3600.0)
+        gps = functools.partial(klobuchar_gps_m, t, lat, lon, coeffs=GPS_HKSC)
+        bds = functools.partial(klobuchar_bds_m, t, lat, lon, coeffs=BDS_HKSC)
+        pairs = [
+            (f(az, el), [f(a, e) for a, e in zip(az.tolist(), el.tolist(), strict=True)]) for f in (gps, bds)
+        ]
+        pairs.append((saastamoinen_m(lat, 120.0, el), [saastamoinen_m(lat, 120.0, e) for e in el.tolist()]))
+        for vec, one in pairs:
+            assert isinstance(vec, np.ndarray) and vec.shape == el.shape
+            assert np.all(vec[el <= 0.0] == 0.0) and np.all(vec[el > 0.0] > 0.0)
+            worst = max(worst, float(np.max(np.abs(vec - np.array(one)))))
+        few = gps(az[:5], el[:5])  # below VECTORISE_FROM: one by one, as the float calls
+        assert isinstance(few, np.ndarray) and list(few) == pairs[0][1][:5]
+    assert worst < 1e-12
+    high = saastamoinen_m(D(22.3), 1.2e4, el)
+    assert high.shape == el.shape and not high.any()
+    assert not iono_delay_m("R", GpsTime(2161, 0.0), 0.4, 2.0, az, el, NavData()).any()
+
+
+@pytest.mark.parametrize("iono_model", ["broadcast", "rtklib"])
+@pytest.mark.parametrize("iono_keys", ["GC", "G", "C", ""])
+@pytest.mark.parametrize("copies", [1, 4])  # systems below and above VECTORISE_FROM
+def test_broadcast_delays_matches_per_satellite_calls(
+    iono_model: Literal["broadcast", "rtklib"], iono_keys: str, copies: int
+) -> None:
+    """Satellites grouped by system give each one what its own float call gives."""
+    rng = np.random.default_rng(7)
+    systems = list("GGCEGCJCRGCC") * copies
+    n = len(systems)
+    el, az = rng.uniform(-0.2, math.pi / 2, n), rng.uniform(0.0, 2.0 * math.pi, n)
+    view = SkyView(np.zeros(3), D(22.3), D(114.2), 30.0, np.zeros(n), np.zeros((n, 3)), el, az)
+    nav = NavData(iono={k: {"G": GPS_HKSC, "C": BDS_HKSC}[k] for k in iono_keys})
+    t = GpsTime(2161, 280000.0)
+    iono, tropo = broadcast_delays(systems, t, view, nav, iono_model=iono_model)
+    for i, s in enumerate(systems):
+        a, e = float(az[i]), float(el[i])
+        if iono_model == "rtklib" and s == "C" and "G" in nav.iono:
+            expected = klobuchar_gps_m(t, view.lat, view.lon, a, e, GPS_HKSC) * GPS_L1_TO_BDS_B1I
+        else:
+            expected = iono_delay_m(s, t, view.lat, view.lon, a, e, nav)
+        assert iono[i] == pytest.approx(expected, rel=0.0, abs=1e-12)
+        assert tropo[i] == pytest.approx(saastamoinen_m(view.lat, view.h, e), rel=0.0, abs=1e-12)
+    off = broadcast_delays(systems, t, view, nav, iono=False, tropo=False)
+    assert not off[0].any() and not off[1].any()

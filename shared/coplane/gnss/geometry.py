@@ -74,19 +74,21 @@ def broadcast_delays(
 ) -> tuple[Vec, Vec]:
     """(ionospheric, tropospheric) code delays in metres per satellite of `view`.
 
-    The models are the scalar, RTKLIB-checked ones of `gnss.atmosphere`, called per satellite:
-    they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model scales the
-    GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
+    The models are the RTKLIB-checked ones of `gnss.atmosphere`, each called once per system on
+    that system's satellites (SPP re-evaluates this at every iteration, so per-satellite calls were
+    its cost); they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model
+    scales the GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
     """
     n = len(systems)
-    io, tr = np.zeros(n), np.zeros(n)
-    for i, s in enumerate(systems):
-        el, az = float(view.el_rad[i]), float(view.az_rad[i])
-        if iono:
+    io = np.zeros(n)
+    if iono and n:
+        sys_arr = np.asarray(systems)
+        for s in dict.fromkeys(systems):  # each system once, in order of first appearance
+            m = sys_arr == s
+            az, el = view.az_rad[m], view.el_rad[m]
             if iono_model == "rtklib" and s == "C" and "G" in nav.iono:
-                io[i] = klobuchar_gps_m(t, view.lat, view.lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
+                io[m] = klobuchar_gps_m(t, view.lat, view.lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
             else:
-                io[i] = iono_delay_m(s, t, view.lat, view.lon, az, el, nav)
-        if tropo:
-            tr[i] = saastamoinen_m(view.lat, view.h, el)
+                io[m] = iono_delay_m(s, t, view.lat, view.lon, az, el, nav)
+    tr = saastamoinen_m(view.lat, view.h, view.el_rad) if tropo else np.zeros(n)
     return io, tr
