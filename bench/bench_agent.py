@@ -11,12 +11,18 @@ run, median of `--runs`:
 - coplane agent front end: what a vehicle agent does per epoch before the bus (`VehicleStep`:
   SPP with FDE, Doppler velocity, the per-satellite factor inputs, the node message and its wire
   encoding), method `non-cp` (no plane fit: that depends on the fleet), standalone and, where
-  the recording has a base, with DGNSS as the fleet runs;
+  the recording has a base, with DGNSS as the fleet runs (the base's own epoch included, as an
+  agent computes its corrections from the base's observations);
+- RTKLIB postpos in DGPS mode on the same rover and base files, where the recording has a base:
+  the like-for-like reference of the DGNSS front end, which also processes the base's epochs;
 - whole process: `coplane spp` (the command: imports, reading, solving, the .pos file) against a
   Python process that runs coplane's RTKLIB row (`postpos` on the same files; it imports
   coplane's evaluation package too, for RTKLIB's options, so both pay the same start-up).
-Times are per vehicle-epoch of the RINEX files (RTKLIB's too, whether it output a solution or not);
-ratio = coplane / RTKLIB of the same run.
+Times are per vehicle-epoch of the RINEX files (RTKLIB's too, whether it output a solution or not).
+The rows run in rounds, each round every row once in turn, and a ratio = coplane / RTKLIB is taken
+within a round (the DGNSS front end against RTKLIB's DGPS, every other row against RTKLIB's
+single-point run): this VM's speed drifts by tens of percent between minutes, so ratios of medians
+taken minutes apart moved by as much (issue 16 reviews, 2026-11-28).
 """
 
 from __future__ import annotations
@@ -49,12 +55,12 @@ print(sum(len(p) for p in res.run.positions.values()))
 """
 
 
-def rtklib_compute(rec_path: Path) -> tuple[float, int]:
+def rtklib_compute(rec_path: Path, dgnss: bool = False) -> tuple[float, int]:
     """Seconds inside RTKLIB's postpos (its reading included) and the epochs it output."""
     from coplane.evaluate.rtklib_row import process_recording
     from coplane.recording.reader import open_recording
 
-    res = process_recording(open_recording(rec_path), dgnss=False)
+    res = process_recording(open_recording(rec_path), dgnss=dgnss)
     return sum(res.run.solve_times_s), sum(len(p) for p in res.run.positions.values())
 
 
@@ -95,17 +101,26 @@ def coplane_front_end(rec_path: Path, dgnss: bool) -> tuple[float, int]:
     return time.perf_counter() - t0, n
 
 
-def whole_process(args: list[str]) -> float:
-    """Wall seconds of a fresh Python process."""
+def whole_process(args: list[str]) -> tuple[float, int]:
+    """Wall seconds of a fresh Python process (and 0, the shape of the other measurements)."""
     t0 = time.perf_counter()
     subprocess.run([sys.executable, *args], check=True, capture_output=True, cwd=REPO)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, 0
 
 
-def median_of(runs: int, fn, *a) -> tuple[float, int]:  # type: ignore[no-untyped-def]
-    """Median seconds of `runs` calls and the count the calls return (the same each time)."""
-    out = [fn(*a) for _ in range(runs)]
-    return statistics.median(s for s, _ in out), out[0][1]
+def interleaved(runs: int, jobs: dict[str, tuple]) -> dict[str, list[tuple[float, int]]]:  # type: ignore[type-arg]
+    """Each job `runs` times, in turn (job A, B, C, then A, B, C again...), so every round sees the
+    same host: a ratio is taken within a round, and this shared VM's speed drifts between rounds."""
+    out: dict[str, list[tuple[float, int]]] = {k: [] for k in jobs}
+    for _ in range(runs):
+        for k, (fn, *a) in jobs.items():
+            out[k].append(fn(*a))
+    return out
+
+
+def ms_per_epoch(res: list[tuple[float, int]], n: int) -> list[float]:
+    """Milliseconds per vehicle-epoch of each run (RTKLIB's too per epoch of the files, solved or not)."""
+    return [1e3 * s / n for s, _ in res]
 
 
 def main() -> int:
@@ -121,9 +136,11 @@ def main() -> int:
         "# Performance: a vehicle agent's GNSS front end against RTKLIB\n",
         f"Output of `.venv/bin/python bench/bench_agent.py --runs {args.runs} --out docs/performance-agent.md` "
         f"({time.strftime('%Y-%m-%d')}). Machine: {platform.machine()}, {os.cpu_count()} CPUs, Python "
-        f"{platform.python_version()}. What each row measures is in the script's docstring; medians of "
-        f"{args.runs} runs, one process, nothing else running. ms per vehicle-epoch; ratio = coplane / "
-        "RTKLIB's SPP of the same run (issue 16 asks for the front end within 3x).\n",
+        f"{platform.python_version()}. What each row measures is in the script's docstring; {args.runs} "
+        "rounds, each running every row once in turn, one process, nothing else running. ms per "
+        "vehicle-epoch, median of the rounds; ratio = coplane / RTKLIB's SPP in the same mode (single-point, "
+        "or DGPS for the DGNSS front end), taken within each round, median of the rounds (issue 16 asks "
+        "for the front end within 3x).\n",
         "| recording | what | vehicle-epochs | ms / vehicle-epoch | ratio to RTKLIB |",
         "|---|---|---:|---:|---:|",
     ]
@@ -133,29 +150,56 @@ def main() -> int:
             print(f"skipped {label}: {path} has no fleet.toml", file=sys.stderr)
             continue
         has_base = open_recording(path).manifest.base is not None
-        rtk_s, rtk_n = median_of(args.runs, rtklib_compute, path)
-        s, n = median_of(args.runs, coplane_spp, path)
-        # per epoch of the files, for both: RTKLIB works on every epoch, solved or not
-        ref = 1e3 * rtk_s / n
-        rows = [(f"RTKLIB postpos, single, RAIM FDE ({rtk_n} solutions)", n, ref)]
-        rows.append(("coplane SPP with FDE", n, 1e3 * s / n))
-        s, n = median_of(args.runs, coplane_front_end, path, False)
-        rows.append(("coplane agent front end, standalone", n, 1e3 * s / n))
+        jobs = {
+            "rtk": (rtklib_compute, path),
+            "spp": (coplane_spp, path),
+            "fe": (coplane_front_end, path, False),
+        }
         if has_base:
-            s, n = median_of(args.runs, coplane_front_end, path, True)
-            rows.append(("coplane agent front end, DGNSS", n, 1e3 * s / n))
+            jobs |= {"rtk-dg": (rtklib_compute, path, True), "fe-dg": (coplane_front_end, path, True)}
+        res = interleaved(args.runs, jobs)
+        n = res["spp"][0][1]  # the vehicle-epochs of the files
+        ms = {k: ms_per_epoch(v, n) for k, v in res.items()}
+        # (what, ms per vehicle-epoch, the RTKLIB run it is compared with, round by round)
+        table = [
+            (f"RTKLIB postpos, single, RAIM FDE ({res['rtk'][0][1]} solutions)", "rtk", "rtk"),
+            ("coplane SPP with FDE", "spp", "rtk"),
+            ("coplane agent front end, standalone", "fe", "rtk"),
+        ]
+        if has_base:
+            table += [
+                (f"RTKLIB postpos, DGPS, RAIM FDE ({res['rtk-dg'][0][1]} solutions)", "rtk-dg", "rtk-dg"),
+                ("coplane agent front end, DGNSS (ratio to RTKLIB DGPS)", "fe-dg", "rtk-dg"),
+            ]
+        rows = [
+            (
+                what,
+                n,
+                statistics.median(ms[k]),
+                statistics.median(a / b for a, b in zip(ms[k], ms[ref], strict=True)),
+            )
+            for what, k, ref in table
+        ]
         with tempfile.TemporaryDirectory() as tmp:
             pos = str(Path(tmp) / "out.pos")
-            ours = statistics.median(
-                whole_process(["-m", "coplane.cli", "spp", str(path), "--out", pos]) for _ in range(args.runs)
+            procs = interleaved(
+                args.runs,
+                {
+                    "ours": (whole_process, ["-m", "coplane.cli", "spp", str(path), "--out", pos]),
+                    "theirs": (whole_process, ["-c", RTKLIB_PROCESS, str(path)]),
+                },
             )
-        theirs = statistics.median(whole_process(["-c", RTKLIB_PROCESS, str(path)]) for _ in range(args.runs))
-        for what, n, ms in rows:
-            lines.append(f"| {label} | {what} | {n} | {ms:.3f} | {ms / ref:.2f} |")
+        ours = statistics.median(s for s, _ in procs["ours"])
+        theirs = statistics.median(s for s, _ in procs["theirs"])
+        proc_ratio = statistics.median(
+            a / b for (a, _), (b, _) in zip(procs["ours"], procs["theirs"], strict=True)
+        )
+        for what, n_ep, ms_ep, ratio in rows:
+            lines.append(f"| {label} | {what} | {n_ep} | {ms_ep:.3f} | {ratio:.2f} |")
             print(lines[-1], flush=True)
         lines.append(
             f"| {label} | whole process: `coplane spp` {ours:.2f} s, RTKLIB process {theirs:.2f} s | | | "
-            f"{ours / theirs:.2f} |"
+            f"{proc_ratio:.2f} |"
         )
         print(lines[-1], flush=True)
     if args.out is not None:
