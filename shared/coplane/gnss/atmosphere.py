@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, TypeVar
 
@@ -51,9 +52,11 @@ Model = Callable[[Any, Any, Any], Any]  # (math or _NUMPY, el, az) -> delay, ele
 # the numpy twins of the `math` functions the models use, under math's names (np.asin is numpy 2 only)
 _NUMPY = SimpleNamespace(sin=np.sin, cos=np.cos, asin=np.arcsin, sqrt=np.sqrt, floor=np.floor)
 
-# Arrays of fewer satellites go one by one through `math`: 1-3.5 us per satellite and model against
-# a fixed ~30 us for a Klobuchar on numpy arrays of up to a few dozen (~0.5 us per numpy call).
-VECTORISE_FROM = 9
+# Arrays of fewer satellites go one by one through `math`: ~2.5 us per satellite against a fixed
+# ~30 us for a Klobuchar on numpy arrays of up to a few dozen (~0.5 us per numpy call, ~55 calls).
+# The troposphere's few numpy calls cost less than two satellites one by one.
+VECTORISE_FROM = 16
+VECTORISE_TROPO_FROM = 2
 
 
 def _usable(c: IonoCoefficients | None) -> bool:
@@ -73,16 +76,18 @@ def _clip(v: Any, lo: float, hi: float | None = None) -> Any:
     return max(lo, v if hi is None else min(hi, v))
 
 
-def _on_visible(model: Model, el: Angles, az: Angles | None = None) -> Angles:
+def _on_visible(
+    model: Model, el: Angles, az: Angles | None = None, vectorise_from: int = VECTORISE_FROM
+) -> Angles:
     """`model(xp, el, az)` for satellites above the horizon, 0 at or below it.
 
     One model body serves a satellite and a whole epoch: a float goes through `math` (bit for bit
     the former scalar code, which the simulator's outputs depend on), an array through numpy on
     its visible elements only (numpy's SIMD asin/pow may differ from libm in the last bit), or
-    element by element through `math` when it is shorter than VECTORISE_FROM.
+    element by element through `math` when it is shorter than `vectorise_from`.
     """
     if isinstance(el, np.ndarray):
-        if el.size < VECTORISE_FROM:
+        if el.size < vectorise_from:
             azs = [None] * el.size if az is None else np.asarray(az).ravel().tolist()
             one = [_on_visible(model, e, a) for e, a in zip(el.ravel().tolist(), azs, strict=True)]
             return np.array(one, dtype=np.float64).reshape(el.shape)
@@ -162,30 +167,55 @@ def klobuchar_bds_m(
     return _on_visible(model, el, az)
 
 
+@dataclass(frozen=True)
+class IonoModel:
+    """Which broadcast model corrects a system's code: `klobuchar` (a model function taking
+    t, lat, lon, az, el, coeffs), its coefficients, and the factor applied to its output."""
+
+    klobuchar: Callable[..., Any]
+    coeffs: IonoCoefficients
+    scale: float = 1.0
+
+
+def iono_model_for(system: str, nav: NavData, rtklib: bool = False) -> IonoModel | None:
+    """The model of `iono_delay_m` for `system`, or None (uncorrected; warned once per system).
+
+    BeiDou uses its own coefficients ("C") when present, otherwise the GPS model scaled to B1I
+    by (f_L1/f_B1I)^2 (which is what RTKLIB always does, and `rtklib` asks for). Other L1-band
+    systems use the GPS model."""
+    gps = nav.iono.get("G")
+    gps_ok = gps is not None and _usable(gps)
+    if system == "C":
+        bds = nav.iono.get("C")
+        if rtklib and gps is not None:  # RTKLIB: the GPS coefficients as they are
+            return IonoModel(klobuchar_gps_m, gps, GPS_L1_TO_BDS_B1I)
+        if bds is not None and _usable(bds):
+            return IonoModel(klobuchar_bds_m, bds)
+        if gps is not None and gps_ok:
+            return IonoModel(klobuchar_gps_m, gps, GPS_L1_TO_BDS_B1I)
+    elif system in ("G", "J", "E", "S") and gps is not None and gps_ok:
+        return IonoModel(klobuchar_gps_m, gps)
+    if system not in _warned:
+        _warned.add(system)
+        log.warning("no broadcast ionosphere coefficients for system %s: iono delay set to 0", system)
+    return None
+
+
 def iono_delay_m(
     system: str, t: GpsTime, lat: float, lon: float, az: Angles, el: Angles, nav: NavData
 ) -> Angles:
     """Broadcast ionospheric delay for the single-frequency code of `system` (GPS L1, BDS B1I).
 
-    BeiDou uses its own coefficients ("C") when present, otherwise the GPS model scaled to B1I
-    by (f_L1/f_B1I)^2 (which is what RTKLIB always does). Other L1-band systems use the GPS
-    model. Without usable coefficients (absent or all zero) this returns 0 and logs one
-    warning per system: uncorrected, not guessed (RTKLIB would use its 2004 defaults,
-    `RTKLIB_DEFAULT_GPS_KLOBUCHAR`). `az`/`el`: floats or arrays of satellites of `system`.
+    The model is `iono_model_for`'s. Without usable coefficients (absent or all zero) this
+    returns 0 and logs one warning per system: uncorrected, not guessed (RTKLIB would use its
+    2004 defaults, `RTKLIB_DEFAULT_GPS_KLOBUCHAR`). `az`/`el`: floats or arrays of satellites of
+    `system`.
     """
-    gps = nav.iono.get("G")
-    if system == "C":
-        bds = nav.iono.get("C")
-        if bds is not None and _usable(bds):
-            return klobuchar_bds_m(t, lat, lon, az, el, bds)
-        if gps is not None and _usable(gps):
-            return klobuchar_gps_m(t, lat, lon, az, el, gps) * GPS_L1_TO_BDS_B1I
-    elif system in ("G", "J", "E", "S") and gps is not None and _usable(gps):
-        return klobuchar_gps_m(t, lat, lon, az, el, gps)
-    if system not in _warned:
-        _warned.add(system)
-        log.warning("no broadcast ionosphere coefficients for system %s: iono delay set to 0", system)
-    return _zeros_like(el)
+    model = iono_model_for(system, nav)
+    if model is None:
+        return _zeros_like(el)
+    out = model.klobuchar(t, lat, lon, az, el, model.coeffs)
+    return out * model.scale if model.scale != 1.0 else out
 
 
 def saastamoinen_m(lat: float, h: float, el: Angles, humidity: float = 0.7) -> Angles:
@@ -208,4 +238,4 @@ def saastamoinen_m(lat: float, h: float, el: Angles, humidity: float = 0.7) -> A
         cos_z = xp.cos(math.pi / 2.0 - el)
         return hydro / cos_z + wet / cos_z
 
-    return _on_visible(model, el)
+    return _on_visible(model, el, vectorise_from=VECTORISE_TROPO_FROM)

@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from coplane.geo import ecef_to_geodetic, enu_rotation
-from coplane.gnss.atmosphere import GPS_L1_TO_BDS_B1I, iono_delay_m, klobuchar_gps_m, saastamoinen_m
+from coplane.gnss.atmosphere import IonoModel, iono_model_for, saastamoinen_m
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.ephemeris import rotate_to_receive_frame
 from coplane.gtime import GpsTime
@@ -74,21 +74,24 @@ def broadcast_delays(
 ) -> tuple[Vec, Vec]:
     """(ionospheric, tropospheric) code delays in metres per satellite of `view`.
 
-    The models are the RTKLIB-checked ones of `gnss.atmosphere`, each called once per system on
-    that system's satellites (SPP re-evaluates this at every iteration, so per-satellite calls were
-    its cost); they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model
-    scales the GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
+    The models are the RTKLIB-checked ones of `gnss.atmosphere`, each called once on all the
+    satellites it corrects (SPP re-evaluates this at every position update, so per-satellite
+    calls were its cost; GPS and a BeiDou without coefficients of its own share the GPS model);
+    they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model scales the
+    GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
     """
     n = len(systems)
     io = np.zeros(n)
     if iono and n:
-        sys_arr = np.asarray(systems)
+        # systems that share a model and its coefficients, each with its own scale
+        groups: dict[tuple[int, int], tuple[IonoModel, dict[str, float]]] = {}
         for s in dict.fromkeys(systems):  # each system once, in order of first appearance
-            m = sys_arr == s
-            az, el = view.az_rad[m], view.el_rad[m]
-            if iono_model == "rtklib" and s == "C" and "G" in nav.iono:
-                io[m] = klobuchar_gps_m(t, view.lat, view.lon, az, el, nav.iono["G"]) * GPS_L1_TO_BDS_B1I
-            else:
-                io[m] = iono_delay_m(s, t, view.lat, view.lon, az, el, nav)
+            model = iono_model_for(s, nav, rtklib=iono_model == "rtklib")
+            if model is not None:
+                groups.setdefault((id(model.klobuchar), id(model.coeffs)), (model, {}))[1][s] = model.scale
+        for model, scales in groups.values():
+            m = np.array([x in scales for x in systems])
+            delay = model.klobuchar(t, view.lat, view.lon, view.az_rad[m], view.el_rad[m], model.coeffs)
+            io[m] = delay * np.array([scales[x] for x in systems if x in scales])  # x * 1.0 is x: exact
     tr = saastamoinen_m(view.lat, view.h, view.el_rad) if tropo else np.zeros(n)
     return io, tr
