@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from pydantic import TypeAdapter
 
 from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import up_vector
@@ -51,6 +52,10 @@ from coplane.steps.wire import (
     tuple3,
 )
 from coplane.typing import AnyArray as Vec
+
+# An epoch's satellite reports are validated as one list: a model per satellite, each through its
+# own constructor call, cost about twice as much in the agent's front end (issue 16, Agent cost).
+_SATELLITE_REPORTS = TypeAdapter(list[SatelliteReport])
 
 if TYPE_CHECKING:
     from coplane.roadmap import RoadMap
@@ -248,16 +253,25 @@ class VehicleStep:
         used = set(res.spp.used) if res.spp.ok else None
         excluded = set(res.spp.excluded)
         mask = math.radians(self.config.solver.spp.elevation_mask_deg)
-        out: list[SatelliteReport] = []
-        for i, m in enumerate(sats):
-            el = float(view.el_rad[i])
+        out: list[dict[str, object]] = []
+        # Python floats up front: indexing numpy arrays per satellite and field was a tenth of this
+        rows = zip(
+            sats,
+            view.el_rad.tolist(),
+            view.az_rad.tolist(),
+            sat_rx.tolist(),
+            iono.tolist(),
+            tropo.tolist(),
+            sigma.tolist(),
+            strict=True,
+        )
+        for m, el, az, pos_rx, iono_i, tropo_i, sigma_i in rows:
             if corrections is not None:
                 dg: float | None = corrections.corrections_m[m.sat]
                 rho = m.pseudorange_m - corrections.corrections_m[m.sat]
             else:
                 dg = None
-                rho = m.pseudorange_m - m.tgd_m - float(iono[i]) - float(tropo[i])
-            iono_i, tropo_i = float(iono[i]), float(tropo[i])
+                rho = m.pseudorange_m - m.tgd_m - iono_i - tropo_i
             reason = None
             if m.sat in excluded:
                 reason = "excluded by RAIM"
@@ -271,26 +285,26 @@ class VehicleStep:
             elif used is not None and m.sat not in used:
                 reason = "not used by SPP"
             out.append(
-                SatelliteReport(
+                dict(
                     sat=m.sat,
                     pseudorange_m=m.pseudorange_m,
                     doppler_hz=m.doppler_hz if math.isfinite(m.doppler_hz) else None,
                     cn0_dbhz=m.cn0_dbhz if math.isfinite(m.cn0_dbhz) else None,
                     elevation_deg=math.degrees(el),
-                    azimuth_deg=math.degrees(float(view.az_rad[i])),
-                    sat_pos_ecef_m=tuple3(sat_rx[i]),
+                    azimuth_deg=math.degrees(az),
+                    sat_pos_ecef_m=tuple(pos_rx),
                     sat_clock_s=m.state.clock_s,
                     tgd_m=m.tgd_m,
                     iono_m=iono_i,
                     tropo_m=tropo_i,
                     dgnss_m=dg,
                     rho_m=rho,
-                    sigma_m=float(sigma[i]),
+                    sigma_m=sigma_i,
                     used=reason is None,
                     excluded_reason=reason,
                 )
             )
-        return out
+        return _SATELLITE_REPORTS.validate_python(out)  # one validation for the epoch's list
 
     def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
         if centre is None:
