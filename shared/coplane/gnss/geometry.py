@@ -52,15 +52,38 @@ class SkyView:
         return rotate_to_receive_frame(sat_pos, self.range_m / C)
 
 
+# The last view and the last delays computed, with what they were computed from. An agent's epoch
+# asks for the same ones up to three times (SPP where it converged, the Doppler rows and the node
+# message's satellites, all at the SPP fix), and they are pure functions of their inputs, so a
+# repeated request returns the same (read-only) arrays. One entry each, swapped atomically.
+_last_view: tuple[bytes, bytes, SkyView] | None = None
+_last_delays: tuple[tuple[object, ...], tuple[Vec, Vec]] | None = None
+
+
+def _frozen(*arrays: Vec) -> None:
+    """Make arrays that a cache hands out again read-only, so no caller can change them for the next."""
+    for a in arrays:
+        a.flags.writeable = False
+
+
 def sky_view(sat_pos: Vec, position: Vec) -> SkyView:
     """Ranges, lines of sight, elevations and azimuths of `sat_pos` (n, 3) from `position`."""
-    p = np.asarray(position, dtype=float)
+    global _last_view
+    p = np.array(position, dtype=float)
+    sp = np.asarray(sat_pos, dtype=float).reshape(-1, 3)
+    key_p, key_s = p.tobytes(), sp.tobytes()
+    last = _last_view
+    if last is not None and last[0] == key_p and last[1] == key_s:
+        return last[2]
     lat, lon, h = (float(v) for v in ecef_to_geodetic(p))
-    rng, los = sagnac_ranges(np.asarray(sat_pos, dtype=float).reshape(-1, 3), p)
+    rng, los = sagnac_ranges(sp, p)
     enu = los @ enu_rotation(lat, lon).T
     el = np.arcsin(np.clip(enu[:, 2], -1.0, 1.0))
     az = np.arctan2(enu[:, 0], enu[:, 1]) % (2 * np.pi)
-    return SkyView(p, lat, lon, h, rng, los, el, az)
+    _frozen(p, rng, los, el, az)
+    view = SkyView(p, lat, lon, h, rng, los, el, az)
+    _last_view = (key_p, key_s, view)
+    return view
 
 
 def broadcast_delays(
@@ -80,6 +103,11 @@ def broadcast_delays(
     they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model scales the
     GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
     """
+    global _last_delays
+    key = (tuple(systems), t, id(view), tuple(nav.iono.items()), iono, tropo, iono_model)
+    last = _last_delays
+    if last is not None and last[0] == key and _last_view is not None and _last_view[2] is view:
+        return last[1]  # (the view is the cached one, so its id cannot have been reused)
     n = len(systems)
     io = np.zeros(n)
     if iono and n:
@@ -94,4 +122,6 @@ def broadcast_delays(
             delay = model.klobuchar(t, view.lat, view.lon, view.az_rad[m], view.el_rad[m], model.coeffs)
             io[m] = delay * np.array([scales[x] for x in systems if x in scales])  # x * 1.0 is x: exact
     tr = saastamoinen_m(view.lat, view.h, view.el_rad) if tropo else np.zeros(n)
+    _frozen(io, tr)
+    _last_delays = (key, (io, tr))
     return io, tr
