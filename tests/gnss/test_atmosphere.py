@@ -300,7 +300,7 @@ def test_models_on_arrays_match_the_float_calls() -> None:
 
 @pytest.mark.parametrize("iono_model", ["broadcast", "rtklib"])
 @pytest.mark.parametrize("iono_keys", ["GC", "G", "C", ""])
-@pytest.mark.parametrize("copies", [1, 4])  # systems below and above VECTORISE_FROM
+@pytest.mark.parametrize("copies", [1, 4])  # model groups below and above VECTORISE_FROM
 def test_broadcast_delays_matches_per_satellite_calls(
     iono_model: Literal["broadcast", "rtklib"], iono_keys: str, copies: int
 ) -> None:
@@ -323,3 +323,29 @@ def test_broadcast_delays_matches_per_satellite_calls(
         assert tropo[i] == pytest.approx(saastamoinen_m(view.lat, view.h, e), rel=0.0, abs=1e-12)
     off = broadcast_delays(systems, t, view, nav, iono=False, tropo=False)
     assert not off[0].any() and not off[1].any()
+
+
+def test_repeated_views_and_delays_are_the_same_read_only_arrays() -> None:
+    """An agent's epoch asks for the view and delays at its SPP fix several times: a repeat gets
+    the kept ones, which nobody can change, and anything else that differs is computed anew."""
+    from coplane.geo import geodetic_to_ecef
+    from coplane.gnss.geometry import sky_view
+
+    rx = geodetic_to_ecef(D(22.3), D(114.2), 30.0)
+    sats = np.array([[-2.0e7, 1.0e7, 1.2e7], [-1.0e7, 1.8e7, 1.5e7], [-2.2e7, 1.4e6, 1.1e7]])
+    view = sky_view(sats, rx)
+    assert sky_view(sats.copy(), rx.copy()) is view
+    with pytest.raises(ValueError, match="read-only"):
+        view.el_rad[0] = 0.0
+    assert sky_view(sats, rx + np.array([1.0, 0.0, 0.0])) is not view
+    systems, t = ["G", "C", "G"], GpsTime(2161, 280000.0)
+    gps_only, both = NavData(iono={"G": GPS_HKSC}), NavData(iono={"G": GPS_HKSC, "C": BDS_HKSC})
+    view = sky_view(sats, rx)
+    first = broadcast_delays(systems, t, view, gps_only)
+    again = broadcast_delays(systems, t, view, gps_only)
+    assert again[0] is first[0] and again[1] is first[1]
+    with pytest.raises(ValueError, match="read-only"):
+        first[0][0] = 0.0
+    other = broadcast_delays(systems, t, view, both)  # BeiDou's own coefficients now
+    assert other[0] is not first[0] and other[0][1] != first[0][1] and other[0][0] == first[0][0]
+    assert broadcast_delays(systems, t + 1.0, view, gps_only)[0][0] != first[0][0]
