@@ -54,7 +54,7 @@ from coplane.steps.wire import (
 from coplane.typing import AnyArray as Vec
 
 # An epoch's satellite reports are validated as one list: a model per satellite, each through its
-# own constructor call, cost about twice as much in the agent's front end (issue 16, Agent cost).
+# own constructor call, cost nearly twice as much (issue 16, Agent cost).
 _SATELLITE_REPORTS = TypeAdapter(list[SatelliteReport])
 
 if TYPE_CHECKING:
@@ -254,7 +254,7 @@ class VehicleStep:
         excluded = set(res.spp.excluded)
         mask = math.radians(self.config.solver.spp.elevation_mask_deg)
         out: list[dict[str, object]] = []
-        # Python floats up front: indexing numpy arrays per satellite and field was a tenth of this
+        # Python floats up front, rather than indexing numpy arrays per satellite and field
         rows = zip(
             sats,
             view.el_rad.tolist(),
