@@ -7,6 +7,8 @@ exits with its `exit_code`; any other exception is a bug and keeps its traceback
 
 from __future__ import annotations
 
+import math
+
 
 class CoplaneError(Exception):
     """A problem with the user's input or environment, with a message that names what and where."""
@@ -23,3 +25,14 @@ class NotFoundError(CoplaneError, KeyError):
 
     def __str__(self) -> str:  # KeyError's own str() quotes the message
         return str(self.args[0]) if self.args else ""
+
+
+def require_finite_positive(options: object, names: tuple[str, ...], prefix: str = "") -> None:
+    """Raise ValueError naming the first of `options`' fields `names` that is not finite and > 0.
+
+    The option classes check their rates, sigmas and ages alike; `prefix` (e.g. the class name and
+    a dot) says whose field it is. NaN fails the test, so it cannot switch a check off silently."""
+    for name in names:
+        value = getattr(options, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{prefix}{name} must be finite and > 0, got {value!r}")

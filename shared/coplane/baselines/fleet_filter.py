@@ -27,6 +27,7 @@ import scipy.linalg
 
 from coplane.baselines.measurements import VehicleMeasurements, clock_residuals
 from coplane.baselines.rows import GateResult, Rows
+from coplane.errors import require_finite_positive
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import chi2_threshold
@@ -68,23 +69,23 @@ class EkfConfig:
     use_drift: bool = True
 
     def __post_init__(self) -> None:
-        for name in (
-            "accel_psd_h",
-            "accel_psd_v",
-            "clock_psd",
-            "drift_psd",
-            "isb_psd",
-            "clock_jump_m",
-            "init_position_sigma_m",
-            "init_velocity_sigma_mps",
-            "init_clock_sigma_m",
-            "init_drift_sigma_mps",
-            "max_gap_s",
-            "max_position_sigma_m",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        require_finite_positive(
+            self,
+            (
+                "accel_psd_h",
+                "accel_psd_v",
+                "clock_psd",
+                "drift_psd",
+                "isb_psd",
+                "clock_jump_m",
+                "init_position_sigma_m",
+                "init_velocity_sigma_mps",
+                "init_clock_sigma_m",
+                "init_drift_sigma_mps",
+                "max_gap_s",
+                "max_position_sigma_m",
+            ),
+        )
         if not 0.0 < self.gate_probability < 1.0:
             raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability!r}")
 

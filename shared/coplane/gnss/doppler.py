@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from coplane.errors import require_finite_positive
 from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
@@ -62,15 +63,11 @@ class DopplerOptions:
             raise ValueError(
                 f"DopplerOptions.few_min_satellites must be >= 3, got {self.few_min_satellites!r}"
             )
-        for name in (
-            "vertical_speed_sigma_mps",
-            "drift_wander_mps_per_s",
-            "drift_max_age_s",
-            "few_max_sigma_mps",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"DopplerOptions.{name} must be finite and > 0, got {value!r}")
+        require_finite_positive(
+            self,
+            ("vertical_speed_sigma_mps", "drift_wander_mps_per_s", "drift_max_age_s", "few_max_sigma_mps"),
+            "DopplerOptions.",
+        )
 
 
 @dataclass(frozen=True)
