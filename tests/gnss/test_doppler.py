@@ -23,8 +23,9 @@ from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import OMEGA_E_GPS, WAVELENGTH, C
 from coplane.gnss.doppler import DopplerOptions, DriftPrior, solve_doppler_velocity
 from coplane.gnss.ephemeris import SatState
-from coplane.gnss.epoch_solver import EpochResult, next_drift_prior
+from coplane.gnss.epoch_solver import EpochResult, ReceiverMemory, next_drift_prior
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
+from coplane.gnss.spp import SppSolution
 from coplane.gnss.weighting import doppler_sigma_mps
 from coplane.gtime import GpsTime
 
@@ -341,6 +342,21 @@ def test_drift_memory_is_renewed_by_a_full_sky_only() -> None:
     full = EpochResult(PreparedEpoch(T0, (), ()), None, solve_doppler_velocity(_epoch(), RX), None)  # type: ignore[arg-type]
     renewed = next_drift_prior(old, full)
     assert renewed is not None and renewed.time == T0 and renewed.drift_mps == pytest.approx(DRIFT, abs=1e-4)
+
+
+def test_receiver_memory_keeps_the_last_fix_and_the_drift_memory() -> None:
+    """`ReceiverMemory`, the state `coplane spp` and the vehicle step share: a failed SPP keeps
+    the previous fix (the next SPP starts there), and the drift memory follows `next_drift_prior`."""
+    memory = ReceiverMemory()
+    full = solve_doppler_velocity(_epoch(), RX)
+    fix = SppSolution(T0, True, position=RX + 1.0)
+    memory.update(EpochResult(PreparedEpoch(T0, (), ()), fix, full, None))
+    assert memory.fix is not None and np.array_equal(memory.fix, RX + 1.0)
+    assert memory.drift is not None and memory.drift.time == T0
+    memory.update(
+        EpochResult(PreparedEpoch(T0 + 1.0, (), ()), SppSolution(T0 + 1.0, False, "no"), None, None)
+    )
+    assert np.array_equal(memory.fix, RX + 1.0) and memory.drift.time == T0
 
 
 @pytest.mark.parametrize(

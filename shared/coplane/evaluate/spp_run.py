@@ -18,13 +18,12 @@ from tqdm import tqdm
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats, accuracy
 from coplane.evaluate.solution_files import Q_DGPS, Q_SINGLE, PosRecord, write_pos
-from coplane.gnss.doppler import DriftPrior
 from coplane.gnss.epoch_solver import (
     EpochResult,
     EpochSolverOptions,
+    ReceiverMemory,
     base_corrections,
-    next_drift_prior,
-    solve_epoch,
+    solve_next,
 )
 from coplane.gtime import GpsTime
 from coplane.recording.health import InputHealth, input_health
@@ -66,8 +65,7 @@ def run_spp(
     if dgnss and base is None:
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base] station: DGNSS is not possible")
     runs = {vid: VehicleSppRun(vid) for vid in ids}
-    last: dict[str, np.ndarray] = {}
-    drift: dict[str, DriftPrior | None] = {}
+    memory = {vid: ReceiverMemory() for vid in ids}
     epochs = rec.fleet_epochs()
     for fe in tqdm(epochs, desc="spp", unit="epoch", disable=not progress):
         corr = None
@@ -83,12 +81,9 @@ def run_spp(
             ep = fe.vehicles.get(vid)
             if ep is None:
                 continue
-            res = solve_epoch(ep, rec.nav, corr, opt, last.get(vid), drift.get(vid))
-            drift[vid] = next_drift_prior(drift.get(vid), res)
+            res = solve_next(ep, rec.nav, memory[vid], corr, opt)
             runs[vid].results[fe.time] = res
-            if res.spp.ok:
-                last[vid] = res.spp.position
-            else:
+            if not res.spp.ok:
                 runs[vid].no_solution[(res.spp.reason or "?").split(":")[0]] += 1
     return runs
 

@@ -76,6 +76,34 @@ def solve_epoch(
     return EpochResult(prepared, spp, vel, corrections)
 
 
+@dataclass
+class ReceiverMemory:
+    """What one receiver's front end carries from epoch to epoch: its last fix, where the next
+    SPP starts, and its clock-drift memory (`next_drift_prior`)."""
+
+    fix: Vec | None = None
+    drift: DriftPrior | None = None
+
+    def update(self, res: EpochResult) -> None:
+        """Take epoch `res` in: a new fix when SPP solved, and the drift memory."""
+        self.drift = next_drift_prior(self.drift, res)
+        if res.spp.ok:
+            self.fix = res.spp.position
+
+
+def solve_next(
+    epoch: ObsEpoch,
+    nav: NavData,
+    memory: ReceiverMemory,
+    corrections: DgnssCorrections | None = None,
+    options: EpochSolverOptions | None = None,
+) -> EpochResult:
+    """`solve_epoch` for a receiver's next epoch: it starts from and updates `memory`."""
+    res = solve_epoch(epoch, nav, corrections, options, memory.fix, memory.drift)
+    memory.update(res)
+    return res
+
+
 def next_drift_prior(prev: DriftPrior | None, res: EpochResult) -> DriftPrior | None:
     """A receiver's drift memory after epoch `res`: a drift solved with a full sky replaces it.
 

@@ -20,8 +20,7 @@ from pydantic import TypeAdapter
 from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import up_vector
 from coplane.gnss.dgnss import DgnssCorrections
-from coplane.gnss.doppler import DriftPrior
-from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, next_drift_prior, solve_epoch
+from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions, ReceiverMemory, solve_next
 from coplane.gnss.geometry import broadcast_delays, sky_view
 from coplane.gnss.weighting import pseudorange_sigma_m, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
@@ -101,8 +100,7 @@ class VehicleStep:
         self.seq = 0
         self.first_epoch: GpsTime | None = None
         self._last_fused: tuple[GpsTime, Vec] | None = None
-        self._last_spp: Vec | None = None
-        self._drift: DriftPrior | None = None
+        self._receiver = ReceiverMemory()
 
     # -- the fleet's solution feeds the plane history (paper eq. 2) --------------------------
     def ingest(self, solution: SolutionMessage) -> None:
@@ -146,11 +144,7 @@ class VehicleStep:
         previous epoch. Call once per epoch, in order, before `process`.
         """
         ep = epoch if epoch is not None else ObsEpoch(t, ())
-        res = solve_epoch(ep, self.nav, corrections, self.config.solver, self._last_spp, self._drift)
-        self._drift = next_drift_prior(self._drift, res)
-        if res.spp.ok:
-            self._last_spp = res.spp.position
-        return res
+        return solve_next(ep, self.nav, self._receiver, corrections, self.config.solver)
 
     def process(
         self,
