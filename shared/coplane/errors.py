@@ -8,6 +8,7 @@ exits with its `exit_code`; any other exception is a bug and keeps its traceback
 from __future__ import annotations
 
 import math
+import numbers
 
 
 class CoplaneError(Exception):
@@ -31,8 +32,10 @@ def require_finite_positive(options: object, names: tuple[str, ...], prefix: str
     """Raise ValueError naming the first of `options`' fields `names` that is not finite and > 0.
 
     The option classes check their rates, sigmas and ages alike; `prefix` (e.g. the class name and
-    a dot) says whose field it is. NaN fails the test, so it cannot switch a check off silently."""
+    a dot) says whose field it is. NaN fails the test, so it cannot switch a check off silently;
+    so does anything that is not a real number (a string or a boolean read from a file)."""
     for name in names:
         value = getattr(options, name)
-        if not (math.isfinite(value) and value > 0):
+        number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and value > 0):
             raise ValueError(f"{prefix}{name} must be finite and > 0, got {value!r}")

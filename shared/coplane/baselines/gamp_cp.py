@@ -39,6 +39,7 @@ from coplane.baselines.measurements import VehicleMeasurements
 from coplane.baselines.non_cp import NonCpEkf
 from coplane.baselines.rows import Rows
 from coplane.baselines.skeleton import BaselineEstimator, EpochOutcome
+from coplane.errors import require_finite_positive
 from coplane.estimation.contract import VehicleEstimate
 from coplane.estimation.validate import ValidEpoch
 from coplane.gnss.constants import C
@@ -64,10 +65,7 @@ class GampConfig:
             raise ValueError(f"damping must be in (0, 1], got {self.damping!r}")
         if self.max_iterations < 1 or self.relinearisations < 1:
             raise ValueError("max_iterations and relinearisations must be >= 1")
-        for name in ("tolerance_m", "relinearisation_tolerance_m", "range_sigma"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        require_finite_positive(self, ("tolerance_m", "relinearisation_tolerance_m", "range_sigma"))
 
 
 @dataclass

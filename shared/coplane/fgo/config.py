@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from coplane.errors import require_finite_positive
+
 Solver = Literal["lm-window", "isam2-fixed-lag", "batch-fixed-lag"]
 Robust = Literal["huber", "cauchy", "dcs"]
 
@@ -255,28 +257,7 @@ class FgoConfig:
             raise ValueError(f"clock_drift_wander must be None or > 0, got {self.clock_drift_wander!r}")
         if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
             raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
-        positive = {
-            "sigma_v": self.sigma_v,
-            "range_sigma": self.range_sigma,
-            "range_warmup_max_m": self.range_warmup_max_m,
-            "height_link_grade": self.height_link_grade,
-            "height_link_sigma_m": self.height_link_sigma_m,
-            "covariance_scale": self.covariance_scale,
-            "clock_rw_sigma": self.clock_rw_sigma,
-            "clock_drift_sigma": self.clock_drift_sigma,
-            "clock_jump_m": self.clock_jump_m,
-            "anchor_sigma": self.anchor_sigma,
-            "motion_sigma": self.motion_sigma,
-            "max_speed": self.max_speed,
-            "motion_sigma_up": self.motion_sigma_up,
-            "max_vertical_speed": self.max_vertical_speed,
-            "lm_relative_error_tol": self.lm_relative_error_tol,
-            "lm_absolute_error_tol": self.lm_absolute_error_tol,
-            "isam2_relinearize_threshold": self.isam2_relinearize_threshold,
-            "isam2_converged_m": self.isam2_converged_m,
-        }
-        # optional thresholds: checked where set (None switches each one off)
-        for name in (
+        optional = (  # thresholds checked where set (None switches each one off)
             "robust_k",
             "fde_k",
             "fde_k_long",
@@ -286,15 +267,34 @@ class FgoConfig:
             "coop_fde_k",
             "fde_max_sigma_scale",
             "fde_restart_chi2",
-        ):
-            if (value := getattr(self, name)) is not None:
-                positive[name] = value
-        positive["coop_fde_radius_m"] = self.coop_fde_radius_m
-        positive["fde_prior_floor_m"] = self.fde_prior_floor_m
-        positive["pseudorange_sigma_scale"] = self.pseudorange_sigma_scale
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        )
+        require_finite_positive(
+            self,
+            (
+                "sigma_v",
+                "range_sigma",
+                "range_warmup_max_m",
+                "height_link_grade",
+                "height_link_sigma_m",
+                "covariance_scale",
+                "clock_rw_sigma",
+                "clock_drift_sigma",
+                "clock_jump_m",
+                "anchor_sigma",
+                "motion_sigma",
+                "max_speed",
+                "motion_sigma_up",
+                "max_vertical_speed",
+                "lm_relative_error_tol",
+                "lm_absolute_error_tol",
+                "isam2_relinearize_threshold",
+                "isam2_converged_m",
+                *(name for name in optional if getattr(self, name) is not None),
+                "coop_fde_radius_m",
+                "fde_prior_floor_m",
+                "pseudorange_sigma_scale",
+            ),
+        )
         if self.fde_warmup_epochs < 0:
             raise ValueError(f"fde_warmup_epochs must be >= 0, got {self.fde_warmup_epochs!r}")
         if self.fde_warmup_prior not in ("reported", "snapshot"):

@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from coplane.errors import require_finite_positive
+
 SigmaModel = Literal["offset", "covariance"]
 SIGMA_MODELS: tuple[SigmaModel, ...] = ("offset", "covariance")
 
@@ -94,17 +96,11 @@ class PlaneConfig:
     position of one vehicle at one epoch replaces the first (a smoother's updated estimate)."""
 
     def __post_init__(self) -> None:
-        positive = {
-            "range_fitting_m": self.range_fitting_m,
-            "t_f_m": self.t_f_m,
-            "min_sigma_m": self.min_sigma_m,
-            "max_history_s": self.max_history_s,
-            "cell_size_m": self.cell_size_m,
-            "time_tolerance_s": self.time_tolerance_s,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"PlaneConfig.{name} must be a positive finite number, got {value!r}")
+        require_finite_positive(
+            self,
+            ("range_fitting_m", "t_f_m", "min_sigma_m", "max_history_s", "cell_size_m", "time_tolerance_s"),
+            "PlaneConfig.",
+        )
         if self.sigma_model not in SIGMA_MODELS:
             raise ValueError(
                 f"PlaneConfig.sigma_model must be one of {SIGMA_MODELS}, got {self.sigma_model!r}"

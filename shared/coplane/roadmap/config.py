@@ -11,6 +11,8 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from coplane.errors import require_finite_positive
+
 
 @dataclass(frozen=True)
 class RoadMapConfig:
@@ -97,22 +99,22 @@ class RoadMapConfig:
     1024 / 1120 / 1125 of 1200 vehicle-epochs); docs/results.md ("Road-surface map") reports other seeds."""
 
     def __post_init__(self) -> None:
-        positive = (
-            "tile_size_m",
-            "slope_prior_sigma",
-            "roughness_sigma_m",
-            "max_sigma_up_m",
-            "max_sigma_h_m",
-            "pass_gap_s",
-            "outlier_z",
-            "cusum_h",
-            "max_use_sigma_m",
-            "change_reference_window_s",
+        require_finite_positive(
+            self,
+            (
+                "tile_size_m",
+                "slope_prior_sigma",
+                "roughness_sigma_m",
+                "max_sigma_up_m",
+                "max_sigma_h_m",
+                "pass_gap_s",
+                "outlier_z",
+                "cusum_h",
+                "max_use_sigma_m",
+                "change_reference_window_s",
+            ),
+            "RoadMapConfig.",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"RoadMapConfig.{name} must be a positive finite number, got {value!r}")
         if not (1.0 <= self.tile_size_m <= 1000.0):
             raise ValueError(f"RoadMapConfig.tile_size_m must be in [1, 1000] m, got {self.tile_size_m!r}")
         if not (math.isfinite(self.cusum_k) and self.cusum_k >= 0.0):
