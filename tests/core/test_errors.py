@@ -7,8 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from coplane.baselines.fleet_filter import EkfConfig
 from coplane.baselines.gamp_cp import GampConfig
 from coplane.fgo.config import FgoConfig
+from coplane.gnss.doppler import DopplerOptions
 from coplane.plane.config import PlaneConfig
 from coplane.roadmap.config import RoadMapConfig
 
@@ -22,6 +24,8 @@ from coplane.roadmap.config import RoadMapConfig
         (GampConfig, "range_sigma", ""),
         (PlaneConfig, "t_f_m", "PlaneConfig."),
         (RoadMapConfig, "cusum_h", "RoadMapConfig."),
+        (EkfConfig, "accel_psd_h", ""),
+        (DopplerOptions, "few_max_sigma_mps", "DopplerOptions."),
     ],
 )
 def test_a_field_that_is_not_a_positive_number_is_named(
@@ -35,6 +39,9 @@ def test_a_field_that_is_not_a_positive_number_is_named(
 
 def test_numpy_numbers_and_optional_thresholds_pass() -> None:
     """numpy scalars are numbers; an optional threshold set to None is off, not invalid."""
-    assert FgoConfig(sigma_v=np.float32(0.2), fde_k=None).sigma_v == pytest.approx(0.2)
+    assert FgoConfig(sigma_v=np.float32(0.2), fde_k=None).sigma_v == pytest.approx(0.2)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"^fde_k must be finite and > 0"):
         FgoConfig(fde_k=-3.0)
+    assert FgoConfig(clock_drift_wander=None).clock_drift_wander is None
+    with pytest.raises(ValueError, match=r"^clock_drift_wander must be finite and > 0"):
+        FgoConfig(clock_drift_wander=math.nan)

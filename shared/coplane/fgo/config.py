@@ -251,10 +251,6 @@ class FgoConfig:
                 raise ValueError(
                     f"gnc_inlier_probability must be in (0, 1), got {self.gnc_inlier_probability!r}"
                 )
-        if self.clock_drift_wander is not None and not (
-            math.isfinite(self.clock_drift_wander) and self.clock_drift_wander > 0.0
-        ):
-            raise ValueError(f"clock_drift_wander must be None or > 0, got {self.clock_drift_wander!r}")
         if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
             raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
         optional = (  # thresholds checked where set (None switches each one off)
@@ -267,6 +263,7 @@ class FgoConfig:
             "coop_fde_k",
             "fde_max_sigma_scale",
             "fde_restart_chi2",
+            "clock_drift_wander",
         )
         require_finite_positive(
             self,
