@@ -128,11 +128,16 @@ class VelocityReport(_Model):
     # solved from 3-4 satellites with a level-road and a carried-drift pseudo-measurement
     # (coplane.gnss.doppler, few-satellite mode): users see where a velocity came from
     few_satellites: bool = False
+    # the receiver stands (coplane.gnss.standstill): the fusion may hold it still
+    standstill: bool = False
 
     @model_validator(mode="after")
     def _plausible(self) -> VelocityReport:
-        if sum(v * v for v in self.velocity_ecef_mps) ** 0.5 > MAX_SPEED_MPS:
+        speed = sum(v * v for v in self.velocity_ecef_mps) ** 0.5
+        if speed > MAX_SPEED_MPS:
             raise ValueError(f"velocity above {MAX_SPEED_MPS:.0f} m/s is not a road vehicle")
+        if self.standstill and speed > 0.0:
+            raise ValueError(f"a standstill velocity must be zero, got {speed:.3g} m/s")
         return self
 
 

@@ -476,6 +476,40 @@ def test_undetermined_epochs_are_dead_reckoned(solver: Solver) -> None:
                     assert (est.n_pseudoranges, dropped) == (0, n)
 
 
+def _standing(epoch: EpochInput, vid: str, claim_speed: float = 0.0) -> EpochInput:
+    """`epoch` with `vid`'s velocity replaced by the front end's standstill claim (zero velocity;
+    `claim_speed` > 0 makes it a contradictory claim, as a hostile sender might send)."""
+    v = epoch.vehicles[vid]
+    still = VelocityObs(np.array([claim_speed, 0.0, 0.0]), 0.1, standstill=True)
+    return dataclasses.replace(
+        epoch, vehicles={**epoch.vehicles, vid: dataclasses.replace(v, velocity=still)}
+    )
+
+
+def test_standing_undetermined_epochs_are_dead_reckoned_by_default() -> None:
+    """By default only a detected standstill dead-reckons an undetermined epoch (docs/fgo.md,
+    "Few satellites on a real receiver"); a standstill claim with a speed is not one."""
+    limits = {("v01", k): 3 for k in range(10, 16)}
+    fleet = make_fleet(4, 18, seed=8, sat_limit=limits, **NLOS)
+    cfg = get_method("non-cp").fgo
+    assert cfg is not None and cfg.standstill_dead_reckoning
+    for claim_speed, dropped_each in ((0.0, 3), (0.5, 0)):
+        epochs = [
+            _standing(e, "v01", claim_speed) if k in range(10, 16) else e for k, e in enumerate(fleet.epochs)
+        ]
+        est = FusionEstimator(cfg)
+        for k, e in enumerate(epochs):
+            sol = est.step(e)
+            if k in range(10, 16):
+                assert sol.rejected.get("undetermined_pseudorange", 0) == dropped_each
+                assert sol.estimates["v01"].n_pseudoranges == 3 - dropped_each
+    off = dataclasses.replace(cfg, standstill_dead_reckoning=False)
+    est = FusionEstimator(off)
+    for k, e in enumerate(fleet.epochs):
+        sol = est.step(_standing(e, "v01") if k in range(10, 16) else e)
+        assert sol.rejected.get("undetermined_pseudorange", 0) == 0
+
+
 def test_clock_drift_without_doppler() -> None:
     """Without a Doppler drift the clock steps by zero with the loose sigma; with
     `clock_drift_carry` by the last measured drift (its sigma growing by `clock_drift_wander` per

@@ -353,6 +353,17 @@ def test_velocity_above_max_speed_rejected() -> None:
     )
 
 
+def test_standstill_velocity_must_be_zero() -> None:
+    """A standstill claim (coplane.gnss.standstill) lets the fusion hold the vehicle still: with a
+    nonzero velocity it contradicts itself and is rejected, naming why."""
+    VelocityReport.model_validate(vel(velocity_ecef_mps=(0.0, 0.0, 0.0), standstill=True))
+    rejects(
+        VelocityReport,
+        vel(velocity_ecef_mps=(0.0, 1e-3, 0.0), standstill=True),
+        "standstill velocity must be zero",
+    )
+
+
 def test_velocity_drift_sigma_bounds() -> None:
     """Clock drift within +-MAX_DRIFT_MPS; sigma in (0, 100]; n_used within 0..MAX_SATELLITES."""
     d = limits.MAX_DRIFT_MPS

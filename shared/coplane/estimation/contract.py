@@ -57,6 +57,7 @@ class VelocityObs:
 
     velocity_mps: Vec
     sigma_mps: float
+    standstill: bool = False  # zero from the front end's standstill test (coplane.gnss.standstill)
 
 
 @dataclass(frozen=True)

@@ -107,6 +107,7 @@ class ValidVehicle:
     spp: Vec | None = None  # the node's SPP fix (initial guess)
     drift: float | None = None  # Doppler receiver clock drift, m/s
     antenna_height_m: float | None = None  # above the road, 0-10 m
+    standstill: bool = False  # the velocity is a detected standstill's zero
 
 
 @dataclass(frozen=True)
@@ -180,7 +181,7 @@ def validate_vehicle(
         rejected["vehicle"] += 1
         return f"vehicle epoch time {vin.time} is not the epoch's time {t}"
     prs = _valid_pseudoranges(vin.pseudoranges or (), rejected)
-    velocity, vsig = None, math.nan
+    velocity, vsig, standstill = None, math.nan, False
     if vin.velocity is not None:
         velocity = finite_vec3(getattr(vin.velocity, "velocity_mps", None))
         s = finite(getattr(vin.velocity, "sigma_mps", None))
@@ -189,6 +190,8 @@ def validate_vehicle(
             velocity = None
         else:
             vsig = s
+            # a claim of standing with a nonzero velocity is a contradiction, not a standstill
+            standstill = getattr(vin.velocity, "standstill", False) is True and not np.any(velocity)
     drift = None
     if vin.clock_drift_mps is not None:
         drift = finite(vin.clock_drift_mps)
@@ -208,7 +211,7 @@ def validate_vehicle(
         if antenna is None or not 0.0 <= antenna <= MAX_ANTENNA_HEIGHT_M:
             rejected["antenna_height"] += 1
             antenna = None
-    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna)
+    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna, standstill)
 
 
 def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -> ValidPseudoranges:

@@ -192,6 +192,9 @@ class FgoConfig:
     # without Doppler went further still (151 m against 62-137 m), and on the simulator's canyons
     # it cost `non-cp` 1-2 % (docs/fgo.md, "Few satellites on a real receiver"). Off by default.
     drop_undetermined_pseudoranges: bool = False
+    # The same, only for an epoch whose velocity is the front end's detected standstill
+    # (coplane.gnss.standstill): a standing vehicle is exactly what dead reckoning predicts.
+    standstill_dead_reckoning: bool = True
     # The reported 3x3 covariance is the marginal x this factor^2 (the estimator's own use of it,
     # anchors and the FDE prior, is not scaled). The graph treats urban multipath as white noise
     # while it is correlated over tens of seconds, so the marginal is over-confident; 1.0 reports

@@ -117,7 +117,8 @@ def prepare_vehicle(
         if restart_at is not None and any(b.n_pseudoranges <= cfg.min_fix_pseudoranges for b in hist):
             stats.reject("track_restart")
             link, hist, init, restarted = None, None, restart_at, True  # no links to the diverged window
-    if hist and cfg.drop_undetermined_pseudoranges and 0 < len(prs) < determining_count(plane, cfg):
+    dead_reckon = cfg.drop_undetermined_pseudoranges or (cfg.standstill_dead_reckoning and v.standstill)
+    if hist and dead_reckon and 0 < len(prs) < determining_count(plane, cfg):
         stats.reject("undetermined_pseudorange", len(prs))
         prs = prs.subset(np.zeros(len(prs), dtype=bool))
     systems = sorted(set(prs.systems))

@@ -28,6 +28,7 @@ from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
 from coplane.gnss.lsq import chi2_threshold, w_tests
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
+from coplane.gnss.standstill import DopplerNoise, StandstillOptions, standstill_test
 from coplane.gnss.weighting import doppler_sigma_mps
 from coplane.gtime import GpsTime
 from coplane.typing import AnyArray as Vec
@@ -56,6 +57,9 @@ class DopplerOptions:
     # at several m/s with errors correlated over the whole stretch: dead reckoning on it ran a
     # static antenna 420 m away.
     few_max_sigma_mps: float = 0.6
+    # Before that solve, fewer than min_satellites Doppler rows test whether the receiver stands
+    # (coplane.gnss.standstill): a passed test is a zero velocity, flagged `standstill`.
+    standstill: StandstillOptions = field(default_factory=StandstillOptions)
 
     def __post_init__(self) -> None:
         # 2 satellites + 2 pseudo-rows cannot leave the redundant row the solve needs
@@ -90,6 +94,9 @@ class DopplerVelocity:
     excluded: tuple[str, ...] = ()
     residuals_mps: dict[str, float] = field(default_factory=dict)
     few_satellites: bool = False  # solved with the pseudo-measurements of the few-satellite mode
+    standstill: bool = False  # zero by coplane.gnss.standstill's test, not solved
+    chi2: float = math.nan  # the accepted solve's sum of squared normalised residuals ...
+    dof: int = 0  # ... and its redundancy (0: not a least-squares solve)
 
 
 def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
@@ -123,7 +130,8 @@ def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeas
 
 
 def _pseudo_rows(t: GpsTime, p: Vec, opt: DopplerOptions, prior: DriftPrior | None) -> tuple[Vec, Vec, Vec]:
-    """The few-satellite mode's pseudo-measurements (module docstring): rows, values, sigmas."""
+    """The few-satellite mode's pseudo-measurements (module docstring): rows, values, sigmas.
+    The first is the level-road row, the one after it (if any) the drift memory's."""
     rows, ys, sig = [np.append(up_vector(p), 0.0)], [0.0], [opt.vertical_speed_sigma_mps]
     age = t - prior.time if prior is not None else math.inf
     if prior is not None and 0.0 <= age <= opt.drift_max_age_s:
@@ -133,20 +141,65 @@ def _pseudo_rows(t: GpsTime, p: Vec, opt: DopplerOptions, prior: DriftPrior | No
     return np.array(rows), np.array(ys), np.array(sig)
 
 
+def _standing(
+    t: GpsTime,
+    sats: list[SatMeasurement],
+    a: Vec,
+    y: Vec,
+    sig: Vec,
+    p: Vec,
+    opt: DopplerOptions,
+    prior: DriftPrior | None,
+    noise: DopplerNoise | None,
+) -> DopplerVelocity | None:
+    """A zero velocity when the few Doppler rows, with the drift memory's row, pass the
+    standstill test (coplane.gnss.standstill) at the receiver's own Doppler noise; None
+    otherwise. Its covariance is the square of the speed the test could miss: a bound, not a
+    least-squares spread."""
+    extra = _pseudo_rows(t, p, opt, prior)  # the level-road row is implied by v = 0: left out
+    scale = math.sqrt((noise or DopplerNoise()).factor(opt.standstill))
+    still = standstill_test(
+        np.vstack([a, extra[0][1:]]),
+        np.concatenate([y, extra[1][1:]]),
+        np.concatenate([sig * scale, extra[2][1:]]),
+        up_vector(p),
+        opt.standstill,
+    )
+    if still is None:
+        return None
+    return DopplerVelocity(
+        time=t,
+        ok=True,
+        velocity_mps=np.zeros(3),
+        drift_mps=still.drift_mps,
+        covariance=np.eye(3) * still.detectable_speed_mps**2,
+        used=tuple(m.sat for m in sats),
+        residuals_mps={m.sat: float(still.residuals_mps[k]) for k, m in enumerate(sats)},
+        few_satellites=True,
+        standstill=True,
+    )
+
+
 def solve_doppler_velocity(
     epoch: PreparedEpoch,
     position: Vec,
     options: DopplerOptions | None = None,
     drift_prior: DriftPrior | None = None,
+    noise: DopplerNoise | None = None,
 ) -> DopplerVelocity:
     """Velocity and drift at a known (SPP) position. Linear: one weighted solve per exclusion.
 
-    `drift_prior` (the receiver's drift memory, `epoch_solver.next_drift_prior`) is used only by
-    the few-satellite mode (`DopplerOptions.few_satellites`).
+    `drift_prior` (the receiver's drift memory, `epoch_solver.next_drift_prior`) and `noise`
+    (its learned Doppler noise, for the standstill test) are used only with few satellites
+    (`DopplerOptions.few_satellites`).
     """
     opt = options or DopplerOptions()
     p = np.asarray(position, dtype=float)
     sats, a_sat, y_sat, sig_sat = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
+    if opt.few_satellites and opt.standstill.enabled and 2 <= len(sats) < opt.min_satellites:
+        still = _standing(epoch.time, sats, a_sat, y_sat, sig_sat, p, opt, drift_prior, noise)
+        if still is not None:
+            return still
     pseudo: tuple[Vec, Vec, Vec] | None = None  # built only when an epoch has too few satellites
     excluded: list[str] = []
     while True:
@@ -209,4 +262,6 @@ def solve_doppler_velocity(
         excluded=tuple(excluded),
         residuals_mps={m.sat: float(v[k]) for k, m in enumerate(sats)},
         few_satellites=few,
+        chi2=chi,
+        dof=dof,
     )

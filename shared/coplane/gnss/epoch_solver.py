@@ -14,6 +14,7 @@ from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
 from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, DriftPrior, solve_doppler_velocity
 from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
 from coplane.gnss.spp import SppOptions, SppSolution, solve_spp
+from coplane.gnss.standstill import DopplerNoise
 from coplane.recording.model import NavData, ObsEpoch
 from coplane.typing import Vec
 
@@ -48,11 +49,13 @@ def solve_epoch(
     options: EpochSolverOptions | None = None,
     initial_position: Vec | None = None,
     drift_prior: DriftPrior | None = None,
+    doppler_noise: DopplerNoise | None = None,
 ) -> EpochResult:
     """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity.
 
-    `drift_prior` is the receiver's drift memory (`next_drift_prior`), for the Doppler solve's
-    few-satellite mode (`DopplerOptions.few_satellites`).
+    `drift_prior` is the receiver's drift memory (`next_drift_prior`) and `doppler_noise` its
+    learned Doppler noise, for the Doppler solve's few-satellite mode
+    (`DopplerOptions.few_satellites`).
     """
     opt = options or EpochSolverOptions()
     prepared = prepare_epoch(epoch, nav, opt.systems)
@@ -69,7 +72,7 @@ def solve_epoch(
     # is still solved at the receiver's previous fix instead of being dropped with the position.
     at = spp.position if spp.ok else initial_position
     vel = (
-        solve_doppler_velocity(prepared, at, opt.doppler, drift_prior)
+        solve_doppler_velocity(prepared, at, opt.doppler, drift_prior, doppler_noise)
         if at is not None and np.all(np.isfinite(at))
         else None
     )
@@ -79,14 +82,20 @@ def solve_epoch(
 @dataclass
 class ReceiverMemory:
     """What one receiver's front end carries from epoch to epoch: its last fix, where the next
-    SPP starts, and its clock-drift memory (`next_drift_prior`)."""
+    SPP starts, its clock-drift memory (`next_drift_prior`) and its learned Doppler noise."""
 
     fix: Vec | None = None
     drift: DriftPrior | None = None
+    doppler_noise: DopplerNoise = field(default_factory=DopplerNoise)
 
-    def update(self, res: EpochResult) -> None:
-        """Take epoch `res` in: a new fix when SPP solved, and the drift memory."""
+    def update(self, res: EpochResult, options: DopplerOptions | None = None) -> None:
+        """Take epoch `res` in: a new fix when SPP solved, the drift memory, and a full-sky
+        Doppler solve's residuals into the noise (a few-satellite one leans on its pseudo-rows)."""
         self.drift = next_drift_prior(self.drift, res)
+        v = res.velocity
+        if v is not None and v.ok and not v.few_satellites:
+            opt = (options or DopplerOptions()).standstill
+            self.doppler_noise = self.doppler_noise.add(v.chi2, v.dof, opt)
         if res.spp.ok:
             self.fix = res.spp.position
 
@@ -99,8 +108,9 @@ def solve_next(
     options: EpochSolverOptions | None = None,
 ) -> EpochResult:
     """`solve_epoch` for a receiver's next epoch: it starts from and updates `memory`."""
-    res = solve_epoch(epoch, nav, corrections, options, memory.fix, memory.drift)
-    memory.update(res)
+    opt = options or EpochSolverOptions()
+    res = solve_epoch(epoch, nav, corrections, opt, memory.fix, memory.drift, memory.doppler_noise)
+    memory.update(res, opt.doppler)
     return res
 
 

@@ -154,7 +154,9 @@ class FusionStep:
         )
         vel = None
         if m.velocity is not None:
-            vel = VelocityObs(np.array(m.velocity.velocity_ecef_mps), self.method.velocity_sigma_mps)
+            vel = VelocityObs(
+                np.array(m.velocity.velocity_ecef_mps), self.method.velocity_sigma_mps, m.velocity.standstill
+            )
         plane = None
         if m.plane is not None and m.plane.status != "unavailable":
             assert (

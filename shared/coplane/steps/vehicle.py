@@ -220,6 +220,7 @@ class VehicleStep:
             clock_drift_mps=v.drift_mps,
             n_used=len(v.used),
             few_satellites=v.few_satellites,
+            standstill=v.standstill,
         )
 
     def _satellites(
