@@ -33,8 +33,10 @@ from coplane.typing import Vec
 
 @dataclass(frozen=True)
 class StandstillOptions:
-    """Set from what a standstill claim may cost, not tuned on any recording (docs/fgo.md): a car
-    creeping below 1 m/s that is taken as standing is a few metres off after a few seconds."""
+    """The false-alarm rate and power are textbook values. The detectable speed was chosen on the
+    real few-satellite stretches of bench/few_satellites_real.py: the largest that took none of
+    the moving car's 3-satellite epochs for a standstill (docs/fgo.md). A car creeping below it
+    may be taken as standing, and is then a few metres off after a few seconds."""
 
     enabled: bool = True
     false_alarm_probability: float = 0.01  # a standing receiver refused: the few-satellite solve runs
