@@ -130,15 +130,22 @@ def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeas
 
 
 def _pseudo_rows(t: GpsTime, p: Vec, opt: DopplerOptions, prior: DriftPrior | None) -> tuple[Vec, Vec, Vec]:
-    """The few-satellite mode's pseudo-measurements (module docstring): rows, values, sigmas.
-    The first is the level-road row, the one after it (if any) the drift memory's."""
-    rows, ys, sig = [np.append(up_vector(p), 0.0)], [0.0], [opt.vertical_speed_sigma_mps]
+    """The few-satellite mode's pseudo-measurements (module docstring): rows, values, sigmas."""
+    drift = _drift_rows(t, opt, prior)
+    return (
+        np.vstack([np.append(up_vector(p), 0.0), drift[0]]),
+        np.concatenate([[0.0], drift[1]]),
+        np.concatenate([[opt.vertical_speed_sigma_mps], drift[2]]),
+    )
+
+
+def _drift_rows(t: GpsTime, opt: DopplerOptions, prior: DriftPrior | None) -> tuple[Vec, Vec, Vec]:
+    """The drift memory's pseudo-measurement while it is recent (else none): rows, values, sigmas."""
     age = t - prior.time if prior is not None else math.inf
-    if prior is not None and 0.0 <= age <= opt.drift_max_age_s:
-        rows.append(np.array([0.0, 0.0, 0.0, 1.0]))
-        ys.append(prior.drift_mps)
-        sig.append(opt.drift_wander_mps_per_s * max(age, 1.0))
-    return np.array(rows), np.array(ys), np.array(sig)
+    if prior is None or not 0.0 <= age <= opt.drift_max_age_s:
+        return np.zeros((0, 4)), np.zeros(0), np.zeros(0)
+    sigma = opt.drift_wander_mps_per_s * max(age, 1.0)
+    return np.array([[0.0, 0.0, 0.0, 1.0]]), np.array([prior.drift_mps]), np.array([sigma])
 
 
 def _standing(
@@ -156,12 +163,12 @@ def _standing(
     standstill test (coplane.gnss.standstill) at the receiver's own Doppler noise; None
     otherwise. Its covariance is the square of the speed the test could miss: a bound, not a
     least-squares spread."""
-    extra = _pseudo_rows(t, p, opt, prior)  # the level-road row is implied by v = 0: left out
+    extra = _drift_rows(t, opt, prior)  # a level-road row would add nothing to v = 0
     scale = math.sqrt((noise or DopplerNoise()).factor(opt.standstill))
     still = standstill_test(
-        np.vstack([a, extra[0][1:]]),
-        np.concatenate([y, extra[1][1:]]),
-        np.concatenate([sig * scale, extra[2][1:]]),
+        np.vstack([a, extra[0]]),
+        np.concatenate([y, extra[1]]),
+        np.concatenate([sig * scale, extra[2]]),
         up_vector(p),
         opt.standstill,
     )

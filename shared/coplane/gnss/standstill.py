@@ -27,6 +27,7 @@ from scipy.optimize import brentq
 from scipy.stats import ncx2
 
 from coplane.errors import require_finite_positive
+from coplane.geo import enu_rotation
 from coplane.gnss.lsq import chi2_threshold
 from coplane.typing import Vec
 
@@ -134,11 +135,10 @@ def standstill_test(a: Vec, y: Vec, sigma: Vec, up: Vec, opt: StandstillOptions)
     v = aw[:, :3]
     vd = v.T @ d
     info = v.T @ v - np.outer(vd, vd) / dd
-    east = np.cross((0.0, 0.0, 1.0), up)
-    east /= np.linalg.norm(east)
-    h = np.column_stack([east, np.cross(up, east)])
+    # east and north at the geodetic latitude and longitude `up` (an ellipsoid normal) stands for
+    h = enu_rotation(math.asin(max(-1.0, min(1.0, float(up[2])))), math.atan2(up[1], up[0]))[:2].T
     weakest = float(np.linalg.eigvalsh(h.T @ info @ h)[0])
     lam = noncentrality(opt.false_alarm_probability, opt.power, dof)
-    if weakest <= 0.0 or math.sqrt(lam / weakest) > opt.max_detectable_speed_mps:
+    if not (weakest > 0.0 and math.sqrt(lam / weakest) <= opt.max_detectable_speed_mps):  # NaN: not standing
         return None
     return Standstill(drift, r * sigma, math.sqrt(lam / weakest))
