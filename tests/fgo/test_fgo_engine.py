@@ -502,6 +502,7 @@ def test_standing_undetermined_epochs_are_dead_reckoned_by_default() -> None:
             sol = est.step(e)
             if k in range(10, 16):
                 assert sol.rejected.get("undetermined_pseudorange", 0) == dropped_each
+                assert sol.rejected.get("standstill", 0) == (1 if claim_speed else 0)  # counted
                 assert sol.estimates["v01"].n_pseudoranges == 3 - dropped_each
     off = dataclasses.replace(cfg, standstill_dead_reckoning=False)
     est = FusionEstimator(off)

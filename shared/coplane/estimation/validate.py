@@ -191,7 +191,10 @@ def validate_vehicle(
         else:
             vsig = s
             # a claim of standing with a nonzero velocity is a contradiction, not a standstill
-            standstill = getattr(vin.velocity, "standstill", False) is True and not np.any(velocity)
+            standstill = getattr(vin.velocity, "standstill", False) is True
+            if standstill and np.any(velocity):
+                rejected["standstill"] += 1
+                standstill = False
     drift = None
     if vin.clock_drift_mps is not None:
         drift = finite(vin.clock_drift_mps)
