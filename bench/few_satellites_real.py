@@ -34,7 +34,7 @@ car with 4 satellites, on the static antenna and on the training seeds (docs/fgo
 graph opt-in did. No held-out seed was looked at. The FDE's divergence rules (part 2c) became
 defaults on parts 2c and 3 and the training seeds of bench/tune_fgo.py, checked on the validation
 seeds. The standstill test became the default on parts 2 and 2b (its detectable speed, 2 m/s,
-is the largest that took no epoch of the moving car's stretches for a standstill) and changed
+is the largest that took no epoch of the moving car's 3-satellite stretches for a standstill) and changed
 nothing in part 3, whose vehicles never stand.
 """
 
@@ -61,8 +61,8 @@ from coplane.evaluate.runner import run_method
 from coplane.evaluate.spp_run import run_spp
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.doppler import DopplerOptions
-from coplane.gnss.epoch_solver import EpochSolverOptions, solve_epoch
-from coplane.gnss.standstill import DopplerNoise, StandstillOptions
+from coplane.gnss.epoch_solver import EpochSolverOptions, ReceiverMemory, solve_epoch
+from coplane.gnss.standstill import StandstillOptions
 from coplane.methods import MethodSpec, get_method
 from coplane.recording.reader import Recording, open_recording
 
@@ -176,12 +176,11 @@ def velocity_strength_table() -> str:
         ):
             full, few, still, factors = [], [], 0, []
             for run in run_spp(rec, dgnss=dgnss).values():
-                noise = DopplerNoise()
+                memory = ReceiverMemory()  # replays the noise the agent's front end learns
                 for _, res in sorted(run.results.items()):
+                    memory.update(res)
+                    factors.append(memory.doppler_noise.factor(opt))
                     v = res.velocity
-                    if v is not None and v.ok and not v.few_satellites:
-                        noise = noise.add(v.chi2, v.dof, opt)
-                    factors.append(noise.factor(opt))
                     if v is not None and v.ok and v.standstill:
                         still += 1
                     elif v is not None and v.ok:
