@@ -121,6 +121,18 @@ def test_few_satellite_front_end_solves_velocities_inside_the_stretches(real_dat
         assert speeds[len(speeds) // 2] < 0.3, speeds[len(speeds) // 2]  # it stands still
 
 
+def test_a_moving_car_is_never_taken_for_standing(real_data: Path) -> None:
+    """The Kowloon Tong car thinned to 3 satellites (bench/few_satellites_real.py's stretches,
+    seeds 1-3): its front end takes no stretch epoch for a standstill (docs/fgo.md)."""
+    raw = open_recording(real_data / "hk_klt_20210610_f9p_rover_hksc_base")
+    stretches = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
+    for seed in (1, 2, 3):
+        rec = FewSatelliteRecording(raw, stretches, keep=3, seed=seed)
+        results = run_spp(rec, dgnss=True)[rec.manifest.vehicles[0].id].results
+        still = [t for t, r in results.items() if r.velocity is not None and r.velocity.standstill]
+        assert still == [], (seed, still)
+
+
 def test_a_diverged_track_comes_back_when_the_sky_does(real_data: Path) -> None:
     """Four satellites left, seed 6: the track runs about 200 m away inside a stretch. With the
     full sky back, the FDE used to reject the prediction only when most rows failed its first
