@@ -55,7 +55,7 @@ from real_data_regression import REAL
 from tune_fgo import apply_variant
 
 from coplane.evaluate.benchmark import TRAINING, make_recordings, pooled_by_environment
-from coplane.evaluate.few_satellites import DEFAULT_STRETCHES, FewSatelliteRecording, Stretch
+from coplane.evaluate.few_satellites import CAR_STRETCHES, DEFAULT_STRETCHES, FewSatelliteRecording, Stretch
 from coplane.evaluate.real_data import truth_of
 from coplane.evaluate.runner import run_method
 from coplane.evaluate.spp_run import run_spp
@@ -74,7 +74,6 @@ DRIFT_SETS = (
 )
 THINNED_SET = "urbannav_hk_tst_20200603_static_f9p"
 MOVING_SET = "hk_klt_20210610_f9p_rover_hksc_base"
-MOVING_STRETCHES = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
 LAGS_S = (1, 5, 10, 30, 60, 90)
 
 
@@ -166,7 +165,7 @@ def velocity_strength_table() -> str:
     ]
     opt = DopplerOptions().standstill
     for name, dgnss, stretches in (
-        (MOVING_SET, True, MOVING_STRETCHES),
+        (MOVING_SET, True, CAR_STRETCHES),
         (THINNED_SET, False, DEFAULT_STRETCHES),
     ):
         raw = open_recording(REAL / name)
@@ -275,9 +274,9 @@ def moving_table() -> str:
     """Part 2b: the moving F9P (no truth), thinned to 3 or 4 satellites; the deviation from the
     full-sky DGNSS `non-cp` solution inside the stretches."""
     raw = open_recording(REAL / MOVING_SET)
-    rows, _ = worst_table(raw, MOVING_STRETCHES, moving_reference(raw), dgnss=True)
+    rows, _ = worst_table(raw, CAR_STRETCHES, moving_reference(raw), dgnss=True)
     return (
-        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretch_list(MOVING_STRETCHES)} with 3 or 4 satellites. "
+        f"`{MOVING_SET}`, a car, DGNSS; stretches {stretch_list(CAR_STRETCHES)} with 3 or 4 satellites. "
         "Largest horizontal / vertical distance (m) inside the stretches from the full-sky `non-cp` "
         "solution.\n\n" + "\n".join(rows)
     )
@@ -301,7 +300,7 @@ def recovery_table() -> str:
     parts = []
     for name, stretches, dgnss in (
         (THINNED_SET, DEFAULT_STRETCHES, False),
-        (MOVING_SET, MOVING_STRETCHES, True),
+        (MOVING_SET, CAR_STRETCHES, True),
     ):
         raw = open_recording(REAL / name)
         reference = truth_of(raw, raw.manifest.vehicles[0].id) if not dgnss else moving_reference(raw)

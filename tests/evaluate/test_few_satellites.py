@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coplane.evaluate.few_satellites import FewSatelliteRecording, Stretch
+from coplane.evaluate.few_satellites import CAR_STRETCHES, FewSatelliteRecording, Stretch
 from coplane.evaluate.real_data import truth_of
 from coplane.evaluate.runner import run_method
 from coplane.evaluate.spp_run import run_spp
@@ -125,9 +125,8 @@ def test_a_moving_car_is_never_taken_for_standing(real_data: Path) -> None:
     """The Kowloon Tong car thinned to 3 satellites (bench/few_satellites_real.py's stretches,
     seeds 1-3): its front end takes no stretch epoch for a standstill (docs/fgo.md)."""
     raw = open_recording(real_data / "hk_klt_20210610_f9p_rover_hksc_base")
-    stretches = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
     for seed in (1, 2, 3):
-        rec = FewSatelliteRecording(raw, stretches, keep=3, seed=seed)
+        rec = FewSatelliteRecording(raw, CAR_STRETCHES, keep=3, seed=seed)
         results = run_spp(rec, dgnss=True)[rec.manifest.vehicles[0].id].results
         still = [t for t, r in results.items() if r.velocity is not None and r.velocity.standstill]
         assert still == [], (seed, still)

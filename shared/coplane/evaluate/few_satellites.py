@@ -38,6 +38,8 @@ class Stretch:
 
 # Three stretches of growing length: short canyon, long canyon, a city block with three satellites.
 DEFAULT_STRETCHES = (Stretch(100.0, 20.0), Stretch(300.0, 45.0), Stretch(600.0, 90.0))
+# the stretches of the 205-epoch Kowloon Tong drive (bench/few_satellites_real.py, the tests)
+CAR_STRETCHES = (Stretch(30.0, 20.0), Stretch(80.0, 45.0), Stretch(140.0, 60.0))
 
 
 class FewSatelliteRecording(Recording):
