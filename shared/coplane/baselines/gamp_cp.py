@@ -27,6 +27,7 @@ docs/methods.md has the settings and the approximations.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -91,17 +92,31 @@ def gamp(
 
     rows[i] lists the (block j, coefficients a_ij) of measurement i; blocks are the variable
     nodes (one vehicle's state), each with a full Gaussian prior N(prior_means[j], prior_covs[j]).
+
+    The blocks are stacked into one state whose beliefs stay block-diagonal (`mask`: each variable
+    node keeps its own), so that an iteration is a few matrix products over the whole fleet: with a
+    few dozen state components, a dozen small numpy calls per block and iteration cost more than
+    the arithmetic (gamp-cp ran 1.4-1.6 times longer per recording that way).
     """
-    nb = len(prior_means)
+    sizes = [len(v) for v in prior_means]
+    starts = np.concatenate(([0], np.cumsum(sizes))).astype(int)
+    n = int(starts[-1])
     m = len(y)
-    mu = [np.asarray(v, dtype=float).copy() for v in prior_means]
-    a = [np.zeros((m, len(v))) for v in mu]
+    a = np.zeros((m, n))
     for i, row in enumerate(rows):
         for j, coef in row:
-            a[j][i] += coef
-    vinv = [np.linalg.inv(np.asarray(c, dtype=float)) for c in prior_covs]
-    x = [v.copy() for v in mu]
-    t = [np.asarray(c, dtype=float).copy() for c in prior_covs]
+            a[i, starts[j] : starts[j + 1]] += coef
+    mask = np.zeros((n, n), dtype=bool)
+    vinv = np.zeros((n, n))
+    t = np.zeros((n, n))
+    for j, c in enumerate(prior_covs):
+        blk = slice(starts[j], starts[j + 1])
+        mask[blk, blk] = True
+        t[blk, blk] = c
+        vinv[blk, blk] = np.linalg.inv(np.asarray(c, dtype=float))
+    mu = np.concatenate([np.asarray(v, dtype=float).reshape(-1) for v in prior_means]) if n else np.zeros(0)
+    vinv_mu = vinv @ mu
+    x = mu.copy()
     y = np.asarray(y, dtype=float)
     w = np.asarray(noise_var, dtype=float)
     s = np.zeros(m)
@@ -109,30 +124,30 @@ def gamp(
     change = math.inf
     it = 0
     for it in range(1, max_iterations + 1):  # `it` is the iteration count returned
-        tau_p = np.zeros(m)
-        ax = np.zeros(m)
-        for j in range(nb):
-            tau_p += np.einsum("ik,kl,il->i", a[j], t[j], a[j])
-            ax += a[j] @ x[j]
-        p = ax - tau_p * s
+        tau_p = np.einsum("ik,ik->i", a @ t, a)  # row i: sum_j a_ij T_j a_ij'
+        p = a @ x - tau_p * s
         ts_new = 1.0 / (w + tau_p)
         s_new = (y - p) * ts_new
         s = damping * s_new + (1.0 - damping) * s
         tau_s = ts_new if tau_s is None else damping * ts_new + (1.0 - damping) * tau_s
-        change = 0.0
-        for j in range(nb):
-            jr = (a[j].T * tau_s) @ a[j]
-            tn = np.linalg.inv(vinv[j] + jr)
-            tn = 0.5 * (tn + tn.T)
-            xn = tn @ (vinv[j] @ mu[j] + jr @ x[j] + a[j].T @ s)
-            change = max(change, float(np.max(np.abs(xn - x[j]))) if len(xn) else 0.0)
-            x[j] = damping * xn + (1.0 - damping) * x[j]
-            t[j] = damping * tn + (1.0 - damping) * t[j]
-        if not (math.isfinite(change) and all(np.all(np.isfinite(v)) for v in x)):
-            return GampResult(x, t, it, False, math.inf)
+        jr = np.where(mask, (a.T * tau_s) @ a, 0.0)  # J_j on the diagonal blocks
+        tn = np.linalg.inv(vinv + jr)  # block-diagonal: the blocks' own inverses
+        tn = np.where(mask, 0.5 * (tn + tn.T), 0.0)
+        xn = tn @ (vinv_mu + jr @ x + a.T @ s)
+        change = float(np.max(np.abs(xn - x))) if n else 0.0
+        x = damping * xn + (1.0 - damping) * x
+        t = damping * tn + (1.0 - damping) * t
+        if not (math.isfinite(change) and np.all(np.isfinite(x))):
+            return _blocks(x, t, starts, it, False, math.inf)
         if change < tolerance:
-            return GampResult(x, t, it, True, change)
-    return GampResult(x, t, it, False, change)
+            return _blocks(x, t, starts, it, True, change)
+    return _blocks(x, t, starts, it, False, change)
+
+
+def _blocks(x: Vec, t: Mat, starts: Vec, it: int, converged: bool, change: float) -> GampResult:
+    """The stacked beliefs split back into the variable nodes' means and covariances."""
+    spans = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
+    return GampResult([x[b].copy() for b in spans], [t[b, b].copy() for b in spans], it, converged, change)
 
 
 def scalar_gamp(
