@@ -22,6 +22,7 @@ LAYERS: dict[str, int] = {
     "errors": 0,
     "ids": 0,
     "components": 0,  # union-find for clusters of ranged vehicles
+    "blas_threads": 0,  # one BLAS thread per process, applied by coplane/__init__.py
     "gtime": 1,
     "geo": 1,
     # data and models
