@@ -4,10 +4,10 @@ coplane's linear algebra is many small matrices (a vehicle's SPP, a baseline EKF
 most a few hundred rows, GAMP over a fleet state of a few dozen components), and coplane spreads
 over cores with processes: vehicle workers in `coplane eval`, one agent per vehicle, fusion servers
 and their cluster workers. OpenBLAS's own threads (numpy and scipy each bundle an OpenBLAS, with a
-thread per core) only add synchronisation at these sizes and compete with those processes: on a
-2-core VM a 175-row Cholesky of the dd-cp baseline took up to 100 ms with two BLAS threads and
-0.1 ms with one, and dd-cp's held-out benchmark ran 4 times as long, with bit-identical positions
-(issue notes of 2026-11-28). Importing coplane therefore limits every BLAS to one thread.
+thread per core) only add synchronisation at these sizes and compete with those processes: the
+dd-cp baseline, whose batch update factors a few hundred rows, ran several times as long with
+them, with bit-identical positions (docs/performance.md, "BLAS threads"). Importing coplane
+therefore limits every BLAS to one thread.
 
 `COPLANE_BLAS_THREADS=N` gives N threads instead; set to an empty string it leaves the BLAS
 libraries as they are (as does an `OPENBLAS_NUM_THREADS` already set by the user).
