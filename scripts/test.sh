@@ -17,5 +17,6 @@ fi
 # worker, so its expensive fixtures are built once; the held-out benchmark's two scenarios are two
 # classes (tests/evaluate/test_benchmark_ordering.py), and tests/conftest.py puts the slow scopes
 # first. On a 2-core VM the suite took 27 min in one process and 20 min with two (its fleet
-# tests already keep both cores busy part of the time; more cores gain more).
+# tests already keep both cores busy part of the time; more cores gain more); on a faster day of
+# the same VM, with one BLAS thread per process (coplane/blas_threads.py), 6.7 min with two.
 .venv/bin/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder "$@"
