@@ -30,7 +30,7 @@ def blas_threads_wanted(environ: Mapping[str, str] = os.environ) -> int | None:
     raw = raw.strip()
     if not raw:
         return None
-    if not raw.isdigit() or int(raw) < 1:
+    if not raw.isdecimal() or int(raw) < 1:  # isdecimal: what int() takes (isdigit lets '²' through)
         raise ValueError(f"environment variable {ENV} must be a positive integer or empty, got {raw!r}")
     return int(raw)
 

@@ -42,7 +42,7 @@ def test_the_environment_overrides_it() -> None:
 
 def test_a_bad_setting_is_a_clear_error() -> None:
     assert blas_threads_wanted({}) == 1 and blas_threads_wanted({"COPLANE_BLAS_THREADS": ""}) is None
-    for bad in ("0", "-1", "two"):
+    for bad in ("0", "-1", "two", "²"):
         with pytest.raises(
             ValueError, match=r"COPLANE_BLAS_THREADS must be a positive integer or empty, got"
         ):

@@ -96,7 +96,7 @@ def gamp(
     The blocks are stacked into one state whose beliefs stay block-diagonal (`mask`: each variable
     node keeps its own), so that an iteration is a few matrix products over the whole fleet: with a
     few dozen state components, a dozen small numpy calls per block and iteration cost more than
-    the arithmetic (gamp-cp ran 1.4-1.6 times longer per recording that way).
+    the arithmetic.
     """
     sizes = [len(v) for v in prior_means]
     starts = np.concatenate(([0], np.cumsum(sizes))).astype(int)
