@@ -78,6 +78,7 @@ def test_lockstep_over_bus_equals_in_process(
     assert worst == 0.0  # bit for bit (README): the same objects on the same inputs
 
 
+@pytest.mark.serial
 def test_realtime_accounts_every_message(recording: Path, tmp_path: Path) -> None:
     """Every epoch is solved and every message accounted for at 10x realtime.
 
@@ -103,6 +104,7 @@ def test_realtime_accounts_every_message(recording: Path, tmp_path: Path) -> Non
     print({v: (c.received, c.used, c.late) for v, c in d.vehicles.items()})
 
 
+@pytest.mark.serial
 def test_kill_agent_then_rejoin_and_restart_server_and_router(recording: Path, tmp_path: Path) -> None:
     """Realtime at 1.5x: agent leaves and rejoins; fusion server restarts; router restarts."""
     _, vehicles = fleet_of(recording)

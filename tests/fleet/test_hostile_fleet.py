@@ -138,6 +138,7 @@ def test_compromised_vehicle_lockstep_changes_no_genuine_bit(
     assert r.attack_overlap > 0.5
 
 
+@pytest.mark.serial
 def test_compromised_vehicle_realtime_no_stall(material: Material, tmp_path: Path) -> None:
     m = material
     r = run_attack(

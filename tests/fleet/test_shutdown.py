@@ -20,7 +20,7 @@ from support.e2e_fleet import signal_and_time, start_serving_fleet
 from coplane.fleet import free_port, wait_for_port
 from coplane.sim.generate import simulate
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 LIMIT_S = 5.0  # the acceptance: every process gone within 5 s
 
 

@@ -12,7 +12,7 @@ from support.durability_fleet import kill_and_restart
 
 from coplane.sim.generate import simulate
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 
 def test_kill_9_loses_nothing_published_and_keeps_the_api_tracks(tmp_path: Path) -> None:

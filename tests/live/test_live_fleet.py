@@ -168,6 +168,7 @@ def late_vehicles(ubx_recording: Path, tmp_path_factory: pytest.TempPathFactory)
     return out
 
 
+@pytest.mark.serial
 def test_realtime_streams_with_a_caster_restart_and_a_receiver_drop(
     late_vehicles: Path, tmp_path: Path
 ) -> None:
