@@ -34,7 +34,7 @@ from coplane.estimation.contract import (
 )
 from coplane.fgo.config import FgoConfig, Solver
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.prepare import clock_drift
+from coplane.fgo.links import clock_drift
 from coplane.fgo.state import GraphState
 from coplane.fgo.window import Window
 from coplane.gtime import GpsTime

@@ -45,14 +45,31 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
     if p.plane is not None:
         g.add(F.plane_factor(pk, p.plane, *link_kernel))
         counts["plane"] = 1
+    for bl in p.bias_links:
+        g.add(F.clock_factor(cks[bl.reference], cks[bl.system], bl.bias_m, bl.sigma_m))
+        counts["clock_bias"] = counts.get("clock_bias", 0) + 1
     links: list[Link] = []
-    if p.link is not None:
-        disp = F.displacement_factor(
-            p.link.prev_key, pk, p.link.displacement, p.link.sigma, p.init_pos, p.link.sigma_up, *link_kernel
+    ln = p.link
+    if ln is not None and ln.accel is not None:
+        a = ln.accel
+        assert a.sigma_up_mps is not None
+        cv = F.acceleration_factor(
+            (a.prev2_key, ln.prev_key, pk), a.dt0, a.dt1, a.sigma_mps, a.sigma_up_mps, p.init_pos
         )
-        links.append(Link(p.link.prev_step, p.link.kind, disp))
+        links.append(Link(ln.prev_step, ln.kind, cv))
+    elif ln is not None:
+        disp = F.displacement_factor(
+            ln.prev_key, pk, ln.displacement, ln.sigma, p.init_pos, ln.sigma_up, *link_kernel
+        )
+        links.append(Link(ln.prev_step, ln.kind, disp))
     for s, cl in sorted(p.clock_links.items()):
-        links.append(Link(cl.prev_step, "clock", F.clock_factor(cl.prev_key, cks[s], cl.step_m, cl.sigma_m)))
+        factor: gtsam.NonlinearFactor
+        if cl.accel is not None:
+            keys3 = (cl.accel.prev2_key, cl.prev_key, cks[s])
+            factor = F.clock_acceleration_factor(keys3, cl.accel.dt0, cl.accel.dt1, cl.accel.sigma_mps)
+        else:
+            factor = F.clock_factor(cl.prev_key, cks[s], cl.step_m, cl.sigma_m)
+        links.append(Link(cl.prev_step, "clock", factor))
     return StateBlock(
         vehicle_id=p.vid,
         step=k,

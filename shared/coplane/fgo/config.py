@@ -165,6 +165,17 @@ class FgoConfig:
     # clock_drift_sigma). Physically right, but on the real F9P and the simulator's dense-urban
     # training seeds neither form gained (docs/fgo.md, "Few satellites on a real receiver").
     clock_drift_carry: bool = False
+    # Opt-in: without a Doppler drift, a system's clock with two earlier states in the window
+    # keeps a constant drift over its last three values (`factors.clock_acceleration_factor`), a
+    # drift random walk of this spectral density (m^2/s^3), instead of the step above.
+    clock_accel_psd: float | None = None
+    # Opt-in: each GNSS system's clock is held at the reference system's (the first in sorted
+    # order) plus their bias at the last epoch with both, with this sigma (m): a receiver's systems
+    # share one oscillator, so the bias is a constant of the hardware.
+    clock_isb_sigma_m: float | None = None
+    # The three opt-ins above only for a vehicle epoch with 1 to this many pseudoranges (None: every
+    # epoch), where the pseudoranges alone cannot fix the position.
+    three_state_max_pseudoranges: int | None = None
     clock_drift_wander: float | None = None
     # A new clock this far (m) from the predicted one (or > 5 sigma) is a receiver clock jump
     # (millisecond steering: 3e5 m): the clock link is not added, the clock restarts.
@@ -179,6 +190,12 @@ class FgoConfig:
     motion_sigma: float = 2.0
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
+    # Opt-in: without Doppler, a vehicle with two earlier states in the window keeps a constant
+    # velocity over its last three positions (`factors.acceleration_factor`), a white-noise
+    # acceleration of these spectral densities (m^2/s^3, horizontal and along local up), instead
+    # of the link to its last velocity frozen at that epoch's value.
+    motion_accel_psd: float | None = None
+    motion_accel_psd_up: float = 0.04
     # The vertical part of those fallbacks (m/s): a road vehicle's vertical speed is grade x speed
     # and changes slowly, so without Doppler the height must not get the horizontal freedom (a
     # 2 m/s vertical sigma let the height run away under a deck; 3 m/s is a 15 % grade at 72 km/h).
@@ -267,6 +284,9 @@ class FgoConfig:
             "fde_max_sigma_scale",
             "fde_restart_chi2",
             "clock_drift_wander",
+            "motion_accel_psd",
+            "clock_accel_psd",
+            "clock_isb_sigma_m",
         )
         require_finite_positive(
             self,
@@ -284,6 +304,7 @@ class FgoConfig:
                 "motion_sigma",
                 "max_speed",
                 "motion_sigma_up",
+                "motion_accel_psd_up",
                 "max_vertical_speed",
                 "lm_relative_error_tol",
                 "lm_absolute_error_tol",
@@ -295,6 +316,18 @@ class FgoConfig:
                 "pseudorange_sigma_scale",
             ),
         )
+        if self.solver == "lm-window" and (
+            self.motion_accel_psd is not None or self.clock_accel_psd is not None
+        ):
+            raise ValueError(
+                "motion_accel_psd and clock_accel_psd need a fixed-lag smoother (solver "
+                "'isam2-fixed-lag' or 'batch-fixed-lag'): the lm-window drops a three-state link when "
+                "its oldest state leaves, and the state after it is left without one"
+            )
+        if self.three_state_max_pseudoranges is not None and self.three_state_max_pseudoranges < 1:
+            raise ValueError(
+                f"three_state_max_pseudoranges must be >= 1 or None, got {self.three_state_max_pseudoranges!r}"
+            )
         if self.fde_warmup_epochs < 0:
             raise ValueError(f"fde_warmup_epochs must be >= 0, got {self.fde_warmup_epochs!r}")
         if self.fde_warmup_prior not in ("reported", "snapshot"):

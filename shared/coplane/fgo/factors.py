@@ -4,6 +4,8 @@ Native classes wherever GTSAM has one (C++ evaluation, no Python callback per li
   - pseudorange (eq. 21): gtsam.PseudorangeFactor(position Point3, clock double in SECONDS)
   - inter-vehicle range (eq. 27): gtsam.RangeFactor3 (Point3-Point3; RangeFactor3D is Pose3-Point3)
   - velocity (eq. 36): gtsam.BetweenFactorPoint3 on the displacement v * dt
+  - constant velocity without Doppler (opt-in): a linear gtsam.JacobianFactor on three positions,
+    held by a gtsam.LinearContainerFactor (see `acceleration_factor`)
   - receiver clock random walk: gtsam.BetweenFactorDouble (seconds)
   - anchor / fallback priors: gtsam.PriorFactorPoint3, gtsam.PriorFactorDouble
   - plane constraint (eq. 24): gtsam.PriorFactorPoint3 with a rank-1 square-root information
@@ -242,11 +244,80 @@ def displacement_factor(
         return gtsam.BetweenFactorPoint3(
             prev_key, key, d, robust_isotropic(3, float(sigma_m), robust, robust_k)
         )
+    noise = gtsam.noiseModel.Gaussian.Covariance(_enu_covariance(sigma_m, sigma_up_m, at))
+    return gtsam.BetweenFactorPoint3(prev_key, key, d, with_kernel(noise, robust, robust_k))
+
+
+def _enu_covariance(sigma: float, sigma_up: float, at: Vec) -> NDArray[np.float64]:
+    """sigma^2 (I - u u^T) + sigma_up^2 u u^T with u the local up at `at`."""
     u = up_vector(np.asarray(at, dtype=float))
     uu = np.outer(u, u)
-    cov = sigma_m * sigma_m * (np.eye(3) - uu) + sigma_up_m * sigma_up_m * uu
-    noise = gtsam.noiseModel.Gaussian.Covariance(cov)
-    return gtsam.BetweenFactorPoint3(prev_key, key, d, with_kernel(noise, robust, robust_k))
+    return sigma * sigma * (np.eye(3) - uu) + sigma_up * sigma_up * uu
+
+
+def acceleration_factor(
+    keys: tuple[int, int, int],
+    dt0_s: float,
+    dt1_s: float,
+    sigma_mps: float,
+    sigma_up_mps: float,
+    at: Vec,
+) -> gtsam.LinearContainerFactor:
+    """Constant velocity over three states p0, p1, p2 (`keys` in time order):
+    (p2 - p1) / dt1 - (p1 - p0) / dt0 = 0, the velocity change, with sigma (m/s) per horizontal
+    axis and `sigma_up_mps` along local up at `at`.
+
+    Unlike the motion fallback's link to a frozen last velocity, the velocity here stays a
+    function of the window's positions, so pseudoranges that move the earlier states move the
+    velocity carried forward (an EKF's velocity state does the same). The relation is linear, so
+    a JacobianFactor is exact; GTSAM has no native nonlinear factor on three Point3 and a
+    CustomFactor (a Python callback) could not be serialised to the smoother pool's processes.
+    The container's linearisation point is the origin: the factor's b is then the relation's own
+    constant (zero), and GTSAM re-centres it at every linearisation.
+    """
+    # whitened here (the binding takes only diagonal noise): R = L^-1 with L L^T the covariance
+    r = np.linalg.inv(np.linalg.cholesky(_enu_covariance(sigma_mps, sigma_up_mps, at)))
+    return _second_difference(keys, dt0_s, dt1_s, r, True)
+
+
+def clock_acceleration_factor(
+    keys: tuple[int, int, int], dt0_s: float, dt1_s: float, sigma_mps: float
+) -> gtsam.LinearContainerFactor:
+    """Constant clock drift over three clocks of one system (seconds, `keys` in time order):
+    c (b2 - b1) / dt1 - c (b1 - b0) / dt0 = 0, the drift change, with sigma (m/s). Without a
+    Doppler drift this keeps the clock predictable, as a receiver's oscillator is over seconds
+    (an EKF's drift state), where a random walk of the clock alone leaves it free every epoch."""
+    return _second_difference(keys, dt0_s, dt1_s, np.array([[C / sigma_mps]]), False)
+
+
+def linear_container(jf: gtsam.JacobianFactor, is_point: Sequence[bool]) -> gtsam.LinearContainerFactor:
+    """A linear factor held at the origin, as this module builds them: `is_point[i]` says whether
+    the i-th key is a Point3 (else a double clock). The smoother pool rebuilds its factors with it
+    (a double in the held linearisation point cannot go through GTSAM's serialisation)."""
+    origin = gtsam.Values()
+    for k, point in zip(jf.keys(), is_point, strict=True):
+        if point:
+            origin.insertPoint3(k, np.zeros(3))  # Point3, as the estimator inserts positions: a
+            # VectorXd here would make Values::localCoordinates crash on the type mismatch
+        else:
+            origin.insert(k, c=0.0)  # a double, as the estimator inserts clocks
+    return gtsam.LinearContainerFactor(jf, origin)
+
+
+def _second_difference(
+    keys: tuple[int, int, int],
+    dt0_s: float,
+    dt1_s: float,
+    r: NDArray[np.float64],
+    points: bool,
+) -> gtsam.LinearContainerFactor:
+    """R [(x2 - x1) / dt1 - (x1 - x0) / dt0] = 0 with unit noise (R: the whitening, dim x dim;
+    `points`: Point3 keys, else clocks)."""
+    a0, a1, a2 = 1.0 / dt0_s, -(1.0 / dt0_s + 1.0 / dt1_s), 1.0 / dt1_s
+    unit = gtsam.noiseModel.Isotropic.Sigma(r.shape[0], 1.0)  # Unit: not registered for serialisation
+    b = np.zeros(r.shape[0])
+    jf = gtsam.JacobianFactor(keys[0], a0 * r, keys[1], a1 * r, keys[2], a2 * r, b, unit)
+    return linear_container(jf, (points,) * 3)
 
 
 def clock_step_sigma_m(dt_s: float, drift_sigma: float, rw_sigma: float) -> float:

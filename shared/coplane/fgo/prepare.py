@@ -1,9 +1,10 @@
 """From a validated vehicle epoch to what its factors need: initial values, links, clock steps.
 
 This is the stage between `coplane.estimation.validate_epoch` and the factors (`blocks`): it
-predicts the new position from the vehicle's last state (velocity, paper eqs. 35-36), optionally
-gates pseudoranges against that prediction, initialises one clock per GNSS system, links each
-clock to its previous value unless the receiver clock jumped, and counts the independent position
+predicts the new position from the vehicle's last state (velocity, paper eqs. 35-36; the links
+themselves are built in `links`), optionally gates pseudoranges against that prediction,
+initialises one clock per GNSS system, links each clock to its previous value unless the receiver
+clock jumped, and counts the independent position
 constraints the vehicle brings, so that a vehicle whose first position would be indeterminate is
 left out instead of making the whole cluster singular.
 """
@@ -12,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import statistics
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,34 +21,20 @@ from coplane.estimation.contract import PlaneObs
 from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.links import (
+    BiasLink,
+    ClockLink,
+    MotionLink,
+    clock_drift,
+    constant_drift,
+    displacement,
+    inter_system_biases,
+)
 from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
-from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.typing import Mat, Vec
-
-
-@dataclass
-class MotionLink:
-    """The inter-epoch position factor of a new state: velocity (eq. 36) or motion fallback."""
-
-    prev_key: int
-    prev_step: int
-    displacement: Vec
-    sigma: float
-    kind: str  # "velocity" | "motion"
-    sigma_up: float | None = None  # a tighter vertical sigma (m) for the motion fallback
-
-
-@dataclass
-class ClockLink:
-    """Receiver clock random walk to the vehicle's last clock of the same system."""
-
-    prev_key: int
-    prev_step: int
-    step_m: float  # mean change (Doppler drift x dt), metres
-    sigma_m: float
 
 
 @dataclass
@@ -70,6 +56,7 @@ class Prepared:
     # when the FDE did not run (no prior yet) or did not pass: the cooperative check's input
     fde_w: Vec | None = None
     restarted: bool = False  # a new track although the window holds earlier states (FgoConfig)
+    bias_links: list[BiasLink] = dataclasses.field(default_factory=list)
 
 
 def prepare_vehicle(
@@ -82,13 +69,15 @@ def prepare_vehicle(
     plane = v.plane if cfg.use_planes else None
     velocity, spp = v.velocity, v.spp
     hist = state.window.by_vehicle.get(v.vehicle_id)
+    limit = cfg.three_state_max_pseudoranges
+    honest = limit is None or 1 <= len(prs) <= limit  # where the three-state models may apply
     link: MotionLink | None = None
     if hist:
         last = hist[-1]
         dt = t - last.time
         p_last = state.position(last.pos_key)
         if cfg.use_velocity:
-            link = displacement(hist, velocity, dt, state, cfg)
+            link = displacement(hist, velocity, dt, state, cfg, honest)
             init = p_last + link.displacement
         elif spp is not None:
             init = spp
@@ -134,20 +123,25 @@ def prepare_vehicle(
     clock_links: dict[str, ClockLink] = {}
     for s in systems:
         prev = next((b for b in reversed(hist) if s in b.clock_keys), None) if hist else None
-        if prev is None:
+        if prev is None or hist is None:
             continue
         dt = t - prev.time
-        mean, drift_sigma = clock_drift(v.vehicle_id, v.drift, prev.clock_drift_mps, t, state, cfg)
-        sigma = F.clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
         ck = prev.clock_keys[s]
-        predicted_m = C * state.clock(ck) + mean * dt
-        if abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * sigma):
+        cl = constant_drift(hist, prev, s, dt, state, cfg) if v.drift is None and honest else None
+        if cl is None:
+            mean, drift_sigma = clock_drift(v.vehicle_id, v.drift, prev.clock_drift_mps, t, state, cfg)
+            cl = ClockLink(
+                ck, prev.step, mean * dt, F.clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
+            )
+        predicted_m = C * state.clock(ck) + cl.step_m
+        if abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * cl.sigma_m):
             stats.reject("clock_link")  # a receiver clock jump (e.g. 1 ms steering): restart
             continue
-        clock_links[s] = ClockLink(ck, prev.step, mean * dt, sigma)
+        clock_links[s] = cl
     rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
+    bias_links = inter_system_biases(hist, systems, state, cfg) if hist and honest else []
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(
@@ -164,6 +158,7 @@ def prepare_vehicle(
         rank,
         fde_w,
         restarted,
+        bias_links,
     )
 
 
@@ -180,28 +175,6 @@ def determining_count(plane: PlaneObs | None, cfg: FgoConfig) -> int:
     canyons (docs/fgo.md).
     """
     return cfg.min_fix_pseudoranges - (1 if plane is not None else 0)
-
-
-def clock_drift(
-    vid: str, drift: float | None, prev_drift: float | None, t: GpsTime, state: GraphState, cfg: FgoConfig
-) -> tuple[float, float]:
-    """The clock drift (m/s) to step a vehicle's receiver clock by, and its 1-sigma (m/s).
-
-    With this epoch's Doppler drift: the mean of it and the previous state's (exact for a linear
-    drift), sigma 0. Without one (fewer than 5 Doppler measurements, as in a canyon): zero with
-    `clock_drift_sigma`, or with `clock_drift_carry` the vehicle's last measured drift, with that
-    sigma or, when `clock_drift_wander` is set, a sigma growing with the drift's age up to it.
-    docs/fgo.md ("Few satellites on a real receiver") has why carrying is not the default.
-    """
-    if drift is not None:
-        return (0.5 * (drift + prev_drift) if prev_drift is not None else drift), 0.0
-    seen = state.drift_seen.get(vid) if cfg.clock_drift_carry else None
-    if seen is None:
-        return 0.0, cfg.clock_drift_sigma
-    last, at = seen
-    if cfg.clock_drift_wander is None:
-        return last, cfg.clock_drift_sigma
-    return last, min(cfg.clock_drift_sigma, cfg.clock_drift_wander * max(t - at, 0.0))
 
 
 def gate(
@@ -284,32 +257,6 @@ def diverged(res: ScreenResult, p_pred: Mat, cfg: FgoConfig) -> bool:
     cov = res.offset_cov * max(res.variance_factor, 1.0) + p_pred
     d2 = float(res.offset_m @ np.linalg.solve(cov, res.offset_m))
     return d2 > cfg.fde_restart_chi2
-
-
-def displacement(
-    hist: deque[StateBlock], velocity: Vec | None, dt: float, state: GraphState, cfg: FgoConfig
-) -> MotionLink:
-    """Eq. 35-36 displacement to the previous state, or the motion fallback without Doppler.
-
-    Both Doppler velocities known: their mean (exact for constant acceleration); only the new
-    one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
-    state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
-    zero with sigma max_speed * dt; the fallbacks' vertical sigma is bounded by what a road allows
-    (`motion_sigma_up`, `max_vertical_speed`).
-    """
-    last = hist[-1]
-    if velocity is not None:
-        v = 0.5 * (velocity + last.velocity) if last.velocity is not None else velocity
-        return MotionLink(last.pos_key, last.step, v * dt, cfg.sigma_v * dt, "velocity")
-    v_last: Vec | None = last.velocity
-    if v_last is None and len(hist) >= 2:
-        prev = hist[-2]
-        v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / (last.time - prev.time)
-    if v_last is not None:
-        sigma, sigma_up = cfg.motion_sigma * dt, cfg.motion_sigma_up * dt
-        return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
-    sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
-    return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))
 
 
 def undetermined(preps: dict[str, Prepared], ranges: list[ValidRange]) -> list[str]:

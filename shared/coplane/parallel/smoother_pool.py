@@ -38,6 +38,7 @@ import gtsam
 import numpy as np
 
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.factors import linear_container
 from coplane.fgo.keys import is_position_key
 from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
 from coplane.fgo.solve import Smoothers
@@ -86,6 +87,29 @@ def unpack_values(packed: Packed) -> gtsam.Values:
     return out
 
 
+LinearParts = list[tuple[int, gtsam.JacobianFactor]]
+
+
+def pack_graph(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, LinearParts]:
+    """`graph` with its linear factors (the estimator's three-state links, `fgo.factors`) taken out
+    and kept apart by index: their held linearisation point has clock doubles, which GTSAM's
+    serialisation refuses. Their slots stay (empty) so the child's factor indices are the same."""
+    parts: LinearParts = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.LinearContainerFactor):
+            parts.append((i, f.toJacobian()))
+            graph.remove(i)
+    return graph, parts
+
+
+def unpack_graph(graph: gtsam.NonlinearFactorGraph, parts: LinearParts) -> gtsam.NonlinearFactorGraph:
+    for i, jf in parts:
+        keys = jf.keys()
+        graph.replace(i, linear_container(jf, [is_position_key(k) for k in keys]))
+    return graph
+
+
 _ERRORS: dict[str, type[RuntimeError]] = {}
 
 
@@ -116,7 +140,7 @@ def _serve(conn: Connection, cfg: FgoConfig) -> None:
                 smoothers[slot] = SmootherCluster(cfg, vehicles)
             try:
                 res = smoothers[slot].solve_graph(
-                    graph, unpack_values(initial), stamps, cov_keys, keys, pos_keys, converge
+                    unpack_graph(*graph), unpack_values(initial), stamps, cov_keys, keys, pos_keys, converge
                 )
                 replies.append(
                     ("ok", pack_values(res.values), res.covariances, res.iterations, res.error_after)
@@ -309,7 +333,7 @@ def _wire(t: SmootherTask) -> tuple[Any, ...]:
         t.slot,
         t.create,
         t.vehicles,
-        graph,
+        pack_graph(graph),
         pack_values(t.initial),
         t.timestamps,
         t.cov_keys,

@@ -1,0 +1,175 @@
+"""Links of a vehicle's new state to its earlier ones: motion (Doppler velocity, paper eqs. 35-36,
+or the fallbacks without it) and receiver clocks (drift steps, constant drift, inter-system bias).
+
+`prepare` decides per vehicle epoch which of these it gets; `blocks` turns them into factors.
+The three-state forms (constant velocity, constant drift; FgoConfig `motion_accel_psd`,
+`clock_accel_psd`) and the bias tie (`clock_isb_sigma_m`) are opt-ins (docs/fgo.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from coplane.fgo.config import FgoConfig
+from coplane.fgo.state import GraphState
+from coplane.fgo.window import StateBlock
+from coplane.gnss.constants import C
+from coplane.gtime import GpsTime
+from coplane.typing import Vec
+
+
+@dataclass
+class MotionLink:
+    """The inter-epoch position factor of a new state: velocity (eq. 36) or motion fallback."""
+
+    prev_key: int
+    prev_step: int
+    displacement: Vec
+    sigma: float
+    kind: str  # "velocity" | "motion"
+    sigma_up: float | None = None  # a tighter vertical sigma (m) for the motion fallback
+    # the constant-velocity form of the fallback (`FgoConfig.motion_accel_psd`), else None
+    accel: AccelTerms | None = None
+
+
+@dataclass(frozen=True)
+class AccelTerms:
+    """What `factors.acceleration_factor` needs beyond the last state: the one before it, the two
+    intervals and the velocity change's sigmas (m/s)."""
+
+    prev2_key: int
+    dt0: float
+    dt1: float
+    sigma_mps: float
+    sigma_up_mps: float | None = None  # positions only: the sigma along local up
+
+
+@dataclass
+class ClockLink:
+    """Receiver clock random walk to the vehicle's last clock of the same system."""
+
+    prev_key: int
+    prev_step: int
+    step_m: float  # mean change (Doppler drift x dt), metres
+    sigma_m: float
+    # the constant-drift form without Doppler (`FgoConfig.clock_accel_psd`), else None
+    accel: AccelTerms | None = None
+
+
+@dataclass
+class BiasLink:
+    """A system's clock held at the reference system's plus their last estimated bias."""
+
+    system: str
+    reference: str
+    bias_m: float
+    sigma_m: float
+
+
+def displacement(
+    hist: deque[StateBlock],
+    velocity: Vec | None,
+    dt: float,
+    state: GraphState,
+    cfg: FgoConfig,
+    three_state: bool = True,
+) -> MotionLink:
+    """Eq. 35-36 displacement to the previous state, or the motion fallback without Doppler.
+
+    Both Doppler velocities known: their mean (exact for constant acceleration); only the new
+    one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
+    state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
+    zero with sigma max_speed * dt; the fallbacks' vertical sigma is bounded by what a road allows
+    (`motion_sigma_up`, `max_vertical_speed`).
+    """
+    last = hist[-1]
+    if velocity is not None:
+        v = 0.5 * (velocity + last.velocity) if last.velocity is not None else velocity
+        return MotionLink(last.pos_key, last.step, v * dt, cfg.sigma_v * dt, "velocity")
+    v_last: Vec | None = last.velocity
+    if v_last is None and len(hist) >= 2:
+        prev = hist[-2]
+        v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / (last.time - prev.time)
+    if three_state and cfg.motion_accel_psd is not None and len(hist) >= 2 and last.time - hist[-2].time > 0:
+        return constant_velocity(hist, dt, state, cfg)
+    if v_last is not None:
+        sigma, sigma_up = cfg.motion_sigma * dt, cfg.motion_sigma_up * dt
+        return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
+    sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
+    return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))
+
+
+def constant_velocity(hist: deque[StateBlock], dt: float, state: GraphState, cfg: FgoConfig) -> MotionLink:
+    """The constant-velocity fallback over the last two states and the new one: the link dies
+    with the older of the two (`prev_step`), and its displacement (the prediction, and the FDE's
+    prior sigma) is the velocity between their estimates."""
+    assert cfg.motion_accel_psd is not None
+    last, prev = hist[-1], hist[-2]
+    dt0 = last.time - prev.time
+    v = (state.position(last.pos_key) - state.position(prev.pos_key)) / dt0
+    span = 0.5 * (dt0 + dt)
+    s_h = math.sqrt(cfg.motion_accel_psd * span)
+    s_up = min(s_h, math.sqrt(cfg.motion_accel_psd_up * span))
+    accel = AccelTerms(prev.pos_key, dt0, dt, s_h, s_up)
+    return MotionLink(last.pos_key, prev.step, v * dt, s_h * dt, "motion", s_up * dt, accel)
+
+
+def constant_drift(
+    hist: deque[StateBlock], prev: StateBlock, system: str, dt: float, state: GraphState, cfg: FgoConfig
+) -> ClockLink | None:
+    """The constant-drift clock link (`FgoConfig.clock_accel_psd`) over the system's last two
+    clocks in the window and the new one, or None when it is off or there are not two; its step
+    (the prediction) is the drift between their estimates."""
+    if cfg.clock_accel_psd is None:
+        return None
+    prev2 = next((b for b in reversed(hist) if system in b.clock_keys and b.step < prev.step), None)
+    if prev2 is None or prev.time - prev2.time <= 0:
+        return None
+    dt0 = prev.time - prev2.time
+    k1, k0 = prev.clock_keys[system], prev2.clock_keys[system]
+    drift = C * (state.clock(k1) - state.clock(k0)) / dt0
+    sigma = math.sqrt(cfg.clock_accel_psd * 0.5 * (dt0 + dt))
+    return ClockLink(k1, prev2.step, drift * dt, sigma * dt, AccelTerms(k0, dt0, dt, sigma))
+
+
+def clock_drift(
+    vid: str, drift: float | None, prev_drift: float | None, t: GpsTime, state: GraphState, cfg: FgoConfig
+) -> tuple[float, float]:
+    """The clock drift (m/s) to step a vehicle's receiver clock by, and its 1-sigma (m/s).
+
+    With this epoch's Doppler drift: the mean of it and the previous state's (exact for a linear
+    drift), sigma 0. Without one (fewer than 5 Doppler measurements, as in a canyon): zero with
+    `clock_drift_sigma`, or with `clock_drift_carry` the vehicle's last measured drift, with that
+    sigma or, when `clock_drift_wander` is set, a sigma growing with the drift's age up to it.
+    docs/fgo.md ("Few satellites on a real receiver") has why carrying is not the default.
+    """
+    if drift is not None:
+        return (0.5 * (drift + prev_drift) if prev_drift is not None else drift), 0.0
+    seen = state.drift_seen.get(vid) if cfg.clock_drift_carry else None
+    if seen is None:
+        return 0.0, cfg.clock_drift_sigma
+    last, at = seen
+    if cfg.clock_drift_wander is None:
+        return last, cfg.clock_drift_sigma
+    return last, min(cfg.clock_drift_sigma, cfg.clock_drift_wander * max(t - at, 0.0))
+
+
+def inter_system_biases(
+    hist: deque[StateBlock], systems: list[str], state: GraphState, cfg: FgoConfig
+) -> list[BiasLink]:
+    """The inter-system bias links of a new state (`FgoConfig.clock_isb_sigma_m`): each system
+    after the first, at its bias to the first in the latest window state that had both."""
+    if cfg.clock_isb_sigma_m is None or len(systems) < 2:
+        return []
+    ref = systems[0]
+    links = []
+    for s in systems[1:]:
+        b = next((b for b in reversed(hist) if ref in b.clock_keys and s in b.clock_keys), None)
+        if b is not None:
+            bias = C * (state.clock(b.clock_keys[s]) - state.clock(b.clock_keys[ref]))
+            links.append(BiasLink(s, ref, bias, cfg.clock_isb_sigma_m))
+    return links
