@@ -18,8 +18,9 @@ TCXO and it shares its multipath model with the library:
    rows that show the receiver standing give a zero velocity, and the graph dead-reckons that
    epoch), with each factor-graph opt-in (bench/tune_fgo.py's variants
    `drop-undetermined`, `carry-drift`, `carry-drift-wander`: 0.2 m/s per second, twice part 1's
-   wander; `cv-0.0625`: constant velocity and clock drift over the last three states, the
-   systems' clocks tied by their bias), and for the EKF baseline `non-cp-ekf` with each front end.
+   wander; `isb-0.5`: the systems' clocks tied by a bias variable; `cv-0.0625`: with it a
+   constant velocity and clock drift over the last three states), and for the EKF baseline
+   `non-cp-ekf` with each front end.
    2b. **A moving car.** The Kowloon Tong drive has no truth: the full-sky DGNSS `non-cp`
    solution is the reference, and the drive is thinned to 3 or 4 satellites in three stretches.
    2c. **Recovery.** Both sets again, with the largest errors *outside* the stretches, where the
@@ -85,6 +86,7 @@ FGO_VARIANTS = {
     "drop-undetermined": "undetermined epochs dead-reckoned",
     "carry-drift": "last drift carried",
     "carry-drift-wander": "last drift carried, sigma from its wander",
+    "isb-0.5": "clocks tied",
     "cv-0.0625": "constant velocity and drift, clocks tied",
 }
 PAPER_FRONT_END = EpochSolverOptions(doppler=DopplerOptions(few_satellites=False))

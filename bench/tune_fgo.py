@@ -67,12 +67,14 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-first-test-only": {"fde_reject_on_exclusions": False, "fde_restart_chi2": None},
     "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     # a receiver's honest clock and motion where Doppler is missing (docs/fgo.md, "Constant
-    # velocity and drift without Doppler"): the systems' clocks tied by their bias; a constant
+    # velocity and drift without Doppler"): the systems' clocks tied by a bias variable (a random
+    # walk of 0.05 or 0.5 m per root second, chosen: 0.5); a constant
     # clock drift over the last three clocks (the EKF baselines' drift density, 0.1 m^2/s^3);
     # and with it a constant velocity over the last three positions, at white-noise
     # accelerations of 1, 0.25 and 0.0625 m^2/s^3 (the EKF baselines': 1.0, vertically 0.1);
     # "-weak": only in epochs with 1-4 pseudoranges
     "isb-0.5": {"clock_isb_sigma_m": 0.5},
+    "isb-0.05": {"clock_isb_sigma_m": 0.05},
     "cv-clock": {"clock_isb_sigma_m": 0.5, "clock_accel_psd": 0.1},
     "cv-1": {
         "clock_isb_sigma_m": 0.5,

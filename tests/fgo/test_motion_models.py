@@ -16,7 +16,7 @@ from support.fgo_synthetic import make_fleet, run
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.keys import clock_key, position_key
+from coplane.fgo.keys import bias_key, clock_key, position_key
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import C
 from coplane.methods import get_method
@@ -66,6 +66,14 @@ def test_clock_acceleration_factor_is_the_drift_change_in_metres_per_second() ->
     assert f.error(_clocks(b0, b0 + drift_s, b0 + 2 * drift_s + 0.6 / C)) == pytest.approx(2.0, rel=1e-6)
 
 
+def test_clock_bias_factor_ties_a_systems_clock_to_the_reference_plus_its_bias() -> None:
+    f = F.clock_bias_factor(0, 1, 2)  # keys: reference clock, the system's clock, its bias
+    b_ref, isb = 1e-4, 3.0 / C
+    assert f.error(_clocks(b_ref, b_ref + isb, isb)) == pytest.approx(0.0, abs=1e-12)
+    off = F.CLOCK_BIAS_SIGMA_M / C  # one sigma
+    assert f.error(_clocks(b_ref, b_ref + isb + off, isb)) == pytest.approx(0.5, rel=1e-6)
+
+
 def test_the_linear_factors_cross_to_the_smoother_pool_exactly() -> None:
     """The pool pickles graphs (GTSAM's serialisation, which refuses the clocks' held doubles):
     the linear factors travel apart and come back at their own index with the same error."""
@@ -75,14 +83,15 @@ def test_the_linear_factors_cross_to_the_smoother_pool_exactly() -> None:
     g.add(F.position_prior(p[0], RX, np.eye(3)))
     g.add(F.acceleration_factor((p[0], p[1], p[2]), 1.0, 1.0, 0.5, 0.1, RX))
     g.add(F.clock_acceleration_factor((c[0], c[1], c[2]), 1.0, 1.0, 0.3))
+    g.add(F.clock_bias_factor(c[0], c[1], bias_key(0, 0, "C")))
     vals = gtsam.Values()
     for k, x in zip(p, (RX, RX + 1.0, RX + 3.0), strict=True):
         vals.insertPoint3(k, x)
-    for k, b in zip(c, (0.0, 1e-8, 3e-8), strict=True):
+    for k, b in zip([*c, bias_key(0, 0, "C")], (0.0, 1e-8, 3e-8, 2e-8), strict=True):
         vals.insert(k, c=b)
-    before = [g.at(i).error(vals) for i in range(3)]
+    before = [g.at(i).error(vals) for i in range(4)]
     back = unpack_graph(*pickle.loads(pickle.dumps(pack_graph(g.clone()))))
-    assert [back.at(i).error(vals) for i in range(3)] == before and min(before[1:]) > 0
+    assert [back.at(i).error(vals) for i in range(4)] == before and min(before[1:]) > 0
 
 
 def _three_satellites_without_doppler():  # type: ignore[no-untyped-def]
@@ -107,6 +116,24 @@ def test_the_estimator_builds_them_and_stays_on_the_road(solver: str) -> None:
             assert "motion" in links
             last = est._state.window.by_vehicle["v01"][-1]
             assert any(isinstance(ln.factor, gtsam.LinearContainerFactor) for ln in last.links)
+
+
+def test_the_bias_is_a_variable_carried_over_the_epochs() -> None:
+    """Each system after the reference gets a bias key per state, linked to the previous one, and
+    the estimate stays the receiver's constant hardware bias (the synthetic fleet's is constant)."""
+    fleet = _three_satellites_without_doppler()
+    base = get_method("non-cp").fgo
+    assert base is not None
+    est = FusionEstimator(dataclasses.replace(base, clock_isb_sigma_m=0.5))
+    for epoch in fleet.epochs[:10]:
+        est.step(epoch)
+    blocks = list(est._state.window.by_vehicle["v02"])
+    assert all(b.bias_ref == "C" and set(b.bias_keys) == {"G"} for b in blocks)
+    assert all([ln.kind for ln in b.links].count("clock_bias") == 1 for b in blocks[1:])
+    biases = [C * est._state.clock(b.bias_keys["G"]) for b in blocks]
+    clocks = [C * (est._state.clock(b.clock_keys["G"]) - est._state.clock(b.clock_keys["C"])) for b in blocks]
+    np.testing.assert_allclose(biases, clocks, atol=0.05)
+    assert max(biases) - min(biases) < 0.5
 
 
 def test_options_off_build_the_same_graph_as_before() -> None:

@@ -167,4 +167,4 @@ def test_isam2_reaches_the_graphs_optimum_whatever_the_clocks_first_guess(clock_
 def test_every_kind_of_key_has_a_relinearisation_threshold_in_its_unit() -> None:
     """GTSAM reads a key's threshold from the map without a default: a missing kind is undefined."""
     th = keys.relinearize_thresholds(0.01)
-    assert th.size() == 1 + len(keys.CLOCK_CHR)
+    assert th.size() == 1 + len(keys.CLOCK_CHR) + len(keys.BIAS_CHR)

@@ -12,7 +12,7 @@ import numpy as np
 
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.keys import KeyRegistry, clock_key, position_key
+from coplane.fgo.keys import KeyRegistry, bias_key, clock_key, position_key
 from coplane.fgo.prepare import Prepared
 from coplane.fgo.window import Link, StateBlock
 from coplane.gtime import GpsTime
@@ -45,10 +45,15 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
     if p.plane is not None:
         g.add(F.plane_factor(pk, p.plane, *link_kernel))
         counts["plane"] = 1
-    for bl in p.bias_links:
-        g.add(F.clock_factor(cks[bl.reference], cks[bl.system], bl.bias_m, bl.sigma_m))
-        counts["clock_bias"] = counts.get("clock_bias", 0) + 1
     links: list[Link] = []
+    bias_keys: dict[str, int] = {}
+    for bl in p.bias_links:
+        bk = bias_keys[bl.system] = bias_key(slot, k, bl.system)
+        init_clocks[bk] = bl.init_s
+        g.add(F.clock_bias_factor(cks[bl.reference], cks[bl.system], bk))
+        counts["clock_bias"] = counts.get("clock_bias", 0) + 1
+        if bl.prev_key is not None:
+            links.append(Link(bl.prev_step, "clock_bias", F.clock_factor(bl.prev_key, bk, 0.0, bl.sigma_m)))
     ln = p.link
     if ln is not None and ln.accel is not None:
         a = ln.accel
@@ -86,4 +91,6 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         velocity=p.velocity,
         clock_drift_mps=p.drift,
         has_fix=len(p.prs) >= cfg.min_fix_pseudoranges,
+        bias_keys=bias_keys,
+        bias_ref=p.bias_links[0].reference if p.bias_links else None,
     )

@@ -160,23 +160,23 @@ class FgoConfig:
     # (m/s) on top: cheap TCXOs drift by up to a few hundred m/s, so this must stay loose.
     clock_drift_sigma: float = 300.0
     # Opt-in: an epoch without a Doppler drift steps the clock by the vehicle's last measured drift
-    # instead of zero (`prepare.clock_drift`), with clock_drift_sigma or, with clock_drift_wander
+    # instead of zero (`links.clock_drift`), with clock_drift_sigma or, with clock_drift_wander
     # set, a sigma growing by that much (m/s) per second since the drift was measured (capped at
     # clock_drift_sigma). Physically right, but on the real F9P and the simulator's dense-urban
     # training seeds neither form gained (docs/fgo.md, "Few satellites on a real receiver").
     clock_drift_carry: bool = False
+    clock_drift_wander: float | None = None
     # Opt-in: without a Doppler drift, a system's clock with two earlier states in the window
     # keeps a constant drift over its last three values (`factors.clock_acceleration_factor`), a
     # drift random walk of this spectral density (m^2/s^3), instead of the step above.
     clock_accel_psd: float | None = None
-    # Opt-in: each GNSS system's clock is held at the reference system's (the first in sorted
-    # order) plus their bias at the last epoch with both, with this sigma (m): a receiver's systems
-    # share one oscillator, so the bias is a constant of the hardware.
+    # Opt-in: each GNSS system's clock is the reference system's (the first in sorted order) plus
+    # a bias variable, linked over epochs as a random walk of this sigma (m per root second): a
+    # receiver's systems share one oscillator, so the bias is a constant of the hardware.
     clock_isb_sigma_m: float | None = None
-    # The three opt-ins above only for a vehicle epoch with 1 to this many pseudoranges (None: every
-    # epoch), where the pseudoranges alone cannot fix the position.
+    # motion_accel_psd, clock_accel_psd and clock_isb_sigma_m only for a vehicle epoch with 1 to
+    # this many pseudoranges (None: every epoch), where the pseudoranges alone cannot fix it.
     three_state_max_pseudoranges: int | None = None
-    clock_drift_wander: float | None = None
     # A new clock this far (m) from the predicted one (or > 5 sigma) is a receiver clock jump
     # (millisecond steering: 3e5 m): the clock link is not added, the clock restarts.
     clock_jump_m: float = 1000.0

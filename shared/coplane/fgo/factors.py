@@ -290,6 +290,20 @@ def clock_acceleration_factor(
     return _second_difference(keys, dt0_s, dt1_s, np.array([[C / sigma_mps]]), False)
 
 
+CLOCK_BIAS_SIGMA_M = 0.01  # how tightly a bias variable equals its clocks' difference (m)
+
+
+def clock_bias_factor(ref_key: int, system_key: int, bias_key: int) -> gtsam.LinearContainerFactor:
+    """A system's clock is the reference system's plus its bias (all seconds): c_s - c_ref - b = 0,
+    to CLOCK_BIAS_SIGMA_M. With the bias a variable linked over epochs, a receiver's systems share
+    one clock where the default gives each its own, free in every epoch without Doppler."""
+    w = C / CLOCK_BIAS_SIGMA_M
+    unit = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
+    one = np.ones((1, 1))
+    jf = gtsam.JacobianFactor(ref_key, -w * one, system_key, w * one, bias_key, -w * one, np.zeros(1), unit)
+    return linear_container(jf, (False, False, False))
+
+
 def linear_container(jf: gtsam.JacobianFactor, is_point: Sequence[bool]) -> gtsam.LinearContainerFactor:
     """A linear factor held at the origin, as this module builds them: `is_point[i]` says whether
     the i-th key is a Point3 (else a double clock). The smoother pool rebuilds its factors with it

@@ -2,8 +2,9 @@
 
 A key is `gtsam.symbol(chr, index)` with index = slot << 32 | step: `slot` is a small integer given
 to a vehicle id the first time it is seen (never reused), `step` the estimator's epoch counter.
-Kinds: 'p' for the ECEF position (Point3) and one lower-case letter per GNSS system for that
-system's receiver clock (double, seconds): 'g' GPS, 'c' BeiDou, ...
+Kinds: 'p' for the ECEF position (Point3), one lower-case letter per GNSS system for that
+system's receiver clock (double, seconds): 'g' GPS, 'c' BeiDou, ..., and the same letter in upper
+case for its bias against the epoch's reference system (double, seconds; an opt-in).
 """
 
 from __future__ import annotations
@@ -20,7 +21,13 @@ MAX_SLOT = (1 << SLOT_BITS) - 1
 
 POSITION_CHR = "p"
 CLOCK_CHR: dict[str, str] = {"G": "g", "R": "r", "E": "e", "C": "c", "J": "j", "I": "i", "S": "s"}
-_KIND_OF_CHR = {POSITION_CHR: "position", **{c: f"clock-{s}" for s, c in CLOCK_CHR.items()}}
+# a system's clock minus the reference system's (seconds; FgoConfig.clock_isb_sigma_m): upper case
+BIAS_CHR: dict[str, str] = {s: c.upper() for s, c in CLOCK_CHR.items()}
+_KIND_OF_CHR = {
+    POSITION_CHR: "position",
+    **{c: f"clock-{s}" for s, c in CLOCK_CHR.items()},
+    **{c: f"bias-{s}" for s, c in BIAS_CHR.items()},
+}
 
 
 def relinearize_thresholds(position_m: float) -> gtsam.ISAM2ThresholdMap:
@@ -35,7 +42,7 @@ def relinearize_thresholds(position_m: float) -> gtsam.ISAM2ThresholdMap:
     """
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert((POSITION_CHR, np.full(3, position_m)))
-    for c in CLOCK_CHR.values():
+    for c in (*CLOCK_CHR.values(), *BIAS_CHR.values()):
         thresholds.insert((c, np.full(1, position_m / C)))
     return thresholds
 
@@ -54,10 +61,19 @@ def position_key(slot: int, step: int) -> int:
 
 def clock_key(slot: int, step: int, system: str) -> int:
     """Receiver clock of one GNSS system (its own inter-system bias is absorbed here)."""
+    return _system_key(CLOCK_CHR, slot, step, system)
+
+
+def bias_key(slot: int, step: int, system: str) -> int:
+    """Inter-system bias of one GNSS system against the epoch's reference system (seconds)."""
+    return _system_key(BIAS_CHR, slot, step, system)
+
+
+def _system_key(chars: dict[str, str], slot: int, step: int, system: str) -> int:
     try:
-        c = CLOCK_CHR[system]
+        c = chars[system]
     except KeyError:
-        raise ValueError(f"unknown GNSS system {system!r}; known: {''.join(CLOCK_CHR)}") from None
+        raise ValueError(f"unknown GNSS system {system!r}; known: {''.join(chars)}") from None
     return int(gtsam.symbol(c, _index(slot, step)))
 
 

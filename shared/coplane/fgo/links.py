@@ -21,6 +21,8 @@ from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
 
+BIAS_SIGMA_FLOOR_M = 1e-3  # a bias link's least sigma (m): two states at one time stay solvable
+
 
 @dataclass
 class MotionLink:
@@ -62,11 +64,15 @@ class ClockLink:
 
 @dataclass
 class BiasLink:
-    """A system's clock held at the reference system's plus their last estimated bias."""
+    """A system's clock bias against the epoch's reference system, a variable of its own: held at
+    the same bias of the vehicle's latest window state that had one against the same reference
+    (`prev_key`, a random walk of `sigma_m`), else started from the clocks' first guesses."""
 
     system: str
     reference: str
-    bias_m: float
+    init_s: float
+    prev_key: int | None
+    prev_step: int
     sigma_m: float
 
 
@@ -159,17 +165,29 @@ def clock_drift(
 
 
 def inter_system_biases(
-    hist: deque[StateBlock], systems: list[str], state: GraphState, cfg: FgoConfig
+    hist: deque[StateBlock] | None,
+    systems: list[str],
+    clock_init: dict[str, float],
+    t: GpsTime,
+    state: GraphState,
+    cfg: FgoConfig,
 ) -> list[BiasLink]:
-    """The inter-system bias links of a new state (`FgoConfig.clock_isb_sigma_m`): each system
-    after the first, at its bias to the first in the latest window state that had both."""
+    """The inter-system biases of a new state (`FgoConfig.clock_isb_sigma_m`, m per root second):
+    each system after the first (the reference) gets one, linked to its last value in the window."""
     if cfg.clock_isb_sigma_m is None or len(systems) < 2:
         return []
     ref = systems[0]
     links = []
     for s in systems[1:]:
-        b = next((b for b in reversed(hist) if ref in b.clock_keys and s in b.clock_keys), None)
-        if b is not None:
-            bias = C * (state.clock(b.clock_keys[s]) - state.clock(b.clock_keys[ref]))
-            links.append(BiasLink(s, ref, bias, cfg.clock_isb_sigma_m))
+        prev = (
+            next((b for b in reversed(hist) if b.bias_ref == ref and s in b.bias_keys), None)
+            if hist
+            else None
+        )
+        if prev is None:
+            links.append(BiasLink(s, ref, clock_init[s] - clock_init[ref], None, -1, 0.0))
+            continue
+        k = prev.bias_keys[s]
+        sigma = max(cfg.clock_isb_sigma_m * math.sqrt(max(t - prev.time, 0.0)), BIAS_SIGMA_FLOOR_M)
+        links.append(BiasLink(s, ref, state.clock(k), k, prev.step, sigma))
     return links

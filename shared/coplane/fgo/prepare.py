@@ -141,7 +141,7 @@ def prepare_vehicle(
     rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
-    bias_links = inter_system_biases(hist, systems, state, cfg) if hist and honest else []
+    bias_links = inter_system_biases(hist, systems, clock_init, t, state, cfg) if honest else []
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(

@@ -67,7 +67,7 @@ class StateBlock:
     pos_key: int
     clock_keys: dict[str, int]  # GNSS system -> key, systems sorted
     init_pos: Vec
-    init_clocks: dict[int, float]  # clock key -> seconds
+    init_clocks: dict[int, float]  # clock (and bias) key -> seconds
     graph: gtsam.NonlinearFactorGraph  # factors on this epoch's variables only
     counts: dict[str, int]  # of `graph`, by kind
     links: list[Link]
@@ -76,10 +76,13 @@ class StateBlock:
     velocity: Vec | None  # Doppler velocity at this epoch (for the next epoch's displacement)
     clock_drift_mps: float | None
     has_fix: bool
+    # GNSS system -> key of its bias against `bias_ref` (FgoConfig.clock_isb_sigma_m), else empty
+    bias_keys: dict[str, int] = field(default_factory=dict)
+    bias_ref: str | None = None
 
     @property
     def keys(self) -> list[int]:
-        return [self.pos_key, *self.clock_keys.values()]
+        return [self.pos_key, *self.clock_keys.values(), *self.bias_keys.values()]
 
 
 @dataclass
