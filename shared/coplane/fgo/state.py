@@ -35,7 +35,7 @@ class GraphState:
     # step at which each vehicle's current track started (its state came from its SPP)
     track_start: dict[str, int] = field(default_factory=dict)
     # with FgoConfig.clock_drift_carry, each vehicle's last Doppler clock drift (m/s) and its epoch:
-    # the clock's step through epochs without one (`prepare.clock_drift`); it outlives the window
+    # the clock's step through epochs without one (`links.clock_drift`); it outlives the window
     drift_seen: dict[str, tuple[float, GpsTime]] = field(default_factory=dict)
 
     def position(self, key: int) -> Vec:
