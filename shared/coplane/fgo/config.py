@@ -362,6 +362,14 @@ class FgoConfig:
         return float(self.window_epochs - 1)
 
     @property
+    def linear_links(self) -> bool:
+        """Whether the graph holds linear factors (`factors.linear_container`): the three-state
+        links or the bias variables, which the smoother pool must ship apart."""
+        return any(
+            x is not None for x in (self.motion_accel_psd, self.clock_accel_psd, self.clock_isb_sigma_m)
+        )
+
+    @property
     def robust_tuning(self) -> float | None:
         if self.robust is None:
             return None

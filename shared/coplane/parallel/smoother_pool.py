@@ -229,7 +229,7 @@ class SmootherPool:
                     out[i] = RuntimeError(f"smoother worker {w} is gone")
                 continue
             t0 = time.perf_counter()
-            wire = [_wire(tasks[i]) for i in idx]
+            wire = [_wire(tasks[i], self.cfg.linear_links) for i in idx]
             try:
                 self._send(w, (self._drops[w], wire))
                 self._drops[w] = []
@@ -325,15 +325,17 @@ class SmootherPool:
         self._local.close()
 
 
-def _wire(t: SmootherTask) -> tuple[Any, ...]:
-    """A task as a child receives it: the graph built here, the new values as plain lists."""
+def _wire(t: SmootherTask, linear_links: bool) -> tuple[Any, ...]:
+    """A task as a child receives it: the graph built here (its linear factors apart when the
+    configuration makes any, so a default graph is not scanned), the new values as plain lists."""
     graph = build_graph(t.blocks, t.ranges, t.priors, t.oldest_step)
+    packed = pack_graph(graph) if linear_links else (graph, [])
     pos_keys = [b.pos_key for b in t.blocks]
     return (
         t.slot,
         t.create,
         t.vehicles,
-        pack_graph(graph),
+        packed,
         pack_values(t.initial),
         t.timestamps,
         t.cov_keys,
