@@ -92,5 +92,4 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         clock_drift_mps=p.drift,
         has_fix=len(p.prs) >= cfg.min_fix_pseudoranges,
         bias_keys=bias_keys,
-        bias_ref=p.bias_links[0].reference if p.bias_links else None,
     )

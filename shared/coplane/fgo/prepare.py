@@ -70,14 +70,14 @@ def prepare_vehicle(
     velocity, spp = v.velocity, v.spp
     hist = state.window.by_vehicle.get(v.vehicle_id)
     limit = cfg.three_state_max_pseudoranges
-    honest = limit is None or 1 <= len(prs) <= limit  # where the three-state models may apply
+    three_state = limit is None or 1 <= len(prs) <= limit  # where the opt-in links may apply
     link: MotionLink | None = None
     if hist:
         last = hist[-1]
         dt = t - last.time
         p_last = state.position(last.pos_key)
         if cfg.use_velocity:
-            link = displacement(hist, velocity, dt, state, cfg, honest)
+            link = displacement(hist, velocity, dt, state, cfg, three_state)
             init = p_last + link.displacement
         elif spp is not None:
             init = spp
@@ -127,7 +127,7 @@ def prepare_vehicle(
             continue
         dt = t - prev.time
         ck = prev.clock_keys[s]
-        cl = constant_drift(hist, prev, s, dt, state, cfg) if v.drift is None and honest else None
+        cl = constant_drift(hist, prev, s, dt, state, cfg) if v.drift is None and three_state else None
         if cl is None:
             mean, drift_sigma = clock_drift(v.vehicle_id, v.drift, prev.clock_drift_mps, t, state, cfg)
             cl = ClockLink(
@@ -141,7 +141,7 @@ def prepare_vehicle(
     rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
-    bias_links = inter_system_biases(hist, systems, clock_init, t, state, cfg) if honest else []
+    bias_links = inter_system_biases(hist, systems, clock_init, t, state, cfg) if three_state else []
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(

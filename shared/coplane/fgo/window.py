@@ -78,7 +78,11 @@ class StateBlock:
     has_fix: bool
     # GNSS system -> key of its bias against `bias_ref` (FgoConfig.clock_isb_sigma_m), else empty
     bias_keys: dict[str, int] = field(default_factory=dict)
-    bias_ref: str | None = None
+
+    @property
+    def bias_ref(self) -> str | None:
+        """The system the biases are against: the first of the block's (sorted) clocks."""
+        return next(iter(self.clock_keys)) if self.bias_keys else None
 
     @property
     def keys(self) -> list[int]:
