@@ -16,7 +16,6 @@ import argparse
 import hashlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -67,7 +66,7 @@ def main() -> int:
     if args.child:
         child(Path(args.child[0]), args.child[1])
         return 0
-    from docblock import write_block
+    from docblock import machine, publish
 
     from coplane.evaluate.benchmark import TRAINING, make_recordings
 
@@ -93,19 +92,12 @@ def main() -> int:
             )
             print(rows[-1], flush=True)
     head = (
-        f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
+        f"machine: {machine()}; "
         f"urban-loop seed {seed} (training), 4 vehicles x 200 s, DGNSS, default jobs; median of "
         f"{args.repeats} runs per setting, each in a fresh process"
     )
-    table = head + "\n\n" + "\n".join(rows)
-    print(table)
-    if args.out is not None:
-        write_block(
-            args.out,
-            MARK,
-            f"python bench/bench_blas_threads.py --repeats {args.repeats} --out {args.out}",
-            table,
-        )
+    cmd = f"python bench/bench_blas_threads.py --repeats {args.repeats} --out {args.out}"
+    publish(args.out, MARK, cmd, head, rows)
     return 0
 
 

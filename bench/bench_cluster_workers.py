@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import os
-import platform
 import resource
 import statistics
 import sys
@@ -84,7 +82,7 @@ def main() -> int:
     ap.add_argument("--block", default=MARK, help="the docs block to write (one per fleet size)")
     args = ap.parse_args()
     import bench_window_clusters as recorder
-    from docblock import write_block
+    from docblock import machine, publish
 
     counts = [int(w) for w in args.workers.split(",")]
     with tempfile.TemporaryDirectory(prefix="coplane-workers-") as tmp:
@@ -116,20 +114,17 @@ def main() -> int:
             f"{'yes' if same else 'NO'} |"
         )
     head = (
-        f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
+        f"machine: {machine()}; "
         f"city of {args.vehicles} vehicles x {args.duration:.0f} s (seed {args.seed}), method pc, the "
         f"estimator alone on recorded inputs, {len(inputs)} epochs, median of {args.repeats} runs"
     )
-    table = head + "\n\n" + "\n".join(rows)
-    print(table)
-    if args.out is not None:
-        cmd = (
-            f"python bench/bench_cluster_workers.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
-            f"--seed {args.seed} --workers {args.workers} --repeats {args.repeats}"
-            + (f" --block {args.block}" if args.block != MARK else "")
-            + f" --out {args.out}"
-        )
-        write_block(args.out, args.block, cmd, table)
+    cmd = (
+        f"python bench/bench_cluster_workers.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
+        f"--seed {args.seed} --workers {args.workers} --repeats {args.repeats}"
+        + (f" --block {args.block}" if args.block != MARK else "")
+        + f" --out {args.out}"
+    )
+    publish(args.out, args.block, cmd, head, rows)
     return 0
 
 

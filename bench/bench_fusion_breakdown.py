@@ -18,7 +18,6 @@ covariances, and the rest of the step (window bookkeeping, clustering, estimates
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import tempfile
 import time
@@ -97,7 +96,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     import bench_window_clusters as recorder  # the same recorded inputs as the window-bound table
-    from docblock import write_block
+    from docblock import machine, publish
 
     with tempfile.TemporaryDirectory(prefix="coplane-breakdown-") as tmp:
         rec = Path(tmp) / "city"
@@ -111,18 +110,15 @@ def main() -> int:
             rows.append(f"| {part} | {1e3 * sec / n:.2f} | {100 * sec / total:.0f} % |")
     rows.append(f"| **whole step** | **{1e3 * total / n:.2f}** | 100 % |")
     head = (
-        f"machine: {platform.machine()}, Python {platform.python_version()}; city of {args.vehicles} vehicles x "
+        f"machine: {machine(cpus=False)}; city of {args.vehicles} vehicles x "
         f"{args.duration:.0f} s (seed {args.seed}), method pc, the estimator alone on recorded inputs, "
         f"epochs after the first {args.warmup}: {n} vehicle-epochs"
     )
-    table = head + "\n\n" + "\n".join(rows)
-    print(table)
-    if args.out is not None:
-        cmd = (
-            f"python bench/bench_fusion_breakdown.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
-            f"--seed {args.seed} --warmup {args.warmup} --out {args.out}"
-        )
-        write_block(args.out, MARK, cmd, table)
+    cmd = (
+        f"python bench/bench_fusion_breakdown.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
+        f"--seed {args.seed} --warmup {args.warmup} --out {args.out}"
+    )
+    publish(args.out, MARK, cmd, head, rows)
     return 0
 
 

@@ -6,8 +6,16 @@ so a page can hold several tables and the prose around them is never touched.
 
 from __future__ import annotations
 
+import os
+import platform
 import time
 from pathlib import Path
+
+
+def machine(cpus: bool = True) -> str:
+    """'x86_64, 2 CPUs, Python 3.11.7': where a table was made, for its header line."""
+    count = f", {os.cpu_count()} CPUs" if cpus else ""
+    return f"{platform.machine()}{count}, Python {platform.python_version()}"
 
 
 def write_block(path: Path, marker: str, command: str, body: str) -> None:
@@ -18,3 +26,13 @@ def write_block(path: Path, marker: str, command: str, body: str) -> None:
     block = f"{start}\nMade on {time.strftime('%Y-%m-%d')} by `{command}`:\n\n{body}\n{end}"
     i, j = text.index(start), text.index(end) + len(end)
     path.write_text(text[:i] + block + text[j:])
+
+
+def publish(out: Path | None, marker: str, command: str, head: str, rows: list[str]) -> str:
+    """A table (a header line, then its Markdown rows) printed, and written to block `marker` of
+    `out` when one is given; returns the table."""
+    table = head + "\n\n" + "\n".join(rows)
+    print(table)
+    if out is not None:
+        write_block(out, marker, command, table)
+    return table
