@@ -72,8 +72,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     # clock drift over the last three clocks (the EKF baselines' drift density, 0.1 m^2/s^3);
     # and with it a constant velocity over the last three positions, at white-noise
     # accelerations of 1, 0.25 and 0.0625 m^2/s^3 (the EKF baselines': 1.0, vertically 0.1);
-    # "-weak": only in epochs with 1-4 pseudoranges
+    # "-weak": only in epochs with 1-4 pseudoranges. The bias at 0.5 is a default since
+    # 2026-11-29 ("isb-0.5" then changes nothing); "no-isb" is each system's clock free again.
     "isb-0.5": {"clock_isb_sigma_m": 0.5},
+    "no-isb": {"clock_isb_sigma_m": None},
     "isb-0.05": {"clock_isb_sigma_m": 0.05},
     "cv-clock": {"clock_isb_sigma_m": 0.5, "clock_accel_psd": 0.1},
     "cv-1": {

@@ -122,9 +122,9 @@ def test_the_bias_is_a_variable_carried_over_the_epochs() -> None:
     """Each system after the reference gets a bias key per state, linked to the previous one, and
     the estimate stays the receiver's constant hardware bias (the synthetic fleet's is constant)."""
     fleet = _three_satellites_without_doppler()
-    base = get_method("non-cp").fgo
-    assert base is not None
-    est = FusionEstimator(dataclasses.replace(base, clock_isb_sigma_m=0.5))
+    cfg = get_method("non-cp").fgo
+    assert cfg is not None and cfg.clock_isb_sigma_m == 0.5  # a default of the methods
+    est = FusionEstimator(cfg)
     for epoch in fleet.epochs[:10]:
         est.step(epoch)
     blocks = list(est._state.window.by_vehicle["v02"])
@@ -136,14 +136,17 @@ def test_the_bias_is_a_variable_carried_over_the_epochs() -> None:
     assert max(biases) - min(biases) < 0.5
 
 
-def test_where_the_opt_ins_do_not_apply_the_estimates_are_the_defaults() -> None:
-    """The opt-ins restricted to epochs with a single pseudorange (none here) change no bit, and
-    the defaults build none of their factors or keys. (That the defaults did not move at all is
-    checked against the previous commit with bench/solution_digest.py.)"""
+def test_where_the_links_do_not_apply_the_estimates_are_those_without_them() -> None:
+    """The links restricted to epochs with a single pseudorange (none here) change no bit against
+    the graph without them (each system's clock free), and the defaults build the bias but no
+    three-state link. (That a change left the defaults where they were is checked against the
+    previous commit with bench/solution_digest.py.)"""
     fleet = _three_satellites_without_doppler()
     cfg = get_method("non-cp").fgo
-    assert cfg is not None and not cfg.linear_links
-    a = run(fleet, cfg)
+    assert cfg is not None
+    free = dataclasses.replace(cfg, clock_isb_sigma_m=None)
+    assert not free.linear_links
+    a = run(fleet, free)
     b = run(fleet, dataclasses.replace(cfg, **HONEST, three_state_max_pseudoranges=1))  # type: ignore[arg-type]
     for sa, sb in zip(a, b, strict=True):
         for vid, ea in sa.estimates.items():
@@ -152,8 +155,8 @@ def test_where_the_opt_ins_do_not_apply_the_estimates_are_the_defaults() -> None
     for epoch in fleet.epochs:
         est.step(epoch)
     for hist in est._state.window.by_vehicle.values():
-        for blk in hist:
-            assert not blk.bias_keys and "clock_bias" not in blk.counts
+        assert all(blk.bias_keys for blk in hist)  # two systems in every epoch of this fleet
+        for blk in hist:  # a three-state link is a linear factor; the bias's links are not
             assert not any(isinstance(ln.factor, gtsam.LinearContainerFactor) for ln in blk.links)
 
 

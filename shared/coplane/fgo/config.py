@@ -170,9 +170,10 @@ class FgoConfig:
     # keeps a constant drift over its last three values (`factors.clock_acceleration_factor`), a
     # drift random walk of this spectral density (m^2/s^3), instead of the step above.
     clock_accel_psd: float | None = None
-    # Opt-in: each GNSS system's clock is the reference system's (the first in sorted order) plus
-    # a bias variable, linked over epochs as a random walk of this sigma (m per root second): a
-    # receiver's systems share one oscillator, so the bias is a constant of the hardware.
+    # Each GNSS system's clock is the reference system's (the first in sorted order) plus a bias
+    # variable, linked over epochs as a random walk of this sigma (m per root second): a
+    # receiver's systems share one oscillator, so the bias is a constant of the hardware. Off in
+    # a bare FgoConfig (the paper's graph); the methods run 0.5 (`methods.registry.ROBUST_FGO`).
     clock_isb_sigma_m: float | None = None
     # motion_accel_psd, clock_accel_psd and clock_isb_sigma_m only for a vehicle epoch with 1 to
     # this many pseudoranges (None: every epoch), where the pseudoranges alone cannot fix it.

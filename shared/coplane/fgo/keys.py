@@ -4,7 +4,7 @@ A key is `gtsam.symbol(chr, index)` with index = slot << 32 | step: `slot` is a 
 to a vehicle id the first time it is seen (never reused), `step` the estimator's epoch counter.
 Kinds: 'p' for the ECEF position (Point3), one lower-case letter per GNSS system for that
 system's receiver clock (double, seconds): 'g' GPS, 'c' BeiDou, ..., and the same letter in upper
-case for its bias against the epoch's reference system (double, seconds; an opt-in).
+case for its bias against the epoch's reference system (double, seconds; `FgoConfig.clock_isb_sigma_m`).
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@ or the fallbacks without it) and receiver clocks (drift steps, constant drift, i
 
 `prepare` decides per vehicle epoch which of these it gets; `blocks` turns them into factors.
 The three-state forms (constant velocity, constant drift; FgoConfig `motion_accel_psd`,
-`clock_accel_psd`) and the bias tie (`clock_isb_sigma_m`) are opt-ins (docs/fgo.md).
+`clock_accel_psd`) are opt-ins; the inter-system bias (`clock_isb_sigma_m`) is on in the methods'
+defaults (docs/fgo.md).
 """
 
 from __future__ import annotations
