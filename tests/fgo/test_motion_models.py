@@ -66,12 +66,29 @@ def test_clock_acceleration_factor_is_the_drift_change_in_metres_per_second() ->
     assert f.error(_clocks(b0, b0 + drift_s, b0 + 2 * drift_s + 0.6 / C)) == pytest.approx(2.0, rel=1e-6)
 
 
-def test_clock_bias_factor_ties_a_systems_clock_to_the_reference_plus_its_bias() -> None:
-    f = F.clock_bias_factor(0, 1, 2)  # keys: reference clock, the system's clock, its bias
-    b_ref, isb = 1e-4, 3.0 / C
-    assert f.error(_clocks(b_ref, b_ref + isb, isb)) == pytest.approx(0.0, abs=1e-12)
-    off = F.CLOCK_BIAS_SIGMA_M / C  # one sigma
-    assert f.error(_clocks(b_ref, b_ref + isb + off, isb)) == pytest.approx(0.5, rel=1e-6)
+def test_a_systems_offset_from_the_receiver_clock_is_its_own_clock() -> None:
+    """A pseudorange keyed on the receiver clock and the system's offset d = c (dt_ref - dt_s)
+    (`factors.pseudorange_factors` with a correction key) has the error of the same pseudorange
+    on the system's own clock dt_s: the sign and unit (metres) of GTSAM's correction variable."""
+    sat = np.array([15_600e3, 7_540e3, 20_140e3])
+    rho, dt_ref, dt_s = 2.2e7, 1e-4, 1e-4 + 30e-9
+    own, offset = F.pseudorange_factors(
+        position_key(0, 0),
+        [clock_key(0, 0, "C"), clock_key(0, 0, "G")],
+        [rho, rho],
+        np.array([sat, sat]),
+        [2e-7, 2e-7],
+        [3.0, 3.0],
+        RX,
+        correction_keys=[None, bias_key(0, 0, "C")],
+    )
+    v = gtsam.Values()
+    v.insertPoint3(position_key(0, 0), RX)
+    v.insert(clock_key(0, 0, "C"), c=dt_s)
+    v.insert(clock_key(0, 0, "G"), c=dt_ref)
+    v.insert(bias_key(0, 0, "C"), c=C * (dt_ref - dt_s))
+    assert isinstance(offset, gtsam.DifferentialPseudorangeFactor)
+    assert offset.error(v) == pytest.approx(own.error(v), rel=1e-12) and own.error(v) > 1.0
 
 
 def test_the_linear_factors_cross_to_the_smoother_pool_exactly() -> None:
@@ -83,15 +100,14 @@ def test_the_linear_factors_cross_to_the_smoother_pool_exactly() -> None:
     g.add(F.position_prior(p[0], RX, np.eye(3)))
     g.add(F.acceleration_factor((p[0], p[1], p[2]), 1.0, 1.0, 0.5, 0.1, RX))
     g.add(F.clock_acceleration_factor((c[0], c[1], c[2]), 1.0, 1.0, 0.3))
-    g.add(F.clock_bias_factor(c[0], c[1], bias_key(0, 0, "C")))
     vals = gtsam.Values()
     for k, x in zip(p, (RX, RX + 1.0, RX + 3.0), strict=True):
         vals.insertPoint3(k, x)
-    for k, b in zip([*c, bias_key(0, 0, "C")], (0.0, 1e-8, 3e-8, 2e-8), strict=True):
+    for k, b in zip(c, (0.0, 1e-8, 3e-8), strict=True):
         vals.insert(k, c=b)
-    before = [g.at(i).error(vals) for i in range(4)]
+    before = [g.at(i).error(vals) for i in range(3)]
     back = unpack_graph(*pickle.loads(pickle.dumps(pack_graph(g.clone()))))
-    assert [back.at(i).error(vals) for i in range(4)] == before and min(before[1:]) > 0
+    assert [back.at(i).error(vals) for i in range(3)] == before and min(before[1:]) > 0
 
 
 def _three_satellites_without_doppler():  # type: ignore[no-untyped-def]
@@ -118,35 +134,60 @@ def test_the_estimator_builds_them_and_stays_on_the_road(solver: str) -> None:
             assert any(isinstance(ln.factor, gtsam.LinearContainerFactor) for ln in last.links)
 
 
-def test_the_bias_is_a_variable_carried_over_the_epochs() -> None:
-    """Each system after the reference gets a bias key per state, linked to the previous one, and
-    the estimate stays the receiver's constant hardware bias (the synthetic fleet's is constant)."""
+def test_one_receiver_clock_and_an_offset_per_other_system() -> None:
+    """Each state has one clock (the first system seen) and an offset per other system, linked to
+    the previous one; the reported clocks per system are the receiver clock less the offset, and
+    the offset stays the receiver's constant hardware bias (the synthetic fleet's is constant)."""
     fleet = _three_satellites_without_doppler()
     cfg = get_method("non-cp").fgo
     assert cfg is not None and cfg.clock_isb_sigma_m == 0.5  # a default of the methods
     est = FusionEstimator(cfg)
     for epoch in fleet.epochs[:10]:
-        est.step(epoch)
+        sol = est.step(epoch)
     blocks = list(est._state.window.by_vehicle["v02"])
-    assert all(b.bias_ref == "C" and set(b.bias_keys) == {"G"} for b in blocks)
+    assert all(
+        b.clock_ref == "C" and set(b.clock_keys) == {"C"} and set(b.bias_keys) == {"G"} for b in blocks
+    )
     assert all([ln.kind for ln in b.links].count("clock_bias") == 1 for b in blocks[1:])
-    biases = [C * est._state.clock(b.bias_keys["G"]) for b in blocks]
-    clocks = [C * (est._state.clock(b.clock_keys["G"]) - est._state.clock(b.clock_keys["C"])) for b in blocks]
-    np.testing.assert_allclose(biases, clocks, atol=0.05)
-    assert max(biases) - min(biases) < 0.5
+    offsets = [est._state.clock(b.bias_keys["G"]) for b in blocks]
+    assert max(offsets) - min(offsets) < 0.5
+    clocks = sol.estimates["v02"].clocks_s
+    assert set(clocks) == {"C", "G"}
+    assert C * (clocks["C"] - clocks["G"]) == pytest.approx(offsets[-1], abs=1e-6)
 
 
-def test_where_the_links_do_not_apply_the_estimates_are_those_without_them() -> None:
-    """The links restricted to epochs with a single pseudorange (none here) change no bit against
-    the graph without them (each system's clock free), and the defaults build the bias but no
-    three-state link. (That a change left the defaults where they were is checked against the
-    previous commit with bench/solution_digest.py.)"""
-    fleet = _three_satellites_without_doppler()
+def test_the_receiver_clock_goes_on_through_epochs_without_its_system() -> None:
+    """The reference stays the vehicle's first system when epochs have none of its satellites:
+    its clock is then carried by the clock link and the other system's offset, and the track
+    stays where it was."""
+    fleet = make_fleet(2, 12, seed=3)
+    for k in range(5, 8):  # v01 sees no BeiDou satellite (its reference) for three epochs
+        vin = fleet.epochs[k].vehicles["v01"]
+        gps = tuple(o for o in vin.pseudoranges if not o.sat.startswith("C"))
+        fleet.epochs[k].vehicles["v01"] = dataclasses.replace(vin, pseudoranges=gps)
     cfg = get_method("non-cp").fgo
     assert cfg is not None
-    free = dataclasses.replace(cfg, clock_isb_sigma_m=None)
-    assert not free.linear_links
-    a = run(fleet, free)
+    est = FusionEstimator(cfg)
+    for k, epoch in enumerate(fleet.epochs):
+        sol = est.step(epoch)
+        err = float(np.linalg.norm(sol.estimates["v01"].position_m - fleet.truth[k]["v01"]))
+        if k == 4:
+            before = err
+        if k in range(5, 8):
+            blk = est._state.window.by_vehicle["v01"][-1]
+            assert blk.clock_ref == "C" and set(blk.clock_keys) == {"C"} and set(blk.bias_keys) == {"G"}
+            assert {ln.kind for ln in blk.links} >= {"clock", "clock_bias"}
+            assert err < before + 0.5  # measured: 2.4 m before, 2.2-2.4 m without BeiDou
+
+
+def test_where_the_three_state_links_do_not_apply_the_estimates_are_the_defaults() -> None:
+    """The three-state links restricted to epochs with a single pseudorange (none here) change no
+    bit against the defaults, which build none of them. (That a change left the defaults where
+    they were is checked against the previous commit with bench/solution_digest.py.)"""
+    fleet = _three_satellites_without_doppler()
+    cfg = get_method("non-cp").fgo
+    assert cfg is not None and not cfg.linear_links
+    a = run(fleet, cfg)
     b = run(fleet, dataclasses.replace(cfg, **HONEST, three_state_max_pseudoranges=1))  # type: ignore[arg-type]
     for sa, sb in zip(a, b, strict=True):
         for vid, ea in sa.estimates.items():
@@ -156,7 +197,7 @@ def test_where_the_links_do_not_apply_the_estimates_are_those_without_them() -> 
         est.step(epoch)
     for hist in est._state.window.by_vehicle.values():
         assert all(blk.bias_keys for blk in hist)  # two systems in every epoch of this fleet
-        for blk in hist:  # a three-state link is a linear factor; the bias's links are not
+        for blk in hist:  # a three-state link is a linear factor
             assert not any(isinstance(ln.factor, gtsam.LinearContainerFactor) for ln in blk.links)
 
 

@@ -26,11 +26,20 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
     g = gtsam.NonlinearFactorGraph()
     counts: dict[str, int] = {}
     init_clocks = {cks[s]: b for s, b in p.clock_init.items()}
+    links: list[Link] = []
+    bias_keys: dict[str, int] = {}
+    for bl in p.bias_links:
+        bk = bias_keys[bl.system] = bias_key(slot, k, bl.system)
+        init_clocks[bk] = bl.init_m
+        counts["clock_bias"] = counts.get("clock_bias", 0) + 1
+        if bl.prev_key is not None:
+            links.append(Link(bl.prev_step, "clock_bias", F.bias_factor(bl.prev_key, bk, bl.sigma_m)))
     prs = p.prs
     if len(prs):
+        ref = cks[p.clock_ref] if p.clock_ref is not None else None
         for f in F.pseudorange_factors(
             pk,
-            [cks[sys] for sys in prs.systems],
+            [cks[sys] if ref is None else ref for sys in prs.systems],
             prs.rho,
             prs.sat_pos,
             prs.sat_clock,
@@ -38,6 +47,7 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
             p.init_pos,
             cfg.robust,
             cfg.robust_tuning,
+            [bias_keys.get(sys) for sys in prs.systems] if bias_keys else None,
         ):
             g.add(f)
         counts["pseudorange"] = len(prs)
@@ -45,15 +55,6 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
     if p.plane is not None:
         g.add(F.plane_factor(pk, p.plane, *link_kernel))
         counts["plane"] = 1
-    links: list[Link] = []
-    bias_keys: dict[str, int] = {}
-    for bl in p.bias_links:
-        bk = bias_keys[bl.system] = bias_key(slot, k, bl.system)
-        init_clocks[bk] = bl.init_s
-        g.add(F.clock_bias_factor(cks[bl.reference], cks[bl.system], bk))
-        counts["clock_bias"] = counts.get("clock_bias", 0) + 1
-        if bl.prev_key is not None:
-            links.append(Link(bl.prev_step, "clock_bias", F.clock_factor(bl.prev_key, bk, 0.0, bl.sigma_m)))
     ln = p.link
     if ln is not None and ln.accel is not None:
         a = ln.accel
@@ -91,5 +92,6 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         velocity=p.velocity,
         clock_drift_mps=p.drift,
         has_fix=len(p.prs) >= cfg.min_fix_pseudoranges,
+        clock_ref=p.clock_ref,
         bias_keys=bias_keys,
     )

@@ -170,13 +170,14 @@ class FgoConfig:
     # keeps a constant drift over its last three values (`factors.clock_acceleration_factor`), a
     # drift random walk of this spectral density (m^2/s^3), instead of the step above.
     clock_accel_psd: float | None = None
-    # Each GNSS system's clock is the reference system's (the first in sorted order) plus a bias
-    # variable, linked over epochs as a random walk of this sigma (m per root second): a
-    # receiver's systems share one oscillator, so the bias is a constant of the hardware. Off in
-    # a bare FgoConfig (the paper's graph); the methods run 0.5 (`methods.registry.ROBUST_FGO`).
+    # A receiver's systems share one oscillator: each vehicle state has one receiver clock (the
+    # first system it saw, kept while the vehicle is in the window) and each other system an
+    # offset from it (metres), linked over epochs as a random walk of this sigma (m per root
+    # second; `links.clock_reference`). None: each system its own clock, the paper's graph and a
+    # bare FgoConfig's; the methods run 0.5 (`methods.registry.ROBUST_FGO`).
     clock_isb_sigma_m: float | None = None
-    # motion_accel_psd, clock_accel_psd and clock_isb_sigma_m only for a vehicle epoch with 1 to
-    # this many pseudoranges (None: every epoch), where the pseudoranges alone cannot fix it.
+    # motion_accel_psd and clock_accel_psd only for a vehicle epoch with 1 to this many
+    # pseudoranges (None: every epoch), where the pseudoranges alone cannot fix it.
     three_state_max_pseudoranges: int | None = None
     # A new clock this far (m) from the predicted one (or > 5 sigma) is a receiver clock jump
     # (millisecond steering: 3e5 m): the clock link is not added, the clock restarts.
@@ -365,10 +366,8 @@ class FgoConfig:
     @property
     def linear_links(self) -> bool:
         """Whether the graph holds linear factors (`factors.linear_container`): the three-state
-        links or the bias variables, which the smoother pool must ship apart."""
-        return any(
-            x is not None for x in (self.motion_accel_psd, self.clock_accel_psd, self.clock_isb_sigma_m)
-        )
+        links, which the smoother pool must ship apart."""
+        return self.motion_accel_psd is not None or self.clock_accel_psd is not None
 
     @property
     def robust_tuning(self) -> float | None:

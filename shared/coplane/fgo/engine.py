@@ -320,10 +320,20 @@ class FusionEstimator:
                 time=t,
                 position_m=st.position(blk.pos_key),
                 covariance_m2=st.cov.get(blk.pos_key, nan_cov) * self.config.covariance_scale**2,
-                clocks_s={s: st.clock(ck) for s, ck in blk.clock_keys.items()},
+                clocks_s=_clocks(st, blk),
                 n_pseudoranges=blk.n_pseudoranges,
                 n_ranges=n_ranges.get(vid, 0),
                 plane_used=blk.plane_used,
                 has_gnss_fix=blk.has_fix,
             )
         return estimates
+
+
+def _clocks(st: GraphState, blk: StateBlock) -> dict[str, float]:
+    """Each system's receiver clock (seconds): its own variable, or the receiver clock less the
+    system's offset (`FgoConfig.clock_isb_sigma_m`), systems sorted."""
+    out = {s: st.clock(ck) for s, ck in blk.clock_keys.items()}
+    if blk.clock_ref is not None:
+        ref = out[blk.clock_ref]
+        out |= {s: ref - st.clock(bk) / C for s, bk in blk.bias_keys.items()}
+    return dict(sorted(out.items()))

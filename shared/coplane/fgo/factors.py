@@ -129,21 +129,29 @@ def pseudorange_factors(
     receiver_approx: Vec,
     robust: str | None = None,
     robust_k: float | None = None,
-) -> list[gtsam.PseudorangeFactor]:
+    correction_keys: Sequence[int | None] | None = None,
+) -> list[gtsam.NonlinearFactor]:
     """All pseudorange factors of one vehicle epoch (one vectorised frame conversion).
 
+    A row with a `correction_keys` entry keys its system's offset from the receiver clock
+    (metres, c (dt_clock - dt_system)): GTSAM's `DifferentialPseudorangeFactor`, whose error is
+    the `PseudorangeFactor`'s minus that variable (Sagnac the same; tests/fgo/test_motion_models.py),
+    so a receiver has one clock and its systems a slowly walking offset each.
     Per-satellite sigmas are all different, so their noise models bypass the caches; the scalars
     go to GTSAM as Python floats (pybind converts numpy scalars several times more slowly).
     """
     sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
-    return [
-        gtsam.PseudorangeFactor(
-            pos_key, ck, r, sat, sc, with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
-        )
-        for ck, r, sat, sc, sg in zip(
-            clock_keys, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
-        )
-    ]
+    corr = correction_keys if correction_keys is not None else [None] * len(sats)
+    out: list[gtsam.NonlinearFactor] = []
+    for ck, dk, r, sat, sc, sg in zip(
+        clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
+    ):
+        noise = with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
+        if dk is None:
+            out.append(gtsam.PseudorangeFactor(pos_key, ck, r, sat, sc, noise))
+        else:
+            out.append(gtsam.DifferentialPseudorangeFactor(pos_key, ck, dk, r, sat, sc, noise))
+    return out
 
 
 def _floats(x: Sequence[float] | Vec) -> list[float]:
@@ -290,18 +298,9 @@ def clock_acceleration_factor(
     return _second_difference(keys, dt0_s, dt1_s, np.array([[C / sigma_mps]]), False)
 
 
-CLOCK_BIAS_SIGMA_M = 0.01  # how tightly a bias variable equals its clocks' difference (m)
-
-
-def clock_bias_factor(ref_key: int, system_key: int, bias_key: int) -> gtsam.LinearContainerFactor:
-    """A system's clock is the reference system's plus its bias (all seconds): c_s - c_ref - b = 0,
-    to CLOCK_BIAS_SIGMA_M. With the bias a variable linked over epochs, a receiver's systems share
-    one clock where the default gives each its own, free in every epoch without Doppler."""
-    w = C / CLOCK_BIAS_SIGMA_M
-    unit = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
-    one = np.ones((1, 1))
-    jf = gtsam.JacobianFactor(ref_key, -w * one, system_key, w * one, bias_key, -w * one, np.zeros(1), unit)
-    return linear_container(jf, (False, False, False))
+def bias_factor(prev_key: int, key: int, sigma_m: float) -> gtsam.BetweenFactorDouble:
+    """A system's offset from the receiver clock (metres) walks by `sigma_m` since its last value."""
+    return gtsam.BetweenFactorDouble(prev_key, key, 0.0, isotropic(1, sigma_m))
 
 
 def linear_container(jf: gtsam.JacobianFactor, is_point: Sequence[bool]) -> gtsam.LinearContainerFactor:

@@ -13,7 +13,7 @@ import numpy as np
 
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.keys import POSITION_CHR
+from coplane.fgo.keys import BIAS_CHR, POSITION_CHR
 from coplane.fgo.window import (
     ClusterResult,
     RangeEdge,
@@ -22,6 +22,9 @@ from coplane.fgo.window import (
     lm_params,
     marginal_covariances,
 )
+from coplane.gnss.constants import C
+
+LOOSE_CLOCK_S = 1e-5  # GNC's prior on every clock (3 km): keeps a system without inliers solvable
 
 
 def gnc_candidates(
@@ -55,14 +58,14 @@ def solve_gnc_window(
     params = gtsam.GncLMParams(lm_params(cfg))
     params.setLossType(gtsam.GncLossType.TLS if cfg.gnc == "tls" else gtsam.GncLossType.GM)
     # TLS may reject every pseudorange of one system at an epoch: a loose prior (1e-5 s, 3 km) on
-    # each clock keeps that clock determined instead of making the system singular
+    # each clock (and each system's offset from the receiver clock, in metres) keeps that variable
+    # determined instead of making the system singular
     for key in initial.keys():  # noqa: SIM118 (gtsam.Values is not iterable)
-        if gtsam.Symbol(key).chr() != ord(POSITION_CHR):
-            graph.add(F.clock_prior(key, initial.atDouble(key), 1e-5))
+        kind = chr(gtsam.Symbol(key).chr())
+        if kind != POSITION_CHR:
+            sigma = LOOSE_CLOCK_S * C if kind in BIAS_CHR.values() else LOOSE_CLOCK_S
+            graph.add(F.clock_prior(key, initial.atDouble(key), sigma))
     params.setKnownInliers([i for i in range(int(graph.size())) if i not in cand])
-    # the inter-system bias ties are linear factors without a noise model (`factors.linear_container`);
-    # GTSAM refuses them unless told, and as known inliers GNC never reweights them
-    params.setAllowNonNoiseModelFactors(True)
     opt = gtsam.GncLMOptimizer(graph, initial, params)
     opt.setInlierCostThresholdsAtProbability(cfg.gnc_inlier_probability)
     before = graph.error(initial)

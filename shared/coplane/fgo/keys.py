@@ -4,7 +4,7 @@ A key is `gtsam.symbol(chr, index)` with index = slot << 32 | step: `slot` is a 
 to a vehicle id the first time it is seen (never reused), `step` the estimator's epoch counter.
 Kinds: 'p' for the ECEF position (Point3), one lower-case letter per GNSS system for that
 system's receiver clock (double, seconds): 'g' GPS, 'c' BeiDou, ..., and the same letter in upper
-case for its bias against the epoch's reference system (double, seconds; `FgoConfig.clock_isb_sigma_m`).
+case for its offset from the receiver clock (double, metres; `FgoConfig.clock_isb_sigma_m`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ MAX_SLOT = (1 << SLOT_BITS) - 1
 
 POSITION_CHR = "p"
 CLOCK_CHR: dict[str, str] = {"G": "g", "R": "r", "E": "e", "C": "c", "J": "j", "I": "i", "S": "s"}
-# a system's clock minus the reference system's (seconds; FgoConfig.clock_isb_sigma_m): upper case
+# a system's offset from the receiver clock, c (dt_ref - dt_system) (metres; FgoConfig.clock_isb_sigma_m)
 BIAS_CHR: dict[str, str] = {s: c.upper() for s, c in CLOCK_CHR.items()}
 _KIND_OF_CHR = {
     POSITION_CHR: "position",
@@ -42,8 +42,10 @@ def relinearize_thresholds(position_m: float) -> gtsam.ISAM2ThresholdMap:
     """
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert((POSITION_CHR, np.full(3, position_m)))
-    for c in (*CLOCK_CHR.values(), *BIAS_CHR.values()):
+    for c in CLOCK_CHR.values():
         thresholds.insert((c, np.full(1, position_m / C)))
+    for c in BIAS_CHR.values():  # a system's offset from the receiver clock is in metres
+        thresholds.insert((c, np.full(1, position_m)))
     return thresholds
 
 
@@ -65,7 +67,7 @@ def clock_key(slot: int, step: int, system: str) -> int:
 
 
 def bias_key(slot: int, step: int, system: str) -> int:
-    """Inter-system bias of one GNSS system against the epoch's reference system (seconds)."""
+    """One GNSS system's offset from the vehicle's receiver clock, c (dt_ref - dt_system), metres."""
     return _system_key(BIAS_CHR, slot, step, system)
 
 

@@ -3,8 +3,8 @@ or the fallbacks without it) and receiver clocks (drift steps, constant drift, i
 
 `prepare` decides per vehicle epoch which of these it gets; `blocks` turns them into factors.
 The three-state forms (constant velocity, constant drift; FgoConfig `motion_accel_psd`,
-`clock_accel_psd`) are opt-ins; the inter-system bias (`clock_isb_sigma_m`) is on in the methods'
-defaults (docs/fgo.md).
+`clock_accel_psd`) are opt-ins; one receiver clock with a correction per other system
+(`clock_isb_sigma_m`) is on in the methods' defaults (docs/fgo.md).
 """
 
 from __future__ import annotations
@@ -65,13 +65,14 @@ class ClockLink:
 
 @dataclass
 class BiasLink:
-    """A system's clock bias against the epoch's reference system, a variable of its own: held at
-    the same bias of the vehicle's latest window state that had one against the same reference
-    (`prev_key`, a random walk of `sigma_m`), else started from the clocks' first guesses."""
+    """A system's correction to the vehicle's one receiver clock, a variable of its own (metres,
+    `factors.pseudorange_factors`: c (dt_ref - dt_s)): held at the same correction of the
+    vehicle's latest window state that had one against the same reference (`prev_key`, a random
+    walk of `sigma_m`), else started from the clocks' first guesses."""
 
     system: str
     reference: str
-    init_s: float
+    init_m: float
     prev_key: int | None
     prev_step: int
     sigma_m: float
@@ -165,28 +166,41 @@ def clock_drift(
     return last, min(cfg.clock_drift_sigma, cfg.clock_drift_wander * max(t - at, 0.0))
 
 
+def clock_reference(hist: deque[StateBlock] | None, systems: list[str], cfg: FgoConfig) -> str | None:
+    """The system whose clock variable is the vehicle's one receiver clock
+    (`FgoConfig.clock_isb_sigma_m`): the reference of its latest window state that had one, so the
+    clock goes on through epochs without that system's satellites; else the first system seen.
+    None when the systems keep clocks of their own, or the epoch has no pseudorange."""
+    if cfg.clock_isb_sigma_m is None or not systems:
+        return None
+    prev = next((b.clock_ref for b in reversed(hist) if b.clock_ref is not None), None) if hist else None
+    return prev if prev is not None else systems[0]
+
+
 def inter_system_biases(
     hist: deque[StateBlock] | None,
+    ref: str,
     systems: list[str],
     clock_init: dict[str, float],
     t: GpsTime,
     state: GraphState,
     cfg: FgoConfig,
 ) -> list[BiasLink]:
-    """The inter-system biases of a new state (`FgoConfig.clock_isb_sigma_m`, m per root second):
-    each system after the first (the reference) gets one, linked to its last value in the window."""
-    if cfg.clock_isb_sigma_m is None or len(systems) < 2:
-        return []
-    ref = systems[0]
+    """The corrections of a new state's systems other than the reference (`clock_ref`; m per root
+    second of random walk, `FgoConfig.clock_isb_sigma_m`), each linked to its last value in the
+    window. `clock_init` has every system's first guess (seconds), the reference's included."""
+    assert cfg.clock_isb_sigma_m is not None
     links = []
-    for s in systems[1:]:
+    for s in systems:
+        if s == ref:
+            continue
         prev = (
-            next((b for b in reversed(hist) if b.bias_ref == ref and s in b.bias_keys), None)
+            next((b for b in reversed(hist) if b.clock_ref == ref and s in b.bias_keys), None)
             if hist
             else None
         )
         if prev is None:
-            links.append(BiasLink(s, ref, clock_init[s] - clock_init[ref], None, -1, 0.0))
+            links.append(BiasLink(s, ref, C * (clock_init[ref] - clock_init[s]), None, -1, 0.0))
             continue
         k = prev.bias_keys[s]
         sigma = max(cfg.clock_isb_sigma_m * math.sqrt(max(t - prev.time, 0.0)), BIAS_SIGMA_FLOOR_M)

@@ -3,7 +3,8 @@
 This is the stage between `coplane.estimation.validate_epoch` and the factors (`blocks`): it
 predicts the new position from the vehicle's last state (velocity, paper eqs. 35-36; the links
 themselves are built in `links`), optionally gates pseudoranges against that prediction,
-initialises one clock per GNSS system, links each clock to its previous value unless the receiver
+initialises one clock per GNSS system (or, with `FgoConfig.clock_isb_sigma_m`, the receiver's one
+clock and a correction per other system), links each clock to its previous value unless the receiver
 clock jumped, and counts the independent position constraints the vehicle brings, so that a
 vehicle whose first position would be indeterminate is left out instead of making the whole
 cluster singular.
@@ -26,6 +27,7 @@ from coplane.fgo.links import (
     ClockLink,
     MotionLink,
     clock_drift,
+    clock_reference,
     constant_drift,
     displacement,
     inter_system_biases,
@@ -43,7 +45,7 @@ class Prepared:
 
     vid: str
     prs: ValidPseudoranges
-    systems: list[str]
+    systems: list[str]  # those with a clock variable: every observed one, or the reference alone
     plane: PlaneObs | None
     velocity: Vec | None
     drift: float | None
@@ -57,6 +59,7 @@ class Prepared:
     fde_w: Vec | None = None
     restarted: bool = False  # a new track although the window holds earlier states (FgoConfig)
     bias_links: list[BiasLink] = dataclasses.field(default_factory=list)
+    clock_ref: str | None = None  # the one receiver clock's system (FgoConfig.clock_isb_sigma_m)
 
 
 def prepare_vehicle(
@@ -120,8 +123,10 @@ def prepare_vehicle(
             by_system[s].append(r)
         # statistics.median: np.median's value, without its overhead on a dozen numbers
         clock_init = {s: statistics.median(by_system[s]) / C for s in systems}
+    ref = clock_reference(hist, systems, cfg)  # one receiver clock, or one per system (None)
+    clock_systems = [ref] if ref is not None else systems
     clock_links: dict[str, ClockLink] = {}
-    for s in systems:
+    for s in clock_systems:
         prev = next((b for b in reversed(hist) if s in b.clock_keys), None) if hist else None
         if prev is None or hist is None:
             continue
@@ -134,31 +139,37 @@ def prepare_vehicle(
                 ck, prev.step, mean * dt, F.clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
             )
         predicted_m = C * state.clock(ck) + cl.step_m
-        if abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * cl.sigma_m):
+        if s not in clock_init:  # the reference system has no satellite now: its clock goes on
+            clock_init[s] = predicted_m / C
+        elif abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * cl.sigma_m):
             stats.reject("clock_link")  # a receiver clock jump (e.g. 1 ms steering): restart
             continue
         clock_links[s] = cl
-    rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in clock_links else 0)) for s in systems) + (
+    # a reference from the window has a clock there, so the loop gave it a first guess
+    assert ref is None or ref in clock_init
+    bias_links = inter_system_biases(hist, ref, systems, clock_init, t, state, cfg) if ref is not None else []
+    linked = set(clock_links) | {b.system for b in bias_links if b.prev_key is not None}
+    rank = sum(max(0, prs.systems.count(s) - 1 + (1 if s in linked else 0)) for s in systems) + (
         1 if plane is not None else 0
     )
-    bias_links = inter_system_biases(hist, systems, clock_init, t, state, cfg) if three_state else []
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
     return Prepared(
         v.vehicle_id,
         prs,
-        systems,
+        clock_systems,
         plane,
         velocity,
         v.drift,
         init,
         link,
-        clock_init,
+        {c: clock_init[c] for c in clock_systems},
         clock_links,
         rank,
         fde_w,
         restarted,
         bias_links,
+        ref,
     )
 
 

@@ -23,8 +23,10 @@ from coplane.fgo.gnc import solve_gnc_window
 from coplane.fgo.smoother import LocalSmoothers, SmootherTask
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import ClusterResult, ClusterView, StateBlock, StepRecord, solve_lm_window
+from coplane.gnss.constants import C
 
 FALLBACK_CLOCK_SIGMA_S = 1e-3  # strong-prior retry: clocks only need regularising
+ANCHOR_CLOCK_SIGMA_M = 1000.0  # the window's first receiver clock when the systems share one
 
 
 class ClusterFailure(RuntimeError):
@@ -141,6 +143,13 @@ class ClusterSolver:
                 continue  # created this epoch: nothing to anchor to
             cov = F.floored_covariance(st.cov.get(oldest.pos_key), self.cfg.anchor_sigma)
             out.append(F.position_prior(oldest.pos_key, st.position(oldest.pos_key), cov))
+            # one receiver clock (FgoConfig.clock_isb_sigma_m) that epochs without its system's
+            # satellites carry: only its differences to the offsets are observed there, so the
+            # window's first such clock needs a value (loose: 1 km) once its link has left
+            first = next((b for b in st.window.by_vehicle[v] if b.clock_ref is not None), None)
+            if first is not None and first.clock_ref is not None and first.step != st.step:
+                ck = first.clock_keys[first.clock_ref]
+                out.append(F.clock_prior(ck, st.clock(ck), ANCHOR_CLOCK_SIGMA_M / C))
         return out
 
     def _strong_priors(self, blocks: Sequence[StateBlock]) -> list[gtsam.NonlinearFactor]:
@@ -151,6 +160,8 @@ class ClusterSolver:
             out.append(F.position_prior(b.pos_key, self.state.position(b.pos_key), cov))
             for ck in b.clock_keys.values():
                 out.append(F.clock_prior(ck, self.state.clock(ck), FALLBACK_CLOCK_SIGMA_S))
+            for bk in b.bias_keys.values():  # offsets from the receiver clock, metres
+                out.append(F.clock_prior(bk, self.state.clock(bk), FALLBACK_CLOCK_SIGMA_S * C))
         return out
 
     def _drop_new(self, vehicles: Sequence[str], rec: StepRecord, reason: str, stats: StepStats) -> None:

@@ -67,7 +67,7 @@ class StateBlock:
     pos_key: int
     clock_keys: dict[str, int]  # GNSS system -> key, systems sorted
     init_pos: Vec
-    init_clocks: dict[int, float]  # clock (and bias) key -> seconds
+    init_clocks: dict[int, float]  # clock key -> seconds (a correction's key -> metres)
     graph: gtsam.NonlinearFactorGraph  # factors on this epoch's variables only
     counts: dict[str, int]  # of `graph`, by kind
     links: list[Link]
@@ -76,13 +76,11 @@ class StateBlock:
     velocity: Vec | None  # Doppler velocity at this epoch (for the next epoch's displacement)
     clock_drift_mps: float | None
     has_fix: bool
-    # GNSS system -> key of its bias against `bias_ref` (FgoConfig.clock_isb_sigma_m), else empty
+    # FgoConfig.clock_isb_sigma_m: the system whose clock is the receiver's one clock (its only
+    # key in `clock_keys`, observed at this epoch or not), and each other observed system -> key
+    # of its correction to that clock (metres); else None and empty
+    clock_ref: str | None = None
     bias_keys: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def bias_ref(self) -> str | None:
-        """The system the biases are against: the first of the block's (sorted) clocks."""
-        return next(iter(self.clock_keys)) if self.bias_keys else None
 
     @property
     def keys(self) -> list[int]:
