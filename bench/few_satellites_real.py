@@ -18,8 +18,8 @@ TCXO and it shares its multipath model with the library:
    rows that show the receiver standing give a zero velocity, and the graph dead-reckons that
    epoch), with each factor-graph opt-in (bench/tune_fgo.py's variants
    `drop-undetermined`, `carry-drift`, `carry-drift-wander`: 0.2 m/s per second, twice part 1's
-   wander; `no-isb`: each system's clock free, as before the bias variable that ties them became
-   a default; `cv-0.0625`: a constant velocity and clock drift over the last three states), and
+   wander; `no-isb`: each system's clock free, as before one receiver clock with an offset per other
+   system became a default; `cv-0.0625`: a constant velocity and clock drift over the last three states), and
    for the EKF baseline
    `non-cp-ekf` with each front end.
    2b. **A moving car.** The Kowloon Tong drive has no truth: the full-sky DGNSS `non-cp`
@@ -38,7 +38,7 @@ graph opt-in did. No held-out seed was looked at. The FDE's divergence rules (pa
 defaults on parts 2c and 3 and the training seeds of bench/tune_fgo.py, checked on the validation
 seeds. The standstill test became the default on parts 2 and 2b (its detectable speed, 2 m/s,
 is the largest that took no epoch of the moving car's 3-satellite stretches for a standstill) and changed
-nothing in part 3, whose vehicles never stand. The systems' clocks tied by a bias variable became
+nothing in part 3, whose vehicles never stand. One receiver clock with an offset per other system became
 the default on parts 2, 2b and 3 and bench/tune_fgo.py's training seeds, checked on the
 validation seeds (docs/tuning-validation-isb.md).
 """

@@ -67,8 +67,8 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-first-test-only": {"fde_reject_on_exclusions": False, "fde_restart_chi2": None},
     "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     # a receiver's honest clock and motion where Doppler is missing (docs/fgo.md, "Constant
-    # velocity and drift without Doppler"): the systems' clocks tied by a bias variable (a random
-    # walk of 0.05 or 0.5 m per root second, chosen: 0.5); a constant
+    # velocity and drift without Doppler"): the systems' clocks tied, one receiver clock and an
+    # offset per other system (a random walk of 0.05 or 0.5 m per root second, chosen: 0.5); a constant
     # clock drift over the last three clocks (the EKF baselines' drift density, 0.1 m^2/s^3);
     # and with it a constant velocity over the last three positions, at white-noise
     # accelerations of 1, 0.25 and 0.0625 m^2/s^3 (the EKF baselines': 1.0, vertically 0.1);

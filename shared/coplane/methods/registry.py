@@ -117,10 +117,11 @@ class MethodSpec:
 #   - reported covariances x 4.5^2: the graph counts time-correlated multipath as white noise, and
 #     the marginals held only ~45 % of the errors inside their 95 % regions; 4.5 brings the harder
 #     training scenario (dense-urban) to 0.97 H / 0.95 V (urban-loop is then over-covered, 1.00);
-#   - a receiver's systems share one oscillator: each system after the first gets a bias against
-#     it that walks 0.5 m per root second (not 0.05; training seeds, docs/tuning-three-state.md),
+#   - a receiver's systems share one oscillator: one receiver clock per vehicle state, and each
+#     other system an offset from it that walks 0.5 m per root second (not 0.05: training seeds),
 #     so a satellite alone in its system still helps the position when Doppler is missing (a real
-#     car on 3 satellites: docs/fgo.md; training within 2 %, validation docs/tuning-validation-isb.md).
+#     car on 3 satellites: docs/fgo.md "The systems' clocks tied"; training within 1.4 %,
+#     validation docs/tuning-validation-isb.md).
 # Opt-in, not defaults (docs/fgo.md; `coplane eval --fgo key=value`): the road-height links (they
 # win on the training seeds and lose the validation seeds' deep canyons) and a stricter FDE on
 # faint satellites (one-sided it biases heights by -0.3 m, two-sided it lost validation V).
