@@ -3,7 +3,7 @@ or the fallbacks without it) and receiver clocks (drift steps, constant drift, i
 
 `prepare` decides per vehicle epoch which of these it gets; `blocks` turns them into factors.
 The three-state forms (constant velocity, constant drift; FgoConfig `motion_accel_psd`,
-`clock_accel_psd`) are opt-ins; one receiver clock with a correction per other system
+`clock_accel_psd`) are opt-ins; one receiver clock with an offset per other system
 (`clock_isb_sigma_m`) is on in the methods' defaults (docs/fgo.md).
 """
 
@@ -65,8 +65,8 @@ class ClockLink:
 
 @dataclass
 class BiasLink:
-    """A system's correction to the vehicle's one receiver clock, a variable of its own (metres,
-    `factors.pseudorange_factors`: c (dt_ref - dt_s)): held at the same correction of the
+    """A system's offset from the vehicle's one receiver clock, a variable of its own (metres,
+    `factors.pseudorange_factors`: c (dt_ref - dt_s)): held at the same offset of the
     vehicle's latest window state that had one against the same reference (`prev_key`, a random
     walk of `sigma_m`), else started from the clocks' first guesses."""
 
@@ -186,7 +186,7 @@ def inter_system_biases(
     state: GraphState,
     cfg: FgoConfig,
 ) -> list[BiasLink]:
-    """The corrections of a new state's systems other than the reference (`clock_ref`; m per root
+    """The offsets of a new state's systems other than the reference (`clock_ref`; m per root
     second of random walk, `FgoConfig.clock_isb_sigma_m`), each linked to its last value in the
     window. `clock_init` has every system's first guess (seconds), the reference's included."""
     assert cfg.clock_isb_sigma_m is not None

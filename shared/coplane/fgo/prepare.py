@@ -4,7 +4,7 @@ This is the stage between `coplane.estimation.validate_epoch` and the factors (`
 predicts the new position from the vehicle's last state (velocity, paper eqs. 35-36; the links
 themselves are built in `links`), optionally gates pseudoranges against that prediction,
 initialises one clock per GNSS system (or, with `FgoConfig.clock_isb_sigma_m`, the receiver's one
-clock and a correction per other system), links each clock to its previous value unless the receiver
+clock and an offset per other system), links each clock to its previous value unless the receiver
 clock jumped, and counts the independent position constraints the vehicle brings, so that a
 vehicle whose first position would be indeterminate is left out instead of making the whole
 cluster singular.

@@ -67,7 +67,7 @@ class StateBlock:
     pos_key: int
     clock_keys: dict[str, int]  # GNSS system -> key, systems sorted
     init_pos: Vec
-    init_clocks: dict[int, float]  # clock key -> seconds (a correction's key -> metres)
+    init_clocks: dict[int, float]  # clock key -> seconds (an offset's key -> metres)
     graph: gtsam.NonlinearFactorGraph  # factors on this epoch's variables only
     counts: dict[str, int]  # of `graph`, by kind
     links: list[Link]
@@ -78,7 +78,7 @@ class StateBlock:
     has_fix: bool
     # FgoConfig.clock_isb_sigma_m: the system whose clock is the receiver's one clock (its only
     # key in `clock_keys`, observed at this epoch or not), and each other observed system -> key
-    # of its correction to that clock (metres); else None and empty
+    # of its offset from that clock (metres); else None and empty
     clock_ref: str | None = None
     bias_keys: dict[str, int] = field(default_factory=dict)
 
