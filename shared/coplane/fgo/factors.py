@@ -2,6 +2,8 @@
 
 Native classes wherever GTSAM has one (C++ evaluation, no Python callback per linearisation):
   - pseudorange (eq. 21): gtsam.PseudorangeFactor(position Point3, clock double in SECONDS)
+    or, for a system with an offset from the vehicle's one receiver clock (FgoConfig
+    .clock_isb_sigma_m), gtsam.DifferentialPseudorangeFactor(position, clock, offset in METRES)
   - inter-vehicle range (eq. 27): gtsam.RangeFactor3 (Point3-Point3; RangeFactor3D is Pose3-Point3)
   - velocity (eq. 36): gtsam.BetweenFactorPoint3 on the displacement v * dt
   - constant velocity without Doppler (opt-in): a linear gtsam.JacobianFactor on three positions,

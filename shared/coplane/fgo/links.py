@@ -67,11 +67,10 @@ class ClockLink:
 class BiasLink:
     """A system's offset from the vehicle's one receiver clock, a variable of its own (metres,
     `factors.pseudorange_factors`: c (dt_ref - dt_s)): held at the same offset of the
-    vehicle's latest window state that had one against the same reference (`prev_key`, a random
-    walk of `sigma_m`), else started from the clocks' first guesses."""
+    vehicle's latest window state that had one against the same receiver clock (`prev_key`, a
+    random walk of `sigma_m`), else started from the clocks' first guesses."""
 
     system: str
-    reference: str
     init_m: float
     prev_key: int | None
     prev_step: int
@@ -200,9 +199,9 @@ def inter_system_biases(
             else None
         )
         if prev is None:
-            links.append(BiasLink(s, ref, C * (clock_init[ref] - clock_init[s]), None, -1, 0.0))
+            links.append(BiasLink(s, C * (clock_init[ref] - clock_init[s]), None, -1, 0.0))
             continue
         k = prev.bias_keys[s]
         sigma = max(cfg.clock_isb_sigma_m * math.sqrt(max(t - prev.time, 0.0)), BIAS_SIGMA_FLOOR_M)
-        links.append(BiasLink(s, ref, state.clock(k), k, prev.step, sigma))
+        links.append(BiasLink(s, state.clock(k), k, prev.step, sigma))
     return links
