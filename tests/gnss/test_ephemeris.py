@@ -188,6 +188,36 @@ def test_select_ephemeris_rtklib_rule() -> None:
     assert select_ephemeris(bds, "C01", C01.toe + 21602.0) is None
 
 
+def test_select_ephemeris_remembered_span_agrees_with_a_scan() -> None:
+    """The kept selection (`ephemeris._selections`) answers only inside the span where a scan
+    gives the same record: times in random order across ties, gaps, unhealthy and equal-toe
+    records, and after `NavData.add` inserted a record."""
+    e1 = G05
+    e2 = replace(G05, toe=G05.toe + 7200.0, toc=G05.toc + 7200.0, iode=73.0)
+    e2b = replace(e2, iode=75.0)  # the same toe again: the later record always wins
+    bad = replace(G05, toe=G05.toe + 3600.0, toc=G05.toc + 3600.0, iode=74.0, health=1)
+    e3 = replace(G05, toe=G05.toe + 30000.0, toc=G05.toc + 30000.0, iode=76.0)  # a gap before it
+    nav = _nav(e1, e2, e2b, bad, e3)
+    rng = np.random.default_rng(7)
+    offsets = np.concatenate(
+        [rng.uniform(-8000.0, 38000.0, 3000), [3600.0, 3600.0 - 1e-4, 18600.0, 18600.0 + 1e-6]]
+    )
+    rng.shuffle(offsets)
+
+    def scanned(t: GpsTime) -> Ephemeris | None:
+        ephemeris._selections.clear()
+        return select_ephemeris(nav, "G05", t)
+
+    ephemeris._selections.clear()
+    for k, dt in enumerate(offsets):
+        t = e1.toe + float(dt)
+        if k == 1500:  # a new record inside the spans seen so far
+            nav.add(replace(G05, toe=G05.toe + 10800.0, toc=G05.toc + 10800.0, iode=77.0))
+        kept = select_ephemeris(nav, "G05", t)
+        assert kept is scanned(t), dt
+        select_ephemeris(nav, "G05", t)  # leave the span of t kept for the next time
+
+
 def test_satellite_states_emission_time_and_omissions() -> None:
     nav = _nav(G05, C01)
     pr = {"G05": 2.2e7, "C01": 3.7e7, "G06": 2.1e7, "R01": 2.0e7, "C02": math.nan, "G07": 0.0}

@@ -26,7 +26,7 @@ from coplane.errors import require_finite_positive
 from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
-from coplane.gnss.lsq import chi2_threshold, w_tests
+from coplane.gnss.lsq import chi2_threshold, w_tests, weighted_solve
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.standstill import DopplerNoise, StandstillOptions, standstill_test
 from coplane.gnss.weighting import doppler_sigma_mps
@@ -99,16 +99,18 @@ class DopplerVelocity:
     dof: int = 0  # ... and its redundancy (0: not a least-squares solve)
 
 
-def _rows(sats: list[SatMeasurement], p: Vec, mask: float) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
-    """Satellites with a Doppler above the mask, design rows, range-rate residuals, sigmas."""
-    sats = [m for m in sats if math.isfinite(m.doppler_hz)]
-    if not sats:
+def _rows(epoch: PreparedEpoch, p: Vec, mask: float) -> tuple[list[SatMeasurement], Vec, Vec, Vec]:
+    """Satellites with a Doppler above the mask, design rows, range-rate residuals, sigmas.
+
+    The view is of the whole epoch (at the SPP fix it is the one SPP ended with, cached)."""
+    if not epoch.sats:
         return [], np.zeros((0, 4)), np.zeros(0), np.zeros(0)
-    ps = np.array([m.state.pos for m in sats])
-    view = sky_view(ps, p)
-    keep = view.el_rad >= mask
-    use = [m for m, k in zip(sats, keep, strict=True) if k]
-    ps, e, el = ps[keep], view.los[keep], view.el_rad[keep]
+    view = sky_view(epoch.sat_pos, p)
+    keep = (view.el_rad >= mask) & np.array([math.isfinite(m.doppler_hz) for m in epoch.sats], dtype=bool)
+    use = [m for m, k in zip(epoch.sats, keep.tolist(), strict=True) if k]
+    if not use:
+        return [], np.zeros((0, 4)), np.zeros(0), np.zeros(0)
+    ps, e, el = epoch.sat_pos[keep], view.los[keep], view.el_rad[keep]
     vs = np.array([m.state.vel for m in use]).reshape(-1, 3)
     rate = np.array([m.range_rate_mps for m in use])
     drift = np.array([m.state.drift_s_per_s for m in use])
@@ -202,7 +204,7 @@ def solve_doppler_velocity(
     """
     opt = options or DopplerOptions()
     p = np.asarray(position, dtype=float)
-    sats, a_sat, y_sat, sig_sat = _rows(list(epoch.sats), p, math.radians(opt.elevation_mask_deg))
+    sats, a_sat, y_sat, sig_sat = _rows(epoch, p, math.radians(opt.elevation_mask_deg))
     if opt.few_satellites and opt.standstill.enabled and 2 <= len(sats) < opt.min_satellites:
         still = _standing(epoch.time, sats, a_sat, y_sat, sig_sat, p, opt, drift_prior, noise)
         if still is not None:
@@ -231,8 +233,7 @@ def solve_doppler_velocity(
             )
         else:
             a, y, sig = a_sat, y_sat, sig_sat
-        w = 1.0 / sig
-        x, *_ = np.linalg.lstsq(a * w[:, None], y * w, rcond=None)
+        x = weighted_solve(a, y, 1.0 / sig)
         v = y - a @ x
         dof = len(y) - 4
         chi = float(np.sum((v / sig) ** 2))

@@ -75,6 +75,11 @@ def ura_variance_m2(sva_m: float) -> float:
     return URA_TABLE_M[-1] ** 2
 
 
+# `_select`'s last choice per ephemeris list: (the list, its length, span start, span end, choice)
+_selections: dict[int, tuple[list[Ephemeris], int, float, float, Ephemeris]] = {}
+_MAX_SELECTIONS = 4096  # cleared when full: one entry per satellite is all a process needs
+
+
 def select_ephemeris(nav: NavData, sat: str, t: GpsTime) -> Ephemeris | None:
     """The healthy ephemeris with toe closest to `t`, or None.
 
@@ -84,14 +89,30 @@ def select_ephemeris(nav: NavData, sat: str, t: GpsTime) -> Ephemeris | None:
     satellite in `satexclude`; the result for SPP is the same). Systems other than GPS and
     BeiDou yield None. Relies on each list being sorted by toe, as `NavData.add` keeps it.
     """
+    return _select(nav, sat, t.week, t.tow)
+
+
+def _select(nav: NavData, sat: str, week: int, tow: float) -> Ephemeris | None:
+    """`select_ephemeris` at second `tow` of GPS week `week` (`tow` may run outside [0, 604800)).
+
+    Each satellite's last selection is kept with the span of time over which it stays the
+    selection (`_span`): an epoch asks twice per satellite and the next epoch again, and
+    scanning the records each time was a tenth of an epoch's cost.
+    """
     ephs = nav.ephemerides.get(sat)
     if not ephs or sat[0] not in MAX_DTOE_S:
         return None
+    t = week * SECONDS_PER_WEEK + tow
+    hit = _selections.get(id(ephs))
+    # the list itself is held, so its id is not reused; `NavData.add` only inserts, so its
+    # length tells whether it changed
+    if hit is not None and hit[0] is ephs and hit[1] == len(ephs) and hit[2] <= t <= hit[3]:
+        return hit[4]
     limit = MAX_DTOE_S[sat[0]] + _DTOE_MARGIN_S
     best: Ephemeris | None = None
     best_dt = math.inf
     for e in ephs:  # sorted by toe
-        signed = (e.toe.week - t.week) * SECONDS_PER_WEEK + (e.toe.tow - t.tow)
+        signed = (e.toe.week - week) * SECONDS_PER_WEEK + (e.toe.tow - tow)
         if signed > limit:
             break
         if e.health != 0:
@@ -99,7 +120,32 @@ def select_ephemeris(nav: NavData, sat: str, t: GpsTime) -> Ephemeris | None:
         dt = abs(signed)
         if dt <= limit and dt <= best_dt:
             best, best_dt = e, dt
+    if best is not None:
+        lo, hi = _span(ephs, best, limit)
+        if lo <= t <= hi:
+            if len(_selections) >= _MAX_SELECTIONS:
+                _selections.clear()
+            _selections[id(ephs)] = (ephs, len(ephs), lo, hi, best)
     return best
+
+
+def _span(ephs: list[Ephemeris], best: Ephemeris, limit: float) -> tuple[float, float]:
+    """GPS seconds over which `best` is `_select`'s choice among `ephs`, a millisecond inside
+    the exact bounds (halfway to the healthy neighbours' toe, and `limit` from its own), so
+    rounding near a bound always goes to a scan."""
+
+    def toe_s(e: Ephemeris) -> float:
+        return e.toe.week * SECONDS_PER_WEEK + e.toe.tow
+
+    healthy = [e for e in ephs if e.health == 0]
+    j = next(i for i, e in enumerate(healthy) if e is best)
+    t0 = toe_s(best)
+    lo, hi = t0 - limit, t0 + limit
+    if j > 0:
+        lo = max(lo, 0.5 * (toe_s(healthy[j - 1]) + t0))
+    if j + 1 < len(healthy):
+        hi = min(hi, 0.5 * (t0 + toe_s(healthy[j + 1])))
+    return lo + 1e-3, hi - 1e-3
 
 
 def sat_clock_s(eph: Ephemeris, t: GpsTime) -> float:
@@ -108,7 +154,12 @@ def sat_clock_s(eph: Ephemeris, t: GpsTime) -> float:
     `t` is the satellite's own (uncorrected) time, so dt = poly(t - dt - toc) is solved by two
     fixed-point steps (converged to ~af1^3*dt); the result feeds the emission-time computation.
     """
-    ts = (t.week - eph.toc.week) * SECONDS_PER_WEEK + (t.tow - eph.toc.tow)
+    return _clock(eph, t.week, t.tow)
+
+
+def _clock(eph: Ephemeris, week: int, tow: float) -> float:
+    """`sat_clock_s` at second `tow` of GPS week `week`."""
+    ts = (week - eph.toc.week) * SECONDS_PER_WEEK + (tow - eph.toc.tow)
     tk = ts
     for _ in range(2):
         tk = ts - (eph.af0 + eph.af1 * tk + eph.af2 * tk * tk)
@@ -219,13 +270,7 @@ def slotted_state(eph: Ephemeris, t: GpsTime) -> SatState:
     keeps `eph` alive, so an id cannot be reused by another ephemeris while its entry exists.
     """
     k = round(t.tow / STATE_SLOT_S)
-    key = (id(eph), t.week, k)
-    ref = _slots.get(key)
-    if ref is None or ref.eph is not eph:
-        if len(_slots) >= _MAX_SLOTS:
-            _slots.clear()
-        ref = sat_state(eph, GpsTime(t.week, k * STATE_SLOT_S))
-        _slots[key] = ref
+    ref = _slot_state(eph, t.week, k)
     dt = t.tow - k * STATE_SLOT_S
     return SatState(
         sat=ref.sat,
@@ -238,31 +283,65 @@ def slotted_state(eph: Ephemeris, t: GpsTime) -> SatState:
     )
 
 
+def _slot_state(eph: Ephemeris, week: int, k: int) -> SatState:
+    """The (cached) state of `eph` at the centre of slot `k` of GPS week `week`."""
+    key = (id(eph), week, k)
+    ref = _slots.get(key)
+    if ref is None or ref.eph is not eph:
+        if len(_slots) >= _MAX_SLOTS:
+            _slots.clear()
+        ref = sat_state(eph, GpsTime(week, k * STATE_SLOT_S))
+        _slots[key] = ref
+    return ref
+
+
 def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, float]) -> dict[str, SatState]:
     """States at emission time for each satellite with a pseudorange (RTKLIB `satposs`).
 
     t_tx = t_rx - P/c - dts: the travel time first, then the clock polynomial evaluated at the
     satellite-clock time (RTKLIB's order). The ephemeris is the one selected at t_tx.
     Satellites with no usable ephemeris, a non-finite or zero pseudorange, or an unsupported
-    system are omitted.
+    system are omitted. Each state is `slotted_state(eph, t_tx)`, bit for bit: times are
+    seconds of the receiver's week here (no `GpsTime` per satellite and step, which was a fifth
+    of the cost), and the slot states are moved to their emission times in one numpy operation.
     """
-    out: dict[str, SatState] = {}
+    week, tow_rx = t_rx.week, t_rx.tow
+    sats: list[str] = []
+    refs: list[SatState] = []
+    dts: list[float] = []
     for sat, pr in pseudoranges.items():
         if not math.isfinite(pr) or pr == 0.0:
             continue
-        t_sv = t_rx + (-pr / C)
-        eph = select_ephemeris(nav, sat, t_sv)
+        # seconds of the receiver's week (below 0 just after a rollover: every use takes the
+        # difference to a toe or toc in whole weeks, so an unnormalised second is the same time)
+        tow_sv = tow_rx + (-pr / C)
+        eph = _select(nav, sat, week, tow_sv)
         if eph is None:
             continue
-        t_tx = t_sv + (-sat_clock_s(eph, t_sv))
-        eph_tx = select_ephemeris(nav, sat, t_tx)
+        tow_tx = tow_sv + (-_clock(eph, week, tow_sv))
+        eph_tx = _select(nav, sat, week, tow_tx)
         if eph_tx is None:
             continue
         if eph_tx is not eph:  # crossed a selection boundary: redo the clock with the new one
             eph = eph_tx
-            t_tx = t_sv + (-sat_clock_s(eph, t_sv))
-        out[sat] = slotted_state(eph, t_tx)
-    return out
+            tow_tx = tow_sv + (-_clock(eph, week, tow_sv))
+        w = week
+        if not 0.0 <= tow_tx < SECONDS_PER_WEEK:  # normalised as GpsTime does: the slot key needs it
+            t_tx = GpsTime(week, tow_tx)
+            w, tow_tx = t_tx.week, t_tx.tow
+        k = round(tow_tx / STATE_SLOT_S)
+        sats.append(sat)
+        refs.append(_slot_state(eph, w, k))
+        dts.append(tow_tx - k * STATE_SLOT_S)
+    if not sats:
+        return {}
+    dt = np.array(dts)
+    pos = np.array([r.pos for r in refs]) + np.array([r.vel for r in refs]) * dt[:, None]
+    clock = (np.array([r.clock_s for r in refs]) + np.array([r.drift_s_per_s for r in refs]) * dt).tolist()
+    return {
+        sat: SatState(sat, pos[i], r.vel, clock[i], r.drift_s_per_s, r.eph, r.variance_m2)
+        for i, (sat, r) in enumerate(zip(sats, refs, strict=True))
+    }
 
 
 def tgd_m(eph: Ephemeris) -> float:

@@ -13,6 +13,7 @@ import numpy as np
 from coplane.gnss.dgnss import DgnssCorrections, DgnssOptions, dgnss_corrections
 from coplane.gnss.doppler import DopplerOptions, DopplerVelocity, DriftPrior, solve_doppler_velocity
 from coplane.gnss.measurements import PreparedEpoch, prepare_epoch
+from coplane.gnss.sat_models import SatModels
 from coplane.gnss.spp import SppOptions, SppSolution, solve_spp
 from coplane.gnss.standstill import DopplerNoise
 from coplane.recording.model import NavData, ObsEpoch
@@ -50,6 +51,7 @@ def solve_epoch(
     initial_position: Vec | None = None,
     drift_prior: DriftPrior | None = None,
     doppler_noise: DopplerNoise | None = None,
+    models: SatModels | None = None,
 ) -> EpochResult:
     """SPP (differential when `corrections` is given) and, if it has a fix, Doppler velocity.
 
@@ -65,12 +67,14 @@ def solve_epoch(
         opt.spp,
         corrections_m=corrections.corrections_m if corrections is not None else None,
         initial_position=initial_position,
+        models=models,
     )
     # Doppler needs the position only for the line-of-sight vectors: 100 m of error changes them
     # by 5e-6 rad, about 0.02 m/s of velocity. So when SPP fails (RAIM in a canyon, where several
     # NLOS pseudoranges are present but their Doppler is often clean or excludable) the velocity
     # is still solved at the receiver's previous fix instead of being dropped with the position.
-    at = spp.position if spp.ok else initial_position
+    # (at the fix, the point where SPP evaluated the satellites, a decimetre at most from it)
+    at = spp.model_position if spp.ok else initial_position
     vel = (
         solve_doppler_velocity(prepared, at, opt.doppler, drift_prior, doppler_noise)
         if at is not None and np.all(np.isfinite(at))
@@ -85,6 +89,7 @@ class ReceiverMemory:
     SPP starts, its clock-drift memory (`next_drift_prior`) and its learned Doppler noise."""
 
     fix: Vec | None = None
+    models: SatModels | None = None  # the last fix's satellite models, where the next SPP starts
     drift: DriftPrior | None = None
     doppler_noise: DopplerNoise = field(default_factory=DopplerNoise)
 
@@ -98,6 +103,7 @@ class ReceiverMemory:
             self.doppler_noise = self.doppler_noise.add(v.chi2, v.dof, opt)
         if res.spp.ok:
             self.fix = res.spp.position
+            self.models = res.spp.models.merged(self.models) if res.spp.models is not None else None
 
 
 def solve_next(
@@ -109,7 +115,9 @@ def solve_next(
 ) -> EpochResult:
     """`solve_epoch` for a receiver's next epoch: it starts from and updates `memory`."""
     opt = options or EpochSolverOptions()
-    res = solve_epoch(epoch, nav, corrections, opt, memory.fix, memory.drift, memory.doppler_noise)
+    res = solve_epoch(
+        epoch, nav, corrections, opt, memory.fix, memory.drift, memory.doppler_noise, memory.models
+    )
     memory.update(res, opt.doppler)
     return res
 

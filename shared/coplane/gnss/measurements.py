@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from coplane.gnss.constants import WAVELENGTH
 from coplane.gnss.ephemeris import SatState, satellite_states, tgd_m
@@ -42,6 +44,17 @@ class PreparedEpoch:
     time: GpsTime
     sats: tuple[SatMeasurement, ...]
     dropped: tuple[tuple[str, str], ...]  # (sat, reason) for satellites that cannot be used
+    # every satellite's emission-frame position (n, 3) and system, read-only: SPP, the Doppler
+    # rows and the node message view the whole epoch from one position and take their subsets,
+    # so `geometry.sky_view`'s and `broadcast_delays`' caches serve all three
+    sat_pos: np.ndarray = field(init=False, repr=False, compare=False)
+    systems: tuple[str, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        pos = np.array([m.state.pos for m in self.sats], dtype=float).reshape(-1, 3)
+        pos.flags.writeable = False
+        object.__setattr__(self, "sat_pos", pos)
+        object.__setattr__(self, "systems", tuple(m.sat[0] for m in self.sats))
 
     def by_sat(self) -> dict[str, SatMeasurement]:
         return {m.sat: m for m in self.sats}
@@ -67,7 +80,7 @@ def prepare_epoch(epoch: ObsEpoch, nav: NavData, systems: Iterable[str] = ("G", 
         if st is None:
             dropped.append((sat, "no usable ephemeris"))
             continue
-        if not math.isfinite(st.clock_s + float(st.pos.sum())):  # one test for all four values
+        if not math.isfinite(st.clock_s + sum(st.pos.tolist())):  # one test for all four values
             dropped.append((sat, "ephemeris gave non-finite state"))
             continue
         o = obs[sat]

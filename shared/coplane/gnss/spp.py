@@ -8,6 +8,14 @@ test on the weighted residuals; exclusion removes the satellite with the largest
 residual (Baarda's w-test) and repeats, so it costs one solve per exclusion rather than RTKLIB's
 one solve per candidate. A fix that still fails is returned as "no solution" with the reason,
 never as a bad position.
+
+Iterations start at the receiver's previous fix with the satellite models (elevation, delay,
+sigma) its previous fit ended with (`sat_models.SatModels`); once converged, the models are
+evaluated there and the fit takes one more step, so a fit ends with models evaluated within
+`_ATMOSPHERE_EXACT_M` of its position: the Doppler rows and the node message reuse that one
+evaluation (`SppSolution.model_position`). That is about one evaluation per epoch, where there
+were three or four (SPP's, then the message's own), and the fit agrees with RTKLIB's `pntpos`, which evaluates them at every iteration, as
+before (tests/gnss/test_spp_real.py).
 """
 
 from __future__ import annotations
@@ -22,8 +30,9 @@ import numpy as np
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
 from coplane.gnss.geometry import broadcast_delays, sagnac_ranges, sky_view
-from coplane.gnss.lsq import chi2_threshold, w_tests
+from coplane.gnss.lsq import chi2_threshold, w_tests, weighted_solve
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
+from coplane.gnss.sat_models import FitAtmosphere, SatModels
 from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
 from coplane.gtime import GpsTime
 from coplane.recording.model import NavData
@@ -68,6 +77,10 @@ class SppSolution:
     ok: bool
     reason: str | None = None
     position: Vec = field(default_factory=lambda: np.full(3, np.nan))
+    # where the fit's elevations, atmosphere and weights were evaluated, within
+    # _ATMOSPHERE_EXACT_M of `position`: the Doppler rows and the node message model the
+    # satellites at this point too, so all three share one evaluation (geometry's caches)
+    model_position: Vec = field(default_factory=lambda: np.full(3, np.nan))
     clocks_m: dict[str, float] = field(default_factory=dict)
     covariance: Vec = field(default_factory=lambda: np.full((3, 3), np.nan))  # ECEF position, m^2
     dops: Dops | None = None
@@ -78,6 +91,7 @@ class SppSolution:
     chi2: float = math.nan
     dof: int = 0
     iterations: int = 0
+    models: SatModels | None = None  # each solved satellite as modelled at `model_position`
 
     @property
     def n_used(self) -> int:
@@ -106,6 +120,14 @@ _RTKLIB_ERR_SAAS_M = 0.3
 # last evaluation: their sensitivity to position is millimetres per kilometre, and evaluating them
 # every Gauss-Newton iteration for every satellite was most of SPP's cost.
 _ATMOSPHERE_REFRESH_M = 1000.0
+# ...and a fit that converged on an atmosphere evaluated further away than this iterates once
+# more on one evaluated where it converged: 0.1 m moves an elevation by 5 nrad and a 10-degree
+# tropospheric delay by 0.2 mm.
+_ATMOSPHERE_EXACT_M = 0.1
+# The smallest receiver-satellite range from near the surface (GPS and BeiDou MEO/IGSO/GEO), and
+# a bound on how much a range error moves the position (the GDOP limit's): see `_converged`.
+_MIN_RANGE_M = 1.9e7
+_GN_GAIN = 30.0
 
 
 def _sigmas(sats: Sequence[SatMeasurement], el: Vec, iono: Vec, opt: SppOptions, differential: bool) -> Vec:
@@ -123,51 +145,51 @@ def _sigmas(sats: Sequence[SatMeasurement], el: Vec, iono: Vec, opt: SppOptions,
     return standalone_pseudorange_sigma_m(el, cn0, systems, iono)
 
 
-@dataclass
-class _Atmos:
-    """Per-satellite elevation, model delay and sigma, evaluated at position `at` (None: not yet)."""
-
-    at: Vec | None
-    el: Vec
-    delay: Vec  # TGD + iono + tropo (0 with DGNSS), m
-    sig: Vec
-
-    def without(self, i: int) -> _Atmos:
-        keep = np.arange(len(self.el)) != i
-        return _Atmos(self.at, self.el[keep], self.delay[keep], self.sig[keep])
+def _converged(step_m: float, near_surface: bool, convergence_m: float) -> bool:
+    """Whether the fit after a position step of `step_m` is within `convergence_m` of where the
+    iterations end. A range's error after a linearised step d is at most d^2 / (2 rho), rho the
+    receiver-satellite range (over 19,000 km from the surface for GPS and BeiDou), and at most
+    `_GN_GAIN` times that reaches the position (a common part goes into the clocks): so near the
+    surface a step of up to ~10 m already lands within 1e-4 m, and the confirming iteration
+    (most of an epoch's iterations) is skipped."""
+    if step_m < convergence_m:
+        return True
+    return near_surface and _GN_GAIN * step_m * step_m / (2.0 * _MIN_RANGE_M) < convergence_m
 
 
-def _gauss_newton_step(a: Vec, v: Vec, w: Vec) -> Vec:
-    """Weighted least-squares step; the normal equations are well conditioned for SPP's 4-6
-    unknowns and several times cheaper than lstsq's SVD, which stays the fallback when singular."""
-    aw = a * w[:, None]
-    try:
-        return np.linalg.solve(aw.T @ aw, aw.T @ (v * w))
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(aw, v * w, rcond=None)[0]
+def _near_surface(p: Vec) -> bool:
+    """Whether `p` is where the atmosphere and the elevation mask mean something (> 6000 km)."""
+    return float(p @ p) > 6.0e6**2
 
 
 def _solve(
-    sats: list[SatMeasurement],
+    epoch: PreparedEpoch,
+    idx: Sequence[int],
     y: Vec,
     x0: Vec | None,
-    t: GpsTime,
     nav: NavData,
     opt: SppOptions,
     differential: bool,
-    prior: _Atmos | None = None,
-) -> tuple[_Fit | None, _Atmos]:
+    prior: FitAtmosphere | None = None,
+    models: SatModels | None = None,
+) -> tuple[_Fit | None, FitAtmosphere]:
     """Gauss-Newton on position + one clock per system present; no fit when under-determined.
 
-    `prior` (for exactly `sats`) carries the atmosphere of a previous solve over, so a re-solve
-    after a fault exclusion, which starts where the last one ended, does not evaluate it again.
-    Returns the fit and the atmosphere of all `sats` where the fit ended.
+    Solves `epoch.sats[idx]`; the atmosphere is evaluated on the whole epoch's view (the Doppler
+    rows and the node message ask for the same one at the fix). `prior` (for exactly those
+    satellites) carries the atmosphere of a previous solve over, so a re-solve after a fault
+    exclusion, which starts where the last one ended, does not evaluate it again; else the
+    receiver's previous `models` start the iterations when they cover these satellites.
+    Returns the fit and the atmosphere of the solved satellites where the fit ended.
     """
+    sats = [epoch.sats[i] for i in idx]
+    t = epoch.time
     systems = sorted({m.system for m in sats})
     nx = 3 + len(systems)
     n = len(sats)
     sat_systems = [m.system for m in sats]
-    sat_pos = np.array([m.state.pos for m in sats])
+    sel = np.asarray(idx, dtype=int)
+    sat_pos = epoch.sat_pos[sel]
     sat_clk_m = C * np.array([m.state.clock_s for m in sats])
     tgd = np.zeros(n) if differential else np.array([m.tgd_m for m in sats])
     sys_col = np.array([3 + systems.index(s) for s in sat_systems])
@@ -175,64 +197,74 @@ def _solve(
     if x0 is not None:
         x[:3] = x0[:3]
     mask = math.radians(opt.elevation_mask_deg)
+
+    def refresh(p: Vec) -> FitAtmosphere:
+        view = sky_view(epoch.sat_pos, p)
+        el = view.el_rad[sel]
+        if differential:
+            return FitAtmosphere(p.copy(), el, tgd, _sigmas(sats, el, np.zeros(n), opt, True))
+        iono, tropo = broadcast_delays(epoch.systems, t, view, nav, opt.iono, opt.tropo, opt.iono_model)
+        iono, tropo = iono[sel], tropo[sel]
+        return FitAtmosphere(p.copy(), el, tgd + iono + tropo, _sigmas(sats, el, iono, opt, False))
+
+    def distance_from_atmos(p: Vec) -> float:
+        return math.inf if atmos.at is None else math.dist(p.tolist(), atmos.at.tolist())
+
+    if prior is None and models is not None and _near_surface(x[:3]):
+        prior = models.atmosphere(t, sats, tgd, differential)
     if prior is None:
-        # before the position is near the surface: no atmosphere, no mask, zenith weights (RTKLIB)
-        el = np.full(n, math.pi / 2)
-        prior = _Atmos(None, el, tgd.copy(), _sigmas(sats, el, np.zeros(n), opt, differential))
+        if _near_surface(x[:3]):
+            prior = refresh(x[:3].copy())
+        else:  # before the position is near the surface: no atmosphere, no mask, zenith weights (RTKLIB)
+            el = np.full(n, math.pi / 2)
+            prior = FitAtmosphere(None, el, tgd.copy(), _sigmas(sats, el, np.zeros(n), opt, differential))
     atmos = prior
     keep = np.ones(n, dtype=bool)
     converged = False
     it = 0
-
-    def refresh(p: Vec) -> _Atmos:
-        view = sky_view(sat_pos, p)
-        if differential:
-            return _Atmos(p.copy(), view.el_rad, tgd, _sigmas(sats, view.el_rad, np.zeros(n), opt, True))
-        iono, tropo = broadcast_delays(sat_systems, t, view, nav, opt.iono, opt.tropo, opt.iono_model)
-        return _Atmos(p.copy(), view.el_rad, tgd + iono + tropo, _sigmas(sats, view.el_rad, iono, opt, False))
-
-    def distance_from_atmos(p: Vec) -> float:
-        return math.inf if atmos.at is None else float(np.linalg.norm(p - atmos.at))
-
     a = np.zeros((n, nx))
     a[np.arange(n), sys_col] = 1.0
+    kept_before: Vec | None = None
+    cols: list[int] = []
     while it < opt.max_iterations:
         it += 1
         p = x[:3]
-        near_surface = float(p @ p) > 6.0e6**2
-        if near_surface and distance_from_atmos(p) > _ATMOSPHERE_REFRESH_M:
+        near_surface = _near_surface(p)
+        if near_surface and not atmos.carried and distance_from_atmos(p) > _ATMOSPHERE_REFRESH_M:
             atmos = refresh(p)
         rng, e = sagnac_ranges(sat_pos, p)
         keep = atmos.el >= mask if near_surface else np.ones(n, dtype=bool)
-        present = sorted({sat_systems[i] for i in np.flatnonzero(keep)})
-        cols = [0, 1, 2] + [3 + systems.index(s) for s in present]
+        if kept_before is None or not np.array_equal(keep, kept_before):  # the columns it solves
+            present = sorted({sat_systems[i] for i in np.flatnonzero(keep)})
+            cols = [0, 1, 2] + [3 + systems.index(s) for s in present]
+            kept_before = keep
         if int(keep.sum()) < len(cols):
             return None, atmos
         v = y - (rng - sat_clk_m + atmos.delay + x[sys_col])
         a[:, :3] = -e
-        dx = _gauss_newton_step(a[keep][:, cols], v[keep], 1.0 / atmos.sig[keep])
+        dx = weighted_solve(a[keep][:, cols], v[keep], 1.0 / atmos.sig[keep])
         x[cols] += dx
-        if float(np.linalg.norm(dx[:3])) < opt.convergence_m:
-            if distance_from_atmos(x[:3]) > 1.0:
+        if _converged(float(np.linalg.norm(dx[:3])), near_surface, opt.convergence_m):
+            if distance_from_atmos(x[:3]) > _ATMOSPHERE_EXACT_M:
                 atmos = refresh(x[:3].copy())  # converged on a stale atmosphere: once more, evaluated here
                 continue
             converged = True
             break
-    # residuals and weights at the final state, with the atmosphere evaluated there (a millimetre
-    # away from where it was last evaluated changes nothing: elevations move by nanoradians)
+    # residuals and weights at the final state, with the atmosphere evaluated within
+    # _ATMOSPHERE_EXACT_M of it (only an unconverged fit can still be further away)
     p = x[:3].copy()
-    if distance_from_atmos(p) > 1e-3:
+    if distance_from_atmos(p) > _ATMOSPHERE_EXACT_M:
         atmos = refresh(p)
     rng, e = sagnac_ranges(sat_pos, p)
-    idx = np.flatnonzero(keep)
-    final_sats = [sats[i] for i in idx]
+    kept = np.flatnonzero(keep)
+    final_sats = [sats[i] for i in kept]
     systems_f = sorted({m.system for m in final_sats})
-    af = np.zeros((len(idx), 3 + len(systems_f)))
-    af[:, :3] = -e[idx]
-    af[np.arange(len(idx)), [3 + systems_f.index(m.system) for m in final_sats]] = 1.0
-    v = y[idx] - (rng[idx] - sat_clk_m[idx] + atmos.delay[idx] + x[sys_col[idx]])
+    af = np.zeros((len(kept), 3 + len(systems_f)))
+    af[:, :3] = -e[kept]
+    af[np.arange(len(kept)), [3 + systems_f.index(m.system) for m in final_sats]] = 1.0
+    v = y[kept] - (rng[kept] - sat_clk_m[kept] + atmos.delay[kept] + x[sys_col[kept]])
     xf = np.concatenate([x[:3], [x[3 + systems.index(s)] for s in systems_f]])
-    return _Fit(xf, systems_f, final_sats, v, atmos.sig[idx].copy(), af, it, converged), atmos
+    return _Fit(xf, systems_f, final_sats, v, atmos.sig[kept].copy(), af, it, converged), atmos
 
 
 def _dops(a: Vec, p: Vec) -> Dops:
@@ -255,25 +287,37 @@ def solve_spp(
     options: SppOptions | None = None,
     corrections_m: Mapping[str, float] | None = None,
     initial_position: Vec | None = None,
+    models: SatModels | None = None,
 ) -> SppSolution:
-    """Solve one epoch. With `corrections_m` (DGNSS), only corrected satellites are used."""
+    """Solve one epoch. With `corrections_m` (DGNSS), only corrected satellites are used.
+
+    `initial_position` and `models` (the receiver's previous fix and its `SppSolution.models`)
+    are where the iterations start; the fit does not depend on them.
+    """
     opt = options or SppOptions()
     differential = corrections_m is not None
-    sats: list[SatMeasurement] = []
-    for m in epoch.sats:
+    idx: list[int] = []  # the satellites solved, as indices into epoch.sats
+    for i, m in enumerate(epoch.sats):
         if math.isfinite(m.cn0_dbhz) and m.cn0_dbhz < opt.cn0_mask_dbhz:
             continue
         if differential and m.sat not in corrections_m:  # type: ignore[operator]
             continue
-        sats.append(m)
+        idx.append(i)
+    sats = [epoch.sats[i] for i in idx]
     if len(sats) < 4:
         return SppSolution(epoch.time, False, f"too few satellites: {len(sats)} < 4")
     excluded: list[str] = []
     x0 = initial_position
-    atmos: _Atmos | None = None
+    atmos: FitAtmosphere | None = None
     y = np.array([m.pseudorange_m - (corrections_m[m.sat] if corrections_m else 0.0) for m in sats])
+    seen: dict[str, tuple[float, float, float, float]] = {}  # every satellite as last modelled
+    now = epoch.time.seconds
     while True:
-        fit, atmos = _solve(sats, y, x0, epoch.time, nav, opt, differential, atmos)
+        fit, atmos = _solve(epoch, idx, y, x0, nav, opt, differential, atmos, models)
+        if atmos.at is not None:
+            delay = atmos.delay.tolist() if differential else (atmos.delay - [m.tgd_m for m in sats]).tolist()
+            rows = zip(atmos.el.tolist(), delay, atmos.sig.tolist(), [now] * len(sats), strict=True)
+            seen.update(zip((m.sat for m in sats), rows, strict=True))
         if fit is None:
             return SppSolution(
                 epoch.time, False, f"too few satellites above the mask: {len(sats)}", excluded=tuple(excluded)
@@ -297,6 +341,7 @@ def solve_spp(
         excluded.append(worst.sat)
         i = sats.index(worst)
         sats = sats[:i] + sats[i + 1 :]
+        idx = idx[:i] + idx[i + 1 :]
         y = np.delete(y, i)
         atmos = atmos.without(i)
         x0 = fit.x[:3]
@@ -315,6 +360,7 @@ def solve_spp(
         time=epoch.time,
         ok=True,
         position=p.copy(),
+        model_position=atmos.at.copy() if atmos.at is not None else p.copy(),
         clocks_m={s: float(fit.x[3 + k]) for k, s in enumerate(fit.systems)},
         covariance=q[:3, :3],
         dops=dops,
@@ -325,4 +371,5 @@ def solve_spp(
         chi2=chi,
         dof=dof,
         iterations=fit.iterations,
+        models=SatModels(epoch.time, differential, seen),
     )

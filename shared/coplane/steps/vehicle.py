@@ -165,7 +165,8 @@ class VehicleStep:
         last = self._last_fused[1] if self._last_fused is not None else None
         res = front if front is not None else self.front_end(t, epoch, corrections)
         approx = res.spp.position if res.spp.ok else last
-        sats = self._satellites(res, approx, corrections)
+        # modelled where SPP evaluated them (a decimetre at most from its fix), else at `approx`
+        sats = self._satellites(res, res.spp.model_position if res.spp.ok else approx, corrections)
         plane = self._plane(t, approx) if self.method.planes != "none" else None
         msg = NodeMessage(
             fleet=self.fleet,
@@ -229,22 +230,26 @@ class VehicleStep:
         """Per-satellite factor inputs, modelled at the best position the vehicle has."""
         if approx is None:
             return []  # no position at all yet: elevation, Sagnac and atmosphere are unknown
-        sats = list(res.prepared.sats)
+        prepared = res.prepared
+        # the whole epoch's view and delays at `approx`: at SPP's, the ones it ended with (cached)
+        view = sky_view(prepared.sat_pos, approx)
         if corrections is not None:  # DGNSS mode uses corrected satellites only
-            sats = [m for m in sats if m.sat in corrections.corrections_m]
+            sel = np.array([m.sat in corrections.corrections_m for m in prepared.sats], dtype=bool)
+        else:
+            sel = np.ones(len(prepared.sats), dtype=bool)
+        sats = [m for m, k in zip(prepared.sats, sel.tolist(), strict=True) if k]
         if not sats:
             return []
         systems = [m.system for m in sats]
-        sat_pos = np.array([m.state.pos for m in sats])
-        view = sky_view(sat_pos, approx)
-        sat_rx = view.receive_frame_positions(sat_pos)
+        el_rad, az_rad = view.el_rad[sel], view.az_rad[sel]
+        sat_rx = view.receive_frame_positions(prepared.sat_pos)[sel]
         cn0 = np.array([m.cn0_dbhz for m in sats])
         if corrections is not None:
             iono = tropo = np.zeros(len(sats))
-            sigma = pseudorange_sigma_m(view.el_rad, cn0, systems)
+            sigma = pseudorange_sigma_m(el_rad, cn0, systems)
         else:
-            iono, tropo = broadcast_delays(systems, res.prepared.time, view, self.nav)
-            sigma = standalone_pseudorange_sigma_m(view.el_rad, cn0, systems, iono)
+            iono, tropo = broadcast_delays(prepared.systems, prepared.time, view, self.nav)
+            sigma = standalone_pseudorange_sigma_m(el_rad, cn0, systems, iono)
         used = set(res.spp.used) if res.spp.ok else None
         excluded = set(res.spp.excluded)
         mask = math.radians(self.config.solver.spp.elevation_mask_deg)
@@ -252,8 +257,8 @@ class VehicleStep:
         # Python floats up front, rather than indexing numpy arrays per satellite and field
         rows = zip(
             sats,
-            view.el_rad.tolist(),
-            view.az_rad.tolist(),
+            el_rad.tolist(),
+            az_rad.tolist(),
             sat_rx.tolist(),
             iono.tolist(),
             tropo.tolist(),
