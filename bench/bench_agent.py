@@ -123,6 +123,11 @@ def ms_per_epoch(res: list[tuple[float, int]], n: int) -> list[float]:
     return [1e3 * s / n for s, _ in res]
 
 
+def _ratios(ratios: list[float]) -> str:
+    """The median ratio and the rounds' range, as two table cells."""
+    return f"{statistics.median(ratios):.2f} | {min(ratios):.2f} - {max(ratios):.2f}"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
@@ -140,9 +145,9 @@ def main() -> int:
         "rounds, each running every row once in turn, one process, nothing else running. ms per "
         "vehicle-epoch, median of the rounds; ratio = coplane / RTKLIB's SPP in the same mode (single-point, "
         "or DGPS for the DGNSS front end), taken within each round, median of the rounds (issue 16 asks "
-        "for the front end within 3x).\n",
-        "| recording | what | vehicle-epochs | ms / vehicle-epoch | ratio to RTKLIB |",
-        "|---|---|---:|---:|---:|",
+        "for the front end within 3x), and its lowest and highest round.\n",
+        "| recording | what | vehicle-epochs | ms / vehicle-epoch | ratio to RTKLIB | lowest - highest round |",
+        "|---|---|---:|---:|---:|---:|",
     ]
     print("\n".join(lines), flush=True)
     for label, path in RECORDINGS:
@@ -172,12 +177,7 @@ def main() -> int:
                 ("coplane agent front end, DGNSS (ratio to RTKLIB DGPS)", "fe-dg", "rtk-dg"),
             ]
         rows = [
-            (
-                what,
-                n,
-                statistics.median(ms[k]),
-                statistics.median(a / b for a, b in zip(ms[k], ms[ref], strict=True)),
-            )
+            (what, n, statistics.median(ms[k]), [a / b for a, b in zip(ms[k], ms[ref], strict=True)])
             for what, k, ref in table
         ]
         with tempfile.TemporaryDirectory() as tmp:
@@ -191,15 +191,13 @@ def main() -> int:
             )
         ours = statistics.median(s for s, _ in procs["ours"])
         theirs = statistics.median(s for s, _ in procs["theirs"])
-        proc_ratio = statistics.median(
-            a / b for (a, _), (b, _) in zip(procs["ours"], procs["theirs"], strict=True)
-        )
-        for what, n_ep, ms_ep, ratio in rows:
-            lines.append(f"| {label} | {what} | {n_ep} | {ms_ep:.3f} | {ratio:.2f} |")
+        proc_ratios = [a / b for (a, _), (b, _) in zip(procs["ours"], procs["theirs"], strict=True)]
+        for what, n_ep, ms_ep, ratios in rows:
+            lines.append(f"| {label} | {what} | {n_ep} | {ms_ep:.3f} | {_ratios(ratios)} |")
             print(lines[-1], flush=True)
         lines.append(
             f"| {label} | whole process: `coplane spp` {ours:.2f} s, RTKLIB process {theirs:.2f} s | | | "
-            f"{proc_ratio:.2f} |"
+            f"{_ratios(proc_ratios)} |"
         )
         print(lines[-1], flush=True)
     if args.out is not None:
