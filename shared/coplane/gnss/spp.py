@@ -14,8 +14,8 @@ sigma) its previous fit ended with (`sat_models.SatModels`); once converged, the
 evaluated there and the fit takes one more step, so a fit ends with models evaluated within
 `_ATMOSPHERE_EXACT_M` of its position: the Doppler rows and the node message reuse that one
 evaluation (`SppSolution.model_position`). That is about one evaluation per epoch, where there
-were three or four (SPP's, then the message's own), and the fit agrees with RTKLIB's `pntpos`, which evaluates them at every iteration, as
-before (tests/gnss/test_spp_real.py).
+were three or four (SPP's, then the message's own), and the fit agrees with RTKLIB's `pntpos`,
+which evaluates them at every iteration, as before (tests/gnss/test_spp_real.py).
 """
 
 from __future__ import annotations

@@ -248,7 +248,7 @@ class VehicleStep:
             iono = tropo = np.zeros(len(sats))
             sigma = pseudorange_sigma_m(el_rad, cn0, systems)
         else:
-            iono, tropo = broadcast_delays(prepared.systems, prepared.time, view, self.nav)
+            iono, tropo = (d[sel] for d in broadcast_delays(prepared.systems, prepared.time, view, self.nav))
             sigma = standalone_pseudorange_sigma_m(el_rad, cn0, systems, iono)
         used = set(res.spp.used) if res.spp.ok else None
         excluded = set(res.spp.excluded)
