@@ -1,6 +1,6 @@
 """What one receiver position sees of an epoch's satellites, all satellites at once.
 
-SPP (at every position update), the Doppler rows, DGNSS corrections and the node message all need
+SPP (where its fit converges), the Doppler rows, DGNSS corrections and the node message all need
 the same per-satellite quantities at a receiver position: the Sagnac-corrected range, the line of
 sight, elevation and azimuth, and the broadcast atmosphere. They are evaluated here for the whole
 epoch in one vectorised call, so every consumer sees the same numbers and none pays numpy's
@@ -53,9 +53,10 @@ class SkyView:
 
 
 # The last view and the last delays computed, with what they were computed from. An agent's epoch
-# asks for the same ones up to three times (SPP where it converged, the Doppler rows and the node
-# message's satellites, all at the SPP fix), and they are pure functions of their inputs, so a
-# repeated request returns the same (read-only) arrays. One entry each, swapped atomically.
+# asks for the same ones three times (SPP where it converged, the Doppler rows and the node
+# message's satellites, all of the whole epoch at `SppSolution.model_position`), and they are
+# pure functions of their inputs, so a repeated request returns the same (read-only) arrays. One
+# entry each, swapped atomically.
 _last_view: tuple[bytes, bytes, SkyView] | None = None
 _last_delays: tuple[tuple[object, ...], tuple[Vec, Vec]] | None = None
 
@@ -98,8 +99,8 @@ def broadcast_delays(
     """(ionospheric, tropospheric) code delays in metres per satellite of `view`.
 
     The models are the RTKLIB-checked ones of `gnss.atmosphere`, each called once on all the
-    satellites it corrects (SPP re-evaluates this at every position update, so per-satellite
-    calls were its cost; GPS and a BeiDou without coefficients of its own share the GPS model);
+    satellites it corrects (SPP evaluates this once or twice per epoch, and per-satellite calls
+    were its cost; GPS and a BeiDou without coefficients of its own share the GPS model);
     they are only needed without DGNSS, where a base cancels them. "rtklib" iono_model scales the
     GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
     """
