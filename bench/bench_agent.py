@@ -12,7 +12,9 @@ run, median of `--runs`:
   SPP with FDE, Doppler velocity, the per-satellite factor inputs, the node message and its wire
   encoding), method `non-cp` (no plane fit: that depends on the fleet), standalone and, where
   the recording has a base, with DGNSS as the fleet runs (the base's own epoch included, as an
-  agent computes its corrections from the base's observations);
+  agent computes its corrections from the base's observations); with several vehicles also
+  each vehicle alone (its epochs in turn, sharing no orbit evaluation with the others, as an
+  agent process with one receiver), since interleaved in one process they share them;
 - RTKLIB postpos in DGPS mode on the same rover and base files, where the recording has a base:
   the like-for-like reference of the DGNSS front end, which also processes the base's epochs;
 - whole process: `coplane spp` (the command: imports, reading, solving, the .pos file) against a
@@ -76,10 +78,16 @@ def coplane_spp(rec_path: Path) -> tuple[float, int]:
     return time.perf_counter() - t0, sum(r.n_epochs for r in runs.values())
 
 
-def coplane_front_end(rec_path: Path, dgnss: bool) -> tuple[float, int]:
-    """Seconds in the agent's per-epoch work up to the encoded node message, and how many."""
+def coplane_front_end(rec_path: Path, dgnss: bool, alone: bool = False) -> tuple[float, int]:
+    """Seconds in the agent's per-epoch work up to the encoded node message, and how many.
+
+    The vehicles run interleaved in one process, as `coplane loadgen` runs them, so they share
+    each orbit evaluation (`ephemeris.slotted_state`); `alone`: each vehicle's epochs in turn
+    with those shared states forgotten first, as an agent process with one receiver runs them.
+    """
     from coplane.bus import encode
     from coplane.evaluate.runner import lockstep_schedule
+    from coplane.gnss.ephemeris import clear_caches
     from coplane.recording.reader import open_recording
     from coplane.replay import BaseCorrections, replay_setup
 
@@ -87,18 +95,24 @@ def coplane_front_end(rec_path: Path, dgnss: bool) -> tuple[float, int]:
     setup = replay_setup(rec.manifest, "non-cp", dgnss=dgnss)
     ids = [v.id for v in rec.manifest.vehicles]
     steps = {vid: setup.vehicle_step(rec, vid) for vid in ids}
-    schedule = lockstep_schedule(rec, ids)
+    schedule = list(lockstep_schedule(rec, ids))
     base = BaseCorrections.of(rec, setup.use_dgnss)
+    passes = [[(t, {vid: live.get(vid)}) for t, live in schedule] for vid in ids] if alone else [schedule]
     n = 0
-    t0 = time.perf_counter()
-    for t, live in schedule:
-        corr = base.at(t)
-        for vid, ep in live.items():
-            if ep is None:
-                continue
-            encode(steps[vid].process(t, ep, corr))
-            n += 1
-    return time.perf_counter() - t0, n
+    elapsed = 0.0
+    for one_pass in passes:
+        if alone:
+            clear_caches()
+        t0 = time.perf_counter()
+        for t, live in one_pass:
+            corr = base.at(t)
+            for vid, ep in live.items():
+                if ep is None:
+                    continue
+                encode(steps[vid].process(t, ep, corr))
+                n += 1
+        elapsed += time.perf_counter() - t0
+    return elapsed, n
 
 
 def whole_process(args: list[str]) -> tuple[float, int]:
@@ -160,6 +174,9 @@ def main() -> int:
             "spp": (coplane_spp, path),
             "fe": (coplane_front_end, path, False),
         }
+        several = len(open_recording(path).manifest.vehicles) > 1
+        if several:
+            jobs["fe-alone"] = (coplane_front_end, path, False, True)
         if has_base:
             jobs |= {"rtk-dg": (rtklib_compute, path, True), "fe-dg": (coplane_front_end, path, True)}
         res = interleaved(args.runs, jobs)
@@ -171,6 +188,8 @@ def main() -> int:
             ("coplane SPP with FDE", "spp", "rtk"),
             ("coplane agent front end, standalone", "fe", "rtk"),
         ]
+        if several:
+            table.append(("coplane agent front end, standalone, each vehicle alone", "fe-alone", "rtk"))
         if has_base:
             table += [
                 (f"RTKLIB postpos, DGPS, RAIM FDE ({res['rtk-dg'][0][1]} solutions)", "rtk-dg", "rtk-dg"),

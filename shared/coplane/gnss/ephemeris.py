@@ -295,6 +295,13 @@ def _slot_state(eph: Ephemeris, week: int, k: int) -> SatState:
     return ref
 
 
+def clear_caches() -> None:
+    """Forget the slot states and ephemeris selections this process keeps (a benchmark of one
+    receiver alone starts from none; results never depend on them)."""
+    _slots.clear()
+    _selections.clear()
+
+
 def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, float]) -> dict[str, SatState]:
     """States at emission time for each satellite with a pseudorange (RTKLIB `satposs`).
 
