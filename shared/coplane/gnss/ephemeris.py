@@ -270,17 +270,22 @@ def slotted_state(eph: Ephemeris, t: GpsTime) -> SatState:
     keeps `eph` alive, so an id cannot be reused by another ephemeris while its entry exists.
     """
     k = round(t.tow / STATE_SLOT_S)
-    ref = _slot_state(eph, t.week, k)
-    dt = t.tow - k * STATE_SLOT_S
-    return SatState(
-        sat=ref.sat,
-        pos=ref.pos + ref.vel * dt,
-        vel=ref.vel,
-        clock_s=ref.clock_s + ref.drift_s_per_s * dt,
-        drift_s_per_s=ref.drift_s_per_s,
-        eph=eph,
-        variance_m2=ref.variance_m2,
+    return _moved([_slot_state(eph, t.week, k)], [t.tow - k * STATE_SLOT_S])[0]
+
+
+def _moved(refs: list[SatState], dts: list[float]) -> list[SatState]:
+    """Each slot state moved along its velocity and clock drift by its `dts` seconds, in one numpy
+    operation for the whole list (the same IEEE operations element by element as one at a time)."""
+    dt = np.array(dts)
+    pos = (
+        np.array([r.pos for r in refs]).reshape(-1, 3)
+        + np.array([r.vel for r in refs]).reshape(-1, 3) * dt[:, None]
     )
+    clock = (np.array([r.clock_s for r in refs]) + np.array([r.drift_s_per_s for r in refs]) * dt).tolist()
+    return [
+        SatState(r.sat, pos[i], r.vel, clock[i], r.drift_s_per_s, r.eph, r.variance_m2)
+        for i, r in enumerate(refs)
+    ]
 
 
 def _slot_state(eph: Ephemeris, week: int, k: int) -> SatState:
@@ -310,7 +315,7 @@ def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, flo
     Satellites with no usable ephemeris, a non-finite or zero pseudorange, or an unsupported
     system are omitted. Each state is `slotted_state(eph, t_tx)`, bit for bit: times are
     seconds of the receiver's week here (no `GpsTime` per satellite and step, which was a fifth
-    of the cost), and the slot states are moved to their emission times in one numpy operation.
+    of the cost), and the slot states are moved to their emission times together (`_moved`).
     """
     week, tow_rx = t_rx.week, t_rx.tow
     sats: list[str] = []
@@ -342,13 +347,7 @@ def satellite_states(nav: NavData, t_rx: GpsTime, pseudoranges: Mapping[str, flo
         dts.append(tow_tx - k * STATE_SLOT_S)
     if not sats:
         return {}
-    dt = np.array(dts)
-    pos = np.array([r.pos for r in refs]) + np.array([r.vel for r in refs]) * dt[:, None]
-    clock = (np.array([r.clock_s for r in refs]) + np.array([r.drift_s_per_s for r in refs]) * dt).tolist()
-    return {
-        sat: SatState(sat, pos[i], r.vel, clock[i], r.drift_s_per_s, r.eph, r.variance_m2)
-        for i, (sat, r) in enumerate(zip(sats, refs, strict=True))
-    }
+    return dict(zip(sats, _moved(refs, dts), strict=True))
 
 
 def tgd_m(eph: Ephemeris) -> float:
