@@ -7,6 +7,7 @@ the one a cold start finds. The Doppler rows and the node message take the view 
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -93,3 +94,22 @@ def test_models_start_a_fit_only_when_they_cover_it(drive) -> None:  # type: ign
     a = solve_spp(nxt, nav, initial_position=first.position, models=stale)
     b = solve_spp(nxt, nav, initial_position=first.position)
     assert a.ok and b.ok and np.linalg.norm(a.position - b.position) < 1e-3
+
+
+def test_the_step_bound_ends_iterations_within_the_threshold(drive, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A step short enough that its linearisation error is below `convergence_m` ends the fit
+    (`spp._converged`): the fix is within that threshold of iterating on until the step itself
+    is, and takes fewer iterations."""
+    nav, epochs = drive
+    bounded, plain = ReceiverMemory(), ReceiverMemory()
+    its = {"bounded": 0, "plain": 0}
+    for ep in epochs:
+        a = solve_next(ep, nav, bounded)
+        with monkeypatch.context() as m:
+            m.setattr(spp_module, "_GN_GAIN", math.inf)  # only a step under the threshold converges
+            b = solve_next(ep, nav, plain)
+        assert a.spp.ok and b.spp.ok
+        assert np.linalg.norm(a.spp.position - b.spp.position) < 1e-4
+        its["bounded"] += a.spp.iterations
+        its["plain"] += b.spp.iterations
+    assert its["bounded"] < 0.8 * its["plain"], its
