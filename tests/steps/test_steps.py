@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate
+from coplane.estimation.contract import EpochInput, FleetSolution, PseudorangeColumns, VehicleEstimate
 from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import enu_to_ecef
 from coplane.gnss.dgnss import DgnssCorrections
@@ -403,12 +403,13 @@ def test_inputs_keep_only_used_satellites(run: Run) -> None:
         used = [s for s in m.satellites if s.used]
         assert len(used) < len(m.satellites)  # some are excluded at this epoch
         prs = ep.vehicles[vid].pseudoranges
-        assert [p.sat for p in prs] == [s.sat for s in used]
-        for p, s in zip(prs, used, strict=True):
-            assert (p.rho_m, p.sat_clock_s, p.sigma_m) == (s.rho_m, s.sat_clock_s, s.sigma_m)
-            assert tuple(p.sat_pos_m) == s.sat_pos_ecef_m
-            assert p.elevation_rad == math.radians(s.elevation_deg)
-            assert p.cn0_dbhz == s.cn0_dbhz
+        assert isinstance(prs, PseudorangeColumns)  # the server's form: columns, not an object each
+        assert list(prs.sats) == [s.sat for s in used]
+        for i, s in enumerate(used):
+            assert (prs.rho_m[i], prs.sat_clock_s[i], prs.sigma_m[i]) == (s.rho_m, s.sat_clock_s, s.sigma_m)
+            assert tuple(prs.sat_pos_m[i]) == s.sat_pos_ecef_m
+            assert prs.elevation_rad[i] == math.radians(s.elevation_deg)
+            assert prs.cn0_dbhz[i] == s.cn0_dbhz
 
 
 def test_inputs_vehicle_fields(run: Run) -> None:
@@ -448,8 +449,10 @@ def test_inputs_without_fix_or_cn0(run: Run) -> None:
     bad = m.model_copy(update={"spp": spp, "satellites": sats, "velocity": None, "plane": None})
     v = f.inputs(run.times[1], {"u1": bad}).vehicles["u1"]
     assert v.spp_position is None and v.velocity is None and v.clock_drift_mps is None and v.plane is None
-    assert v.pseudoranges[0].sat == sats[i].sat and math.isnan(v.pseudoranges[0].cn0_dbhz)
-    assert all(math.isfinite(p.cn0_dbhz) for p in v.pseudoranges[1:])
+    prs = v.pseudoranges
+    assert isinstance(prs, PseudorangeColumns)
+    assert prs.sats[0] == sats[i].sat and math.isnan(prs.cn0_dbhz[0])
+    assert np.isfinite(prs.cn0_dbhz[1:]).all()
 
 
 def test_one_range_per_pair_first_reporter_wins(run: Run) -> None:

@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 from coplane.gtime import GpsTime
 from coplane.plane.fit import constraint_error
-from coplane.typing import Vec
+from coplane.typing import Mat, Vec
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,28 @@ class PseudorangeObs:
     @property
     def system(self) -> str:
         return self.sat[0]
+
+
+@dataclass(frozen=True)
+class PseudorangeColumns:
+    """A vehicle epoch's pseudoranges as columns, one row per satellite (`PseudorangeObs`'s model).
+
+    The form the fusion server builds from a node message: a few numpy arrays made in one pass
+    over the message, where an object per satellite cost more than the validation that turns them
+    into arrays anyway (`validate._valid_pseudoranges`; docs/performance-scale.md, "Server
+    overhead"). Untrusted like every input: the validation checks shapes and values.
+    """
+
+    sats: tuple[str, ...]
+    sat_pos_m: Mat  # (n, 3), ECEF at reception
+    rho_m: Vec
+    sat_clock_s: Vec
+    sigma_m: Vec
+    elevation_rad: Vec  # NaN where not reported
+    cn0_dbhz: Vec  # NaN where not reported
+
+    def __len__(self) -> int:
+        return len(self.sats)
 
 
 @dataclass(frozen=True)
@@ -64,7 +86,7 @@ class VelocityObs:
 class VehicleEpochInput:
     vehicle_id: str
     time: GpsTime  # nominal epoch time
-    pseudoranges: tuple[PseudorangeObs, ...] = ()
+    pseudoranges: tuple[PseudorangeObs, ...] | PseudorangeColumns = ()
     velocity: VelocityObs | None = None
     plane: PlaneObs | None = None
     spp_position: Vec | None = None  # initial guess; None when SPP had no fix

@@ -16,10 +16,18 @@ import math
 from collections import Counter
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
-from coplane.estimation.contract import EpochInput, FleetSolution, PlaneObs, PseudorangeObs, VehicleEpochInput
+from coplane.estimation.contract import (
+    EpochInput,
+    FleetSolution,
+    PlaneObs,
+    PseudorangeColumns,
+    PseudorangeObs,
+    VehicleEpochInput,
+)
 from coplane.estimation.limits import (
     KNOWN_SYSTEMS,
     MAX_ANTENNA_HEIGHT_M,
@@ -217,23 +225,12 @@ def validate_vehicle(
     return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna, standstill)
 
 
-def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -> ValidPseudoranges:
+def _valid_pseudoranges(
+    prs: Sequence[PseudorangeObs] | PseudorangeColumns, rejected: Counter[str]
+) -> ValidPseudoranges:
     """Plausible, de-duplicated pseudoranges as arrays (vectorised: this runs per vehicle epoch)."""
-    n = len(prs)
-    sats = np.full((n, 3), np.nan)
-    num = np.full((n, 5), np.nan)  # rho, satellite clock, sigma, elevation, C/N0
-    try:
-        sats[:] = [o.sat_pos_m for o in prs]
-        num[:] = [(o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz) for o in prs]
-    except (TypeError, ValueError, AttributeError):  # a malformed one somewhere: one by one
-        for i, o in enumerate(prs):
-            v = finite_vec3(getattr(o, "sat_pos_m", None))
-            if v is not None:
-                sats[i] = v
-            num[i] = [
-                x if (x := finite(getattr(o, name, None))) is not None else np.nan
-                for name in ("rho_m", "sat_clock_s", "sigma_m", "elevation_rad", "cn0_dbhz")
-            ]
+    ids_in, sats, num = _pseudorange_rows(prs)
+    n = len(ids_in)
     with np.errstate(invalid="ignore", over="ignore"):
         radius = np.sqrt(np.einsum("ij,ij->i", sats, sats))
         ok = (  # the wire models' bounds (inclusive), so what passes the wire passes here
@@ -248,19 +245,60 @@ def _valid_pseudoranges(prs: Sequence[PseudorangeObs], rejected: Counter[str]) -
     keep: list[int] = []
     seen: set[str] = set()
     for i, good in enumerate(ok.tolist()):
-        sat = getattr(prs[i], "sat", None)
+        sat = ids_in[i]
         if good and isinstance(sat, str) and len(sat) >= 2 and sat[0] in KNOWN_SYSTEMS and sat not in seen:
             seen.add(sat)
             keep.append(i)
     if len(keep) < n:
         rejected["pseudorange"] += n - len(keep)
         sats, num = sats[keep], num[keep]
-    ids = [prs[i].sat for i in keep]
+    ids = [cast(str, ids_in[i]) for i in keep]
     extra = num[:, 3:]  # elevation and C/N0 are optional: anything not finite means unknown
     extra[~np.isfinite(extra)] = np.nan
     return ValidPseudoranges(
         ids, [s[0] for s in ids], sats, num[:, 0], num[:, 1], num[:, 2], num[:, 3], num[:, 4]
     )
+
+
+def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
+    """Each row's satellite id, position (n, 3) and (rho, satellite clock, sigma, elevation,
+    C/N0) (n, 5) of either input form; NaN wherever a value is malformed, so that the bounds
+    reject its row. Columns of inconsistent shapes are malformed as a whole: every row is NaN."""
+    if isinstance(prs, PseudorangeColumns):
+        try:
+            ids: list[object] = list(prs.sats)
+        except TypeError:
+            return [None], np.full((1, 3), np.nan), np.full((1, 5), np.nan)  # one reject
+        n = len(ids)
+        try:
+            with np.errstate(invalid="ignore"):
+                sats = np.array(prs.sat_pos_m, dtype=float).reshape(n, 3)
+                num = np.column_stack(
+                    [
+                        np.asarray(c, dtype=float).reshape(n)
+                        for c in (prs.rho_m, prs.sat_clock_s, prs.sigma_m, prs.elevation_rad, prs.cn0_dbhz)
+                    ]
+                ).reshape(n, 5)
+        except (TypeError, ValueError, AttributeError):
+            return ids, np.full((n, 3), np.nan), np.full((n, 5), np.nan)
+        return ids, sats, num
+    rows = cast(Sequence[PseudorangeObs], prs)
+    n = len(rows)
+    sats = np.full((n, 3), np.nan)
+    num = np.full((n, 5), np.nan)  # rho, satellite clock, sigma, elevation, C/N0
+    try:
+        sats[:] = [o.sat_pos_m for o in rows]
+        num[:] = [(o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz) for o in rows]
+    except (TypeError, ValueError, AttributeError):  # a malformed one somewhere: one by one
+        for i, o in enumerate(rows):
+            v = finite_vec3(getattr(o, "sat_pos_m", None))
+            if v is not None:
+                sats[i] = v
+            num[i] = [
+                x if (x := finite(getattr(o, name, None))) is not None else np.nan
+                for name in ("rho_m", "sat_clock_s", "sigma_m", "elevation_rad", "cn0_dbhz")
+            ]
+    return [getattr(o, "sat", None) for o in rows], sats, num
 
 
 def _valid_plane(plane: PlaneObs | None, rejected: Counter[str]) -> PlaneObs | None:

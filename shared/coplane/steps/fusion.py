@@ -9,7 +9,6 @@ and the fusion server call the same object (docs/architecture.md).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -20,7 +19,6 @@ from coplane.components import UnionFind
 from coplane.estimation.contract import (
     EpochInput,
     PlaneObs,
-    PseudorangeObs,
     RangeObs,
     VehicleEpochInput,
     VelocityObs,
@@ -28,7 +26,7 @@ from coplane.estimation.contract import (
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
 from coplane.methods import MethodSpec, interrupt_range
-from coplane.steps.wire import cov9, epoch_time, plane_summary, tuple3
+from coplane.steps.wire import cov9, epoch_time, plane_summary, pseudorange_columns, tuple3
 
 if TYPE_CHECKING:
     from coplane.fgo.solve import Smoothers  # imports GTSAM: only for the annotation
@@ -139,19 +137,6 @@ class FusionStep:
         return bounded_ranges(ranges, self.config.max_ranges_per_vehicle, self.config.max_cluster_vehicles)
 
     def _vehicle_input(self, t: GpsTime, m: NodeMessage) -> VehicleEpochInput:
-        prs = tuple(
-            PseudorangeObs(
-                sat=s.sat,
-                rho_m=s.rho_m,
-                sat_pos_m=np.array(s.sat_pos_ecef_m),
-                sat_clock_s=s.sat_clock_s,
-                sigma_m=s.sigma_m,
-                elevation_rad=math.radians(s.elevation_deg),
-                cn0_dbhz=s.cn0_dbhz if s.cn0_dbhz is not None else math.nan,
-            )
-            for s in m.satellites
-            if s.used
-        )
         vel = None
         if m.velocity is not None:
             vel = VelocityObs(
@@ -166,7 +151,7 @@ class FusionStep:
         return VehicleEpochInput(
             vehicle_id=m.vehicle_id,
             time=t,
-            pseudoranges=prs,
+            pseudoranges=pseudorange_columns(m),
             velocity=vel,
             plane=plane,
             spp_position=np.array(m.spp.position_ecef_m) if m.spp.position_ecef_m is not None else None,

@@ -12,9 +12,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from coplane.estimation.contract import PseudorangeColumns
 from coplane.estimation.limits import MAX_PLANE_SIGMA_M
 from coplane.gtime import GpsTime
-from coplane.messages import EpochTime, PlaneReport, PlaneSourceName, PlaneSummary
+from coplane.messages import EpochTime, NodeMessage, PlaneReport, PlaneSourceName, PlaneSummary
 from coplane.plane.detect import PlaneStatus, RoadPlane
 from coplane.typing import AnyArray
 
@@ -129,4 +130,34 @@ def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
         n_points_used=p.n_points_used,
         source=p.source,
         map_tile=p.map_tile,
+    )
+
+
+def pseudorange_columns(m: NodeMessage) -> PseudorangeColumns:
+    """The pseudoranges a node message marks used, as the estimator's columns: one pass over the
+    satellites and one array per kind of value, not an object per satellite (the fusion server
+    does this for every vehicle of every epoch)."""
+    used = [s for s in m.satellites if s.used]
+    n = len(used)
+    num = np.array(
+        [
+            (
+                s.rho_m,
+                s.sat_clock_s,
+                s.sigma_m,
+                s.elevation_deg,
+                math.nan if s.cn0_dbhz is None else s.cn0_dbhz,
+            )
+            for s in used
+        ],
+        dtype=float,
+    ).reshape(n, 5)
+    return PseudorangeColumns(
+        sats=tuple(s.sat for s in used),
+        sat_pos_m=np.array([s.sat_pos_ecef_m for s in used], dtype=float).reshape(n, 3),
+        rho_m=num[:, 0],
+        sat_clock_s=num[:, 1],
+        sigma_m=num[:, 2],
+        elevation_rad=np.radians(num[:, 3]),
+        cn0_dbhz=num[:, 4],
     )
