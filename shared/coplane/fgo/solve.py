@@ -248,7 +248,9 @@ class ClusterSolver:
         stamps = {key: float(b.step) for b in view.blocks for key in b.keys}
         initial = self._initial(view.blocks)
         last: Exception | None = None
-        for priors in (anchors, anchors + self._strong_priors(view.blocks)):
+        # the strong priors only for a retry: made on every rebuild, they cost about 1 % of a city
+        for retry in (False, True):
+            priors = anchors + self._strong_priors(view.blocks) if retry else anchors
             sid = self._next_slot
             self._next_slot += 1
             res = yield SmootherTask(
