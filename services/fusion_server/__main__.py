@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from coplane.runtime import exit_code, service_main, setup_logging, stop_event
+from coplane.runtime import exit_code, service_main, setup_logging, steady_state_gc, stop_event
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -17,7 +17,9 @@ def main(argv: list[str] | None = None) -> int:
 
     settings = FusionSettings(_cli_parse_args=argv if argv is not None else sys.argv[1:])  # type: ignore[call-arg]
     setup_logging("fusion", settings.log_level)
-    FusionServer(settings, stop).run()
+    server = FusionServer(settings, stop)
+    steady_state_gc()  # started: what the collector need not scan again
+    server.run()
     return exit_code()
 
 

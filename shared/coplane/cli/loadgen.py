@@ -43,7 +43,7 @@ def loadgen(
     """Replay every vehicle of a recording as its own VehicleStep on one bus session (docs/scale.md)."""
     from coplane.bus.security import BusSecurity, use_security
     from coplane.errors import ConfigError
-    from coplane.runtime import setup_logging, stop_event
+    from coplane.runtime import setup_logging, steady_state_gc, stop_event
     from coplane.vehicle_agent.loadgen import LoadGenerator
     from coplane.vehicle_agent.settings import LoadgenSettings
 
@@ -70,7 +70,9 @@ def loadgen(
     )
     setup_logging("loadgen", settings.log_level)  # its warnings (an epoch left unanswered) as JSON lines
     with use_security(BusSecurity(insecure=True)):
-        stats = LoadGenerator(settings, stop_event()).run()
+        generator = LoadGenerator(settings, stop_event())
+        steady_state_gc()  # started: what the collector need not scan again
+        stats = generator.run()
     summary = stats.summary()
     table = Table(title=f"loadgen: {summary['vehicles']} vehicles, {summary['epochs']} epochs ({pace})")
     table.add_column("item")
