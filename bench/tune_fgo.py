@@ -175,6 +175,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "isam2-full-check": {"isam2_partial_relinearization_check": False},  # the default until 2026-11-26
     # a new or rebuilt smoother's convergence loop: at most 3 more updates instead of 10
     "isam2-converge-3": {"isam2_converge_iterations": 3},
+    # iSAM2 relinearises a state once its estimate moved this far (m) from its linearisation point
+    "isam2-relin-0.01": {"isam2_relinearize_threshold": 0.01},  # the default until 2026-11-29
+    "isam2-relin-0.02": {"isam2_relinearize_threshold": 0.02},
+    "isam2-relin-0.1": {"isam2_relinearize_threshold": 0.1},
 }
 # GNC needs a batch solve: compare with paper-window (the same window with Huber + FDE). About ten
 # times slower than LM, so not in the default runs (docs/tuning-gnc.md, made with --seeds).

@@ -237,11 +237,14 @@ class FgoConfig:
     lm_relative_error_tol: float = 1e-6
     lm_absolute_error_tol: float = 1e-6
     # iSAM2: relinearisation threshold in metres (a clock's, in seconds, is this over c:
-    # `keys.relinearize_thresholds`) and the number of extra update() iterations per epoch (iSAM2
+    # `keys.relinearize_thresholds`). 0.05 since 2026-11-29 (0.01 before): the same accuracy on the
+    # training seeds (docs/tuning-isam2.md) and on the seed-11 city, at 7 % less fusion CPU there;
+    # 0.1 lost a fifth of that city's horizontal accuracy (docs/performance-scale.md, "iSAM2
+    # variants on cities"). Then the number of extra update() iterations per epoch (iSAM2
     # does one Gauss-Newton step per update; 1 and 2 compared on the training seeds in
     # docs/tuning-isam2.md: since the clocks' threshold none is within 0.07 m of 1, and 1 costs 1.18
     # times none on the cities at the same accuracy; 1 was the default until 2026-11-27, docs/fgo.md).
-    isam2_relinearize_threshold: float = 0.01
+    isam2_relinearize_threshold: float = 0.05
     isam2_extra_iterations: int = 0
     # ... and, when a smoother is (re)built or a vehicle starts from its SPP, up to this many more
     # until no position moves by more than isam2_converged_m.
