@@ -75,6 +75,9 @@ def test_bad_columns_are_counted_not_raised() -> None:
     rejected.clear()
     assert len(_valid_pseudoranges(short, rejected)) == 0 and rejected["pseudorange"] == n
     rejected.clear()
+    huge = dataclasses.replace(good, rho_m=[10**400] * n)  # type: ignore[arg-type]
+    assert len(_valid_pseudoranges(huge, rejected)) == 0 and rejected["pseudorange"] == n
+    rejected.clear()
     junk = dataclasses.replace(good, sats=None, sat_pos_m="junk")  # type: ignore[arg-type]
     assert len(_valid_pseudoranges(junk, rejected)) == 0 and rejected["pseudorange"] == 1
 

@@ -279,7 +279,7 @@ def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
                         for c in (prs.rho_m, prs.sat_clock_s, prs.sigma_m, prs.elevation_rad, prs.cn0_dbhz)
                     ]
                 ).reshape(n, 5)
-        except (TypeError, ValueError, AttributeError):
+        except (TypeError, ValueError, AttributeError, OverflowError):
             return ids, np.full((n, 3), np.nan), np.full((n, 5), np.nan)
         return ids, sats, num
     rows = cast(Sequence[PseudorangeObs], prs)
