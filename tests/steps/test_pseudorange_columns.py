@@ -17,9 +17,7 @@ from coplane.messages import NodeMessage
 from coplane.methods import get_method
 from coplane.steps.wire import pseudorange_columns
 from tests.support.fgo_synthetic import make_fleet, run
-
-SAT = (1.5e7, 1.0e7, 1.8e7)
-RX = (-2.18e6, 4.38e6, 4.08e6)
+from tests.support.wire_payloads import SAT, node, sat
 
 
 def columns(prs: Sequence[PseudorangeObs]) -> PseudorangeColumns:
@@ -84,36 +82,12 @@ def test_bad_columns_are_counted_not_raised() -> None:
 
 def test_columns_from_a_node_message() -> None:
     """The used satellites in the message's order; elevation in radians; no C/N0 is NaN."""
-    sat = {
-        "sat": "G05",
-        "pseudorange_m": 2.2e7,
-        "elevation_deg": 35.0,
-        "azimuth_deg": 120.0,
-        "sat_pos_ecef_m": SAT,
-        "sat_clock_s": 1e-4,
-        "tgd_m": 1.2,
-        "iono_m": 3.4,
-        "tropo_m": 2.5,
-        "rho_m": 2.2e7 - 7.0,
-        "sigma_m": 1.5,
-        "used": True,
-    }
-    msg = NodeMessage.model_validate(
-        {
-            "fleet": "f",
-            "vehicle_id": "u1",
-            "seq": 0,
-            "epoch": {"week": 2320, "tow": 1.0},
-            "rx_time": {"week": 2320, "tow": 1.0},
-            "antenna_height_m": 1.7,
-            "spp": {"ok": True, "position_ecef_m": RX},
-            "satellites": [
-                sat | {"cn0_dbhz": 42.0},
-                sat | {"sat": "E11", "used": False},
-                sat | {"sat": "C14", "elevation_deg": 60.0, "rho_m": 3.8e7},
-            ],
-        }
-    )
+    satellites = [
+        sat(),
+        sat(sat="E11", used=False),
+        sat(sat="C14", elevation_deg=60.0, rho_m=3.8e7, cn0_dbhz=None),
+    ]
+    msg = NodeMessage.model_validate(node(satellites=satellites))
     c = pseudorange_columns(msg)
     assert c.sats == ("G05", "C14")
     assert c.sat_pos_m.shape == (2, 3) and np.array_equal(c.sat_pos_m[1], SAT)
