@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from coplane.estimation.contract import EpochInput, PseudorangeColumns, PseudorangeObs
-from coplane.estimation.validate import _valid_pseudoranges
+from coplane.estimation.validate import _valid_pseudoranges, validate_epoch
 from coplane.messages import NodeMessage
 from coplane.methods import get_method
 from coplane.steps.wire import pseudorange_columns
@@ -96,3 +96,18 @@ def test_columns_from_a_node_message() -> None:
     assert c.cn0_dbhz[0] == 42.0 and math.isnan(c.cn0_dbhz[1])
     empty = pseudorange_columns(msg.model_copy(update={"satellites": []}))
     assert len(empty) == 0 and empty.sat_pos_m.shape == (0, 3)
+
+
+def test_numbers_beyond_a_float_are_counted_not_raised() -> None:
+    """An int too large for a float (float() raises OverflowError) wherever a number goes."""
+    fleet = make_fleet(2, 1, seed=5)
+    epoch = fleet.epochs[0]
+    v = epoch.vehicles["v01"]
+    huge = 10**400
+    prs = (dataclasses.replace(v.pseudoranges[0], rho_m=huge), *v.pseudoranges[1:])  # type: ignore[arg-type]
+    bad = dataclasses.replace(
+        v, pseudoranges=prs, spp_position=[huge, 0, 0], antenna_height_m=huge, clock_drift_mps=huge
+    )
+    got = validate_epoch(dataclasses.replace(epoch, vehicles={**epoch.vehicles, "v01": bad}))
+    assert got.rejected == {"pseudorange": 1, "spp": 1, "antenna_height": 1, "clock_drift": 1}
+    assert len(got.vehicles["v01"].pseudoranges) == len(v.pseudoranges) - 1

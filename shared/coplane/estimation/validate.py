@@ -53,7 +53,7 @@ def finite(x: object) -> float | None:
     """`x` as a finite float, or None (for values of unknown type from untrusted input)."""
     try:
         f = float(x)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond a float's range
         return None
     return f if math.isfinite(f) else None
 
@@ -62,7 +62,7 @@ def finite_vec3(v: object) -> Vec | None:
     """`v` as a finite 3-vector (a fresh array), or None."""
     try:
         a = np.asarray(v, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return None
     return a.copy() if a.shape == (3,) and bool(np.all(np.isfinite(a))) else None
 
@@ -289,7 +289,7 @@ def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
     try:
         sats[:] = [o.sat_pos_m for o in rows]
         num[:] = [(o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz) for o in rows]
-    except (TypeError, ValueError, AttributeError):  # a malformed one somewhere: one by one
+    except (TypeError, ValueError, AttributeError, OverflowError):  # a malformed one: one by one
         for i, o in enumerate(rows):
             v = finite_vec3(getattr(o, "sat_pos_m", None))
             if v is not None:
