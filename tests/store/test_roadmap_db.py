@@ -367,3 +367,23 @@ def test_mapped_until_is_stored_with_the_batch(tmp_path: Path) -> None:
     last = m.mapped_until["v0"]
     assert loaded.is_mapped("v0", last) and not loaded.is_mapped("v0", last + 1.0)
     assert not loaded.is_mapped("v9", 0.0)
+
+
+def test_a_damaged_mapped_until_entry_is_dropped_and_counted(tmp_path: Path) -> None:
+    """A JSON integer beyond a float's range (OverflowError in float()) or a non-number in the
+    vehicles' mapped-until times costs that entry, never the map."""
+    m, changes = synthetic_map()
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write(m.take_dirty(), changes, mapped_until=m.mapped_until)
+    con = sqlite3.connect(path)
+    con.execute(
+        "UPDATE meta SET value = ? WHERE key = 'mapped_until'",
+        ('{"v0": 1' + "0" * 400 + ', "v1": "soon", "v2": 12.5}',),
+    )
+    con.commit()
+    con.close()
+    with RoadMapDb(path, readonly=True) as db:
+        loaded = db.load()
+        assert db.rejected == {"bad mapped_until entry": 2}
+    assert loaded.mapped_until == {"v2": 12.5} and len(loaded.tiles) == len(m.tiles)

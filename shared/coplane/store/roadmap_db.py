@@ -319,7 +319,12 @@ class RoadMapDb:
             return {}
         out = {}
         for k, v in items:
-            if isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v):
+            # a JSON integer may be beyond a float's range: float() raises OverflowError there
+            try:
+                ok = isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v)
+            except OverflowError:
+                ok = False
+            if ok:
                 out[k] = float(v)
             else:
                 self.rejected["bad mapped_until entry"] += 1
