@@ -387,3 +387,15 @@ def test_a_damaged_mapped_until_entry_is_dropped_and_counted(tmp_path: Path) -> 
         loaded = db.load()
         assert db.rejected == {"bad mapped_until entry": 2}
     assert loaded.mapped_until == {"v2": 12.5} and len(loaded.tiles) == len(m.tiles)
+
+
+@pytest.mark.parametrize("config", ["[1, 2]", '{"tile_size_m": 1' + "0" * 400 + "}", "{"])
+def test_an_unreadable_map_configuration_is_an_error_naming_the_file(tmp_path: Path, config: str) -> None:
+    path = tmp_path / "map.sqlite"
+    RoadMapDb(path).close()
+    con = sqlite3.connect(path)
+    con.execute("UPDATE meta SET value = ? WHERE key = 'config'", (config,))
+    con.commit()
+    con.close()
+    with pytest.raises(StoreError, match=r"map\.sqlite: unreadable map configuration"):
+        RoadMapDb(path, readonly=True)

@@ -214,7 +214,8 @@ class RoadMapDb:
             raise StoreError(f"{self.path}: corrupt map ({check})")
         try:
             stored = RoadMapConfig.from_dict(json.loads(self._meta("config")))
-        except (TypeError, ValueError, KeyError) as exc:
+        # not an object (AttributeError), or a number beyond a float's range (ArithmeticError)
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as exc:
             raise StoreError(f"{self.path}: unreadable map configuration ({exc})") from None
         if config is None:
             return stored
