@@ -114,14 +114,7 @@ class Durability:
         sol = last.solution
         server.step.seq = sol.seq + 1
         server.solved_up_to = gps_time(sol.epoch)
-        snap: dict[str, Any] = lg.meta("server", {}) or {}
-        server.epochs_solved = int(snap.get("epochs_solved", 0))
-        server.node_payloads = int(snap.get("node_payloads", 0))
-        server.last_solve_s = snap.get("last_solve_s")
-        for vid, counts in (snap.get("counters") or {}).items():
-            if vid in server.counters:
-                server.counters[vid] = Counter({k: int(n) for k, n in counts.items()})
-        server.rejected_by_reason = Counter({k: int(n) for k, n in (snap.get("rejected") or {}).items()})
+        _restore_counters(server, lg.meta("server", {}), lg.path)
         gen = getattr(sol, "generation", None)
         if gen is not None and hasattr(server, "generation"):
             server.generation = gen  # a resumed server is the same generation, not a new one
@@ -204,3 +197,29 @@ class Durability:
                 lg.set_meta(writer="closed", closed_unix_s=time.time())
         finally:
             lg.close()
+
+
+def _restore_counters(server: FusionServer, snap: Any, path: Path) -> None:
+    """The diagnostics counters of the crashed run (what `DiagnosticsMessage` reports). A damaged
+    snapshot costs only them: the server resumes with its counters from zero and says so."""
+    try:
+        snap = snap or {}
+        epochs, payloads = int(snap.get("epochs_solved", 0)), int(snap.get("node_payloads", 0))
+        last = snap.get("last_solve_s")
+        if last is not None:
+            last = float(last)
+        counters = {
+            vid: Counter({str(k): int(n) for k, n in counts.items()})
+            for vid, counts in (snap.get("counters") or {}).items()
+            if vid in server.counters
+        }
+        rejected = Counter({str(k): int(n) for k, n in (snap.get("rejected") or {}).items()})
+    except (TypeError, ValueError, AttributeError, ArithmeticError) as exc:
+        log.warning(
+            "solution log: the counters of the crashed run are unreadable, they start from zero",
+            extra={"log": str(path), "error": str(exc)[:200]},
+        )
+        return
+    server.epochs_solved, server.node_payloads, server.last_solve_s = epochs, payloads, last
+    server.counters.update(counters)
+    server.rejected_by_reason = rejected

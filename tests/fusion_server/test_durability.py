@@ -187,3 +187,36 @@ def test_the_log_stays_bounded(replay: Replay, tmp_path: Path, monkeypatch: pyte
     assert b.step.seq == 7 and b.epochs_solved == 7
     assert b.durable.log is not None and b.durable.log.count() == 2
     b.durable.close()
+
+
+def test_damaged_counters_cost_only_the_counters(
+    replay: Replay, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A crashed run's diagnostics snapshot of the wrong shape: the server still resumes (seq,
+    seeds), with its counters from zero and a warning; a meta entry that is not JSON at all is a
+    StoreError naming the file, like a damaged solution row."""
+    import sqlite3
+
+    from coplane.store import StoreError
+
+    db = tmp_path / "fusion.sqlite"
+    a, node = _server(replay, db)
+    _feed(a, node, replay, range(3))
+    _crash(a)
+    con = sqlite3.connect(db)
+    bad = '{"epochs_solved": "many", "counters": [1, 2], "rejected": {"x": 1' + "0" * 400 + "}}"
+    con.execute("UPDATE meta SET value = ? WHERE key = 'server'", (bad,))
+    con.commit()
+    con.close()
+    with caplog.at_level("WARNING", logger="coplane.fusion_server"):
+        b, _ = _server(replay, db)
+    assert b.durable.resumed is not None and b.durable.resumed.seeds == 3 and b.step.seq == 3
+    assert b.epochs_solved == 0 and not any(b.counters.values()) and not b.rejected_by_reason
+    assert any("counters of the crashed run are unreadable" in r.getMessage() for r in caplog.records)
+    _crash(b)
+    con = sqlite3.connect(db)
+    con.execute("UPDATE meta SET value = ? WHERE key = 'writer'", ("{not json",))
+    con.commit()
+    con.close()
+    with pytest.raises(StoreError, match=r"fusion\.sqlite: meta entry 'writer' is not valid JSON"):
+        _server(replay, db)

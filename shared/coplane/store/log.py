@@ -210,8 +210,15 @@ class SolutionLog:
 
     # -- reading -------------------------------------------------------------------------------
     def meta(self, key: str, default: Any = None) -> Any:
+        """A meta entry's JSON value (`default` when absent); an unreadable one is a StoreError
+        naming the file and the key, like an unreadable solution row."""
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
-        return default if row is None else json.loads(row[0])
+        if row is None:
+            return default
+        try:
+            return json.loads(row[0])
+        except (TypeError, ValueError) as exc:
+            raise StoreError(f"{self.path}: meta entry {key!r} is not valid JSON ({exc})") from None
 
     def _where(self, fleet: str | None, method: str | None) -> tuple[str, list[Any]]:
         conds, args = [], []
