@@ -266,8 +266,8 @@ class RegionOptions(BaseModel):
 # Python's collector by default scans the young objects every 700 net allocations and, every
 # few hundred of those, everything a process holds. A service allocates a message's models, arrays
 # and factors per vehicle per epoch, almost all freed by reference counting, so the scans found
-# little and cost 8 % of a fusion server's CPU in a 256-vehicle city (docs/performance-scale.md,
-# "Server overhead"). Reference cycles are still collected, after 50,000 allocations instead.
+# little at a real cost in a fusion server's CPU (docs/performance-scale.md, "Server overhead",
+# measures the change). Reference cycles are still collected, after 50,000 allocations instead.
 GC_YOUNG_THRESHOLD = 50_000
 
 
