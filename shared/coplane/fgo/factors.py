@@ -15,8 +15,9 @@ Native classes wherever GTSAM has one (C++ evaluation, no Python callback per li
 
 Sagnac: the PseudorangeFactor of the GTSAM 4.3.0 wheel adds the Earth-rotation (Sagnac) term
 omega_e / c * (x_s * y_r - y_s * x_r) itself, i.e. it expects the satellite position in the ECEF
-frame at *transmission*. Our PseudorangeObs carries the satellite already rotated into the ECEF
-frame at *reception* (`coplane.estimation.contract`), so `gtsam_satellite_position` rotates it back by omega_e * tau;
+frame at *transmission*. Our inputs (PseudorangeObs, PseudorangeColumns) carry the satellite
+already rotated into the ECEF frame at *reception* (`coplane.estimation.contract`), so
+`gtsam_satellite_position` rotates it back by omega_e * tau;
 the factor then reproduces |p - sat_pos_m| to well under a millimetre (tests/fgo/test_fgo_factors.py).
 The correction is detected once at run time, so a GTSAM build without the internal term also works.
 """
@@ -107,7 +108,8 @@ def gtsam_applies_sagnac() -> bool:
 def gtsam_satellite_positions(sat_pos_rx: Vec, receiver: Vec) -> Vec:
     """Satellite positions (n, 3) as gtsam.PseudorangeFactor wants them.
 
-    `sat_pos_rx` is in the ECEF frame at reception (inputs.PseudorangeObs). If GTSAM applies the
+    `sat_pos_rx` is in the ECEF frame at reception (`estimation.contract`: PseudorangeObs,
+    PseudorangeColumns). If GTSAM applies the
     Sagnac term itself, rotate back to the frame at transmission by omega_e * tau, tau the signal
     travel time from the approximate receiver position (1 km of position error moves tau by 3 us,
     i.e. the satellite by 6 mm).
