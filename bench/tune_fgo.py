@@ -50,6 +50,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-keep-on-rejected-prediction": {"fde_snapshot_fallback": False},
     "gate3-no-fde": {"fde_k": None, "gate_k": 3.0},
     "cauchy": {"robust": "cauchy"},
+    "no-kernel": {"robust": None},  # the FDE alone against outliers (docs/tuning-kernel.md)
     "dcs-1": {"robust": "dcs", "robust_k": 1.0},  # switchable constraints in closed form
     "dcs-4": {"robust": "dcs", "robust_k": 4.0},
     "dcs-9": {"robust": "dcs", "robust_k": 9.0},
