@@ -36,12 +36,21 @@ ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 
 
-def unpack(rev: str, into: Path) -> tuple[str, Path]:
-    """The commit `rev` (short hash) unpacked into `into`, as an importable `coplane` package:
-    returns (short hash, the directory to put on PYTHONPATH)."""
-    short = subprocess.run(
-        ["git", "rev-parse", "--short", rev], cwd=ROOT, check=True, capture_output=True, text=True
+def _short(rev: str) -> str:
+    """The short hash of commit `rev` (fails on anything git cannot resolve to a commit)."""
+    return subprocess.run(
+        ["git", "rev-parse", "--short", f"{rev}^{{commit}}"],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+        text=True,
     ).stdout.strip()
+
+
+def unpack(rev: str, into: Path) -> tuple[str, Path]:
+    """The commit `rev` unpacked into `into`, as an importable `coplane` package: returns (its
+    short hash, the directory to put on PYTHONPATH)."""
+    short = _short(rev)
     tree = into / short
     tree.mkdir(parents=True)
     archive = subprocess.run(["git", "archive", short], cwd=ROOT, check=True, capture_output=True).stdout
@@ -91,6 +100,8 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--block", default="bench_scale_ab")
     args = ap.parse_args()
+    if len({_short(args.base), _short(args.head)}) == 1:
+        ap.error(f"--base {args.base} and --head {args.head} are the same commit")
     work = Path(tempfile.mkdtemp(prefix="coplane-ab-"))
     try:
         sides = []
