@@ -1,5 +1,5 @@
 """Valid example payloads of the wire models (`coplane.messages`), as dicts for tests to mutate:
-each builder takes keyword overrides."""
+each builder takes keyword overrides (merged over its defaults)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ SAT = (-1.2e7, 1.5e7, 1.8e7)  # a GNSS satellite (about 2.63e7 m)
 
 
 def sat(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "sat": "G05",
         "pseudorange_m": 2.2e7,
         "doppler_hz": -1234.5,
@@ -24,34 +24,28 @@ def sat(**kw: Any) -> dict[str, Any]:
         "tropo_m": 2.5,
         "rho_m": 2.2e7 - 7.0,
         "sigma_m": 1.5,
-    }
-    d.update(kw)
-    return d
+    } | kw
 
 
 def spp(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "ok": True,
         "position_ecef_m": RX,
         "covariance_m2": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0],
-    }
-    d.update(kw)
-    return d
+    } | kw
 
 
 def plane(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "status": "available",
         "normal": (0.6, 0.0, 0.8),
         "d_antenna_m": -6.37e6,
         "sigma_m": 0.2,
-    }
-    d.update(kw)
-    return d
+    } | kw
 
 
 def node(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "fleet": "fleet-1",
         "vehicle_id": "u1",
         "seq": 0,
@@ -68,13 +62,11 @@ def node(**kw: Any) -> dict[str, Any]:
         "satellites": [sat(), sat(sat="C14")],
         "plane": plane(),
         "ranges": [{"to": "u2", "range_m": 12.5, "sigma_m": 0.3}],
-    }
-    d.update(kw)
-    return d
+    } | kw
 
 
 def state(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "vehicle_id": "u1",
         "position_ecef_m": RX,
         "antenna_height_m": 1.7,
@@ -82,19 +74,15 @@ def state(**kw: Any) -> dict[str, Any]:
         "n_ranges": 1,
         "plane_used": True,
         "has_gnss_fix": True,
-    }
-    d.update(kw)
-    return d
+    } | kw
 
 
 def solution(**kw: Any) -> dict[str, Any]:
-    d: dict[str, Any] = {
+    return {
         "fleet": "fleet-1",
         "method": "pc",
         "seq": 3,
         "epoch": {"week": 2320, "tow": 115803.0},
         "vehicles": [state()],
         "solve_time_s": 0.01,
-    }
-    d.update(kw)
-    return d
+    } | kw
