@@ -37,14 +37,14 @@ PY = sys.executable
 
 
 def _short(rev: str) -> str:
-    """The short hash of commit `rev` (fails on anything git cannot resolve to a commit)."""
-    return subprocess.run(
-        ["git", "rev-parse", "--short", f"{rev}^{{commit}}"],
-        cwd=ROOT,
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
+    """The short hash of commit `rev`; exits with a message naming `rev` when git cannot resolve
+    it to a commit."""
+    got = subprocess.run(
+        ["git", "rev-parse", "--short", f"{rev}^{{commit}}"], cwd=ROOT, capture_output=True, text=True
+    )
+    if got.returncode != 0:
+        raise SystemExit(f"bench_scale_ab.py: {rev!r} is not a commit of this repository")
+    return got.stdout.strip()
 
 
 def unpack(rev: str, into: Path) -> tuple[str, Path]:
