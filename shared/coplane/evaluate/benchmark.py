@@ -36,11 +36,18 @@ VALIDATION: dict[str, tuple[int, ...]] = {
     "urban-loop": (301, 302, 303, 304, 305),
     "dense-urban": (401, 402, 403, 404, 405),
 }
-# Seeds reported in docs/results.md and used by the ordering tests: never used for tuning, never
-# to decide anything (chosen 2026-11-27 before any run on them).
-HELD_OUT: dict[str, tuple[int, ...]] = {
+# Seeds reported from 2026-11-27 to 2026-11-29. A full regeneration of docs/results.md showed the
+# innovation gate worse on them, and it was dropped (docs/fgo.md): having vetoed a candidate, they
+# are no longer fresh, so they are neither reported nor tuned on again.
+RETIRED: dict[str, tuple[int, ...]] = {
     "urban-loop": (701, 702, 703, 704, 705),
     "dense-urban": (801, 802, 803, 804, 805),
+}
+# Seeds reported in docs/results.md and used by the ordering tests: never used for tuning, never
+# to decide anything (chosen 2026-11-29 before any run on them).
+HELD_OUT: dict[str, tuple[int, ...]] = {
+    "urban-loop": (901, 902, 903, 904, 905),
+    "dense-urban": (1001, 1002, 1003, 1004, 1005),
 }
 BASELINES = ("non-cp-ekf", "dd-cp", "gamp-cp")
 # Length of each held-out recording (4 vehicles): docs/results.md and the ordering tests alike.
