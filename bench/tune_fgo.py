@@ -6,7 +6,9 @@
 Defaults are chosen on these seeds and reported on others: the training set is
 `coplane.evaluate.benchmark.TRAINING` and must never be used for docs/results.md (which reports
 `HELD_OUT`). `--validation` runs on `VALIDATION` instead: the seeds that check a choice the
-training seeds won but could not settle (never reported either). Each variant changes the method's current defaults (`ROBUST_FGO`); prints pooled
+training seeds won but could not settle (never reported either). `--standalone` runs every method
+without the recordings' base station. Each variant changes the method's current defaults
+(`ROBUST_FGO`, or the plane step's `PlaneConfig` for a `PLANE_VARIANTS` name); prints pooled
 (all vehicles, all recordings) H/V RMSE, the horizontal median, p99 and maximum, and the same
 pooled per environment of the truth (the simulator's road sections). The comparison these
 defaults came from is in docs/fgo.md ("Robust defaults").
@@ -31,6 +33,7 @@ from coplane.evaluate.benchmark import (
 )
 from coplane.evaluate.metrics import PooledStats
 from coplane.methods import MethodSpec, get_method
+from coplane.plane.config import PlaneConfig
 
 # Each variant changes the current defaults (ROBUST_FGO) in one respect, so every row is an
 # ablation of what the methods run; "previous-defaults" is the graph before the robust defaults.
@@ -195,6 +198,12 @@ BASELINE_VARIANTS: dict[str, dict[str, object]] = {
     "velocity-sigma-0.3": {"velocity_sigma": 0.3},
     "velocity-sigma-0.6": {"velocity_sigma": 0.6},
 }
+# Settings of the vehicles' plane step (PlaneConfig) for the FGO methods, each one change to its
+# defaults; a run names one of these or a VARIANTS entry (docs/tuning-plane-sigma.md).
+PLANE_VARIANTS: dict[str, dict[str, object]] = {
+    "plane-sigma-offset": {"sigma_model": "offset"},
+    "plane-sigma-covariance": {"sigma_model": "covariance"},
+}
 DEFAULT_RUNS = (
     [("pc", v) for v in VARIANTS if v not in SLOW_VARIANTS]
     + [("mci", "default"), ("non-cp", "default")]
@@ -241,6 +250,11 @@ def main() -> None:
     ap.add_argument(
         "--validation", action="store_true", help="the validation seeds instead of the training ones"
     )
+    ap.add_argument(
+        "--standalone",
+        action="store_true",
+        help="every method without the recordings' base station (no DGNSS), as docs/results.md's standalone section",
+    )
     args = ap.parse_args()
     training = dict(VALIDATION if args.validation else TRAINING)
     if args.seeds and args.validation:
@@ -255,8 +269,9 @@ def main() -> None:
             training[scen] = chosen
     runs = [tuple(r.split(":")) for r in args.runs.split(",")] if args.runs else DEFAULT_RUNS
     kind = "validation" if args.validation else "training"
+    mode = ", without a base station (standalone)" if args.standalone else ""
     lines = [
-        f"# Tuning on the {kind} seeds\n",
+        f"# Tuning on the {kind} seeds{mode}\n",
         f"Output of `.venv/bin/python bench/tune_fgo.py {' '.join(sys.argv[1:])}` ({dt.date.today()}): "
         f"{', '.join(f'{k} {v}' for k, v in training.items())}, 4 vehicles x {args.duration:.0f} s, "
         "pooled over the vehicles and seeds of each scenario. Each variant changes the current defaults "
@@ -276,8 +291,12 @@ def main() -> None:
             lines += [f"\n## `{scen}`, seeds {', '.join(map(str, seeds))}\n", *header]
             print("\n".join(lines[-3:]), flush=True)
             for m, name in runs:
-                spec = apply_variant(get_method(m), name)
-                lines.append(row(m, name, *pooled_by_environment(recs, spec)))
+                plane = PlaneConfig(**PLANE_VARIANTS[name]) if name in PLANE_VARIANTS else None  # type: ignore[arg-type]
+                spec = get_method(m) if plane is not None else apply_variant(get_method(m), name)
+                dgnss = False if args.standalone else None
+                lines.append(
+                    row(m, name, *pooled_by_environment(recs, spec, dgnss=dgnss, plane_config=plane))
+                )
                 print(lines[-1], flush=True)
     if args.out is not None:
         args.out.write_text("\n".join(lines) + "\n")

@@ -21,6 +21,7 @@ from coplane.evaluate.runner import run_method
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.epoch_solver import EpochSolverOptions
 from coplane.methods import MethodSpec
+from coplane.plane.config import PlaneConfig
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
 
@@ -121,19 +122,20 @@ def pooled_by_environment(
     tail_m: float = 20.0,
     dgnss: bool | None = None,
     front_end: EpochSolverOptions | None = None,
+    plane_config: PlaneConfig | None = None,
 ) -> tuple[dict[str, PooledStats], Consistency]:
     """One method's errors pooled over every vehicle of every recording, overall and per
     environment, and the consistency of its reported covariances (NaN share when it has none).
     Epochs with a horizontal error above `tail_m` are appended to `tail` when it is given.
-    `dgnss`, `front_end`: as `run_method` (None: with the recording's base when it has one; the
-    default GNSS front end)."""
+    `dgnss`, `front_end`, `plane_config`: as `run_method` (None: with the recording's base when it
+    has one; the default GNSS front end; the default plane step)."""
     sol: dict[str, dict] = {}
     truth: dict[str, dict] = {}
     env: dict[str, dict] = {}
     h_in: list[bool] = []
     v_in: list[bool] = []
     for k, rec in enumerate(recs):
-        run = run_method(rec, method, jobs=jobs, dgnss=dgnss, front_end=front_end)
+        run = run_method(rec, method, jobs=jobs, dgnss=dgnss, front_end=front_end, plane_config=plane_config)
         if on_run is not None:
             on_run(run.method, run.wall_time_s)
         for v in rec.manifest.vehicles:
