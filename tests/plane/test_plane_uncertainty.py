@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -182,8 +181,8 @@ def test_plane_uncertainty_of_a_road_plane_uses_only_the_inliers() -> None:
 
 
 def test_config_validates_the_sigma_model() -> None:
-    assert PlaneConfig().sigma_model == "offset"
-    assert replace(PlaneConfig(), sigma_model="covariance").point_error_correlation_s == math.inf
+    assert PlaneConfig().sigma_model == "covariance"
+    assert PlaneConfig().point_error_correlation_s == math.inf
     with pytest.raises(ValueError, match="sigma_model"):
         PlaneConfig(sigma_model="exact")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="point_error_correlation_s"):
