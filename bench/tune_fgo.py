@@ -221,6 +221,16 @@ def apply_variant(spec: MethodSpec, variant: str) -> MethodSpec:
     return dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, **changes))  # type: ignore[arg-type]
 
 
+def split_plane_variant(variant: str) -> tuple[str, PlaneConfig | None]:
+    """`variant` ('a+b') split into what `apply_variant` takes (the VARIANTS or BASELINE_VARIANTS
+    parts, '' when none) and the PlaneConfig its PLANE_VARIANTS parts ask for (None: the default
+    plane step), so that a graph setting and a plane setting combine in one run."""
+    parts = variant.split("+")
+    plane = {k: v for part in parts if part in PLANE_VARIANTS for k, v in PLANE_VARIANTS[part].items()}
+    rest = "+".join(part for part in parts if part not in PLANE_VARIANTS)
+    return rest, (PlaneConfig(**plane) if plane else None)  # type: ignore[arg-type]
+
+
 def row(method: str, variant: str, by_env: dict[str, PooledStats], cons: Consistency) -> str:
     """One Markdown row: pooled H/V RMSE, tail, deep canyon, underpass, and the 95 % containment."""
     a = by_env["all"]
@@ -285,15 +295,15 @@ def main() -> None:
         "| underpass H / V RMSE (m) | in95 H / V |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    dgnss = False if args.standalone else None  # None: with the recordings' base
     with tempfile.TemporaryDirectory() as tmp:
         for scen, seeds in training.items():
             recs = make_recordings(scen, seeds, Path(tmp), 4, args.duration)
             lines += [f"\n## `{scen}`, seeds {', '.join(map(str, seeds))}\n", *header]
             print("\n".join(lines[-3:]), flush=True)
             for m, name in runs:
-                plane = PlaneConfig(**PLANE_VARIANTS[name]) if name in PLANE_VARIANTS else None  # type: ignore[arg-type]
-                spec = get_method(m) if plane is not None else apply_variant(get_method(m), name)
-                dgnss = False if args.standalone else None
+                rest, plane = split_plane_variant(name)
+                spec = apply_variant(get_method(m), rest) if rest else get_method(m)
                 lines.append(
                     row(m, name, *pooled_by_environment(recs, spec, dgnss=dgnss, plane_config=plane))
                 )

@@ -1,0 +1,45 @@
+"""Helpers of the benchmark scripts that decide what a regenerated page of docs/ measured: which
+plane step a tuning run used (`bench/tune_fgo.py`) and which commits an A/B compares
+(`bench/bench_scale_ab.py`). The scripts themselves take minutes and are only imported elsewhere
+(tests/core/test_bench_scripts.py)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from coplane.plane.config import PlaneConfig
+
+BENCH = Path(__file__).resolve().parents[2] / "bench"
+
+
+@pytest.fixture
+def bench_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.syspath_prepend(str(BENCH))  # the scripts import each other from bench/
+
+
+def test_a_plane_variant_combines_with_a_graph_variant(bench_path: None) -> None:
+    import tune_fgo
+
+    assert tune_fgo.split_plane_variant("default") == ("default", None)
+    rest, plane = tune_fgo.split_plane_variant("cauchy+plane-sigma-offset")
+    assert rest == "cauchy" and plane == PlaneConfig(sigma_model="offset")
+    assert tune_fgo.split_plane_variant("plane-sigma-covariance") == (
+        "",
+        PlaneConfig(sigma_model="covariance"),
+    )
+    with pytest.raises(KeyError):  # an unknown name still fails where apply_variant looks it up
+        tune_fgo.apply_variant(tune_fgo.get_method("pc"), tune_fgo.split_plane_variant("nonsense")[0])
+
+
+def test_ab_names_a_revision_git_cannot_resolve(bench_path: None) -> None:
+    import bench_scale_ab
+
+    head = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=BENCH, capture_output=True, text=True, check=True
+    ).stdout.strip()
+    assert bench_scale_ab._short("HEAD") == head
+    with pytest.raises(SystemExit, match="'no-such-rev' is not a commit of this repository"):
+        bench_scale_ab._short("no-such-rev")
