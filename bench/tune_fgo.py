@@ -278,6 +278,16 @@ def main() -> None:
                 ap.error(f"--seeds {item!r}: not a subset of the training seeds {TRAINING}")
             training[scen] = chosen
     runs = [tuple(r.split(":")) for r in args.runs.split(",")] if args.runs else DEFAULT_RUNS
+    for run in runs:  # a typo fails here, not after the first scenario's minutes of runs
+        if len(run) != 2:
+            ap.error(f"--runs {':'.join(run)!r}: not method:variant[+variant]")
+        m, name = run
+        try:
+            rest = split_plane_variant(name)[0]
+            apply_variant(get_method(m), rest) if rest else get_method(m)
+        except (ValueError, KeyError) as exc:  # ConfigError (unknown method) is a ValueError
+            what = f"unknown variant {exc}" if isinstance(exc, KeyError) else str(exc)
+            ap.error(f"--runs {':'.join(run)!r}: {what} (method:variant[+variant], see VARIANTS)")
     kind = "validation" if args.validation else "training"
     mode = ", without a base station (standalone)" if args.standalone else ""
     lines = [

@@ -6,6 +6,7 @@ plane step a tuning run used (`bench/tune_fgo.py`) and which commits an A/B comp
 from __future__ import annotations
 
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -43,3 +44,14 @@ def test_ab_names_a_revision_git_cannot_resolve(bench_path: None) -> None:
     assert bench_scale_ab._short("HEAD") == head
     with pytest.raises(SystemExit, match="'no-such-rev' is not a commit of this repository"):
         bench_scale_ab._short("no-such-rev")
+
+
+def test_tune_fgo_refuses_a_run_it_cannot_make_before_running_any() -> None:
+    for runs, says in (("pc:nonsense", "unknown variant 'nonsense'"), ("pc", "not method:variant")):
+        proc = subprocess.run(
+            [sys.executable, str(BENCH / "tune_fgo.py"), "--runs", runs],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert proc.returncode == 2 and says in proc.stderr, proc.stderr[-500:]
