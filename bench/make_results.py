@@ -121,7 +121,9 @@ def _held_out(tmp: Path, duration_s: float, dgnss: bool = True) -> list[str]:
         out.append(checks_table(acceptance(stats)) + "\n")
         out.append(tail_summary(tail, "pc") + "\n")
         out.append(
-            "Covariance consistency (an honest covariance has 0.95 of the epochs inside):\n\n"
+            "Covariance consistency (an honest covariance has 0.95 of the epochs inside and a mean "
+            "NEES of 3, the error's squared Mahalanobis distance in 3-D: below 3 the reported "
+            "covariance is cautious, above it over-confident):\n\n"
             + consistency_table({m: c for m, (_, c) in both.items()})
             + "\n"
         )

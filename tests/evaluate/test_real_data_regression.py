@@ -152,6 +152,25 @@ def test_static_accuracy_counts_common_epochs_only_where_rtklib_solves() -> None
     assert math.isnan(m.wall_time_s)
 
 
+def test_static_accuracy_counts_epochs_inside_the_reported_95_percent_regions() -> None:
+    sol, truth = _synthetic()
+    # 2 m sigma on every axis: the 3 m east error is inside the ellipse (chi-square 2.25 < 5.99),
+    # the 20 m drop of epoch 3 is outside the vertical interval; one epoch has no covariance
+    times = sorted(truth)
+    sol.covariances["m"] = {t: 4.0 * np.eye(3) for t in times[1:]}
+    sol.covariances["m"][times[5]] = np.full((3, 3), np.nan)  # not finite: left out, like a missing one
+    rows = static_accuracy(sol, truth)
+    cons = rows["m"].consistency
+    assert cons.n == 8 and cons.h_in95 == pytest.approx(1.0)
+    assert cons.v_in95 == pytest.approx(7 / 8)  # epoch 3 outside
+    assert cons.nees == pytest.approx((7 * 9 / 4 + (9 + 400) / 4) / 8)  # e' C^-1 e, C = 4 I
+    assert rows[RTKLIB_METHOD].consistency.n == 0  # no covariance reported: no share
+    assert math.isnan(rows[RTKLIB_METHOD].consistency.h_in95)
+    sol.covariances["m"] = {t: 1.0 * np.eye(3) for t in times}  # 1 m sigma: 3 m east is outside
+    assert static_accuracy(sol, truth)["m"].consistency.h_in95 == pytest.approx(0.0)
+    assert "| 1.00 / 0.88 | 14.7 |" in static_table({"m": rows["m"]})
+
+
 def test_trajectory_checks_find_the_excursion_and_skip_gaps() -> None:
     sol, _ = _synthetic()
     rows: dict[str, TrajectoryRow] = trajectory_checks(sol)

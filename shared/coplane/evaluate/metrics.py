@@ -7,7 +7,7 @@ an estimator that drops hard epochs must not look better for it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -43,6 +43,67 @@ def enu_errors(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -
         lat, lon, _ = ecef_to_geodetic(ref)
         errs[k] = enu_rotation(lat, lon) @ (np.asarray(solutions[t], dtype=float) - ref)
     return times, errs
+
+
+CHI2_95_2DOF = 5.991  # chi-square 95 % quantile, 2 degrees of freedom
+
+
+@dataclass(frozen=True)
+class EpochCheck:
+    """One epoch's error against its reported covariance."""
+
+    h_in95: bool  # horizontal error inside the 95 % ellipse
+    v_in95: bool  # vertical error within 1.96 sigma
+    nees: float  # normalised estimation error squared, 3-D (chi-square with 3 dof if honest)
+
+
+@dataclass(frozen=True)
+class Consistency:
+    """Whether the reported covariances describe the errors: shares inside the 95 % regions (0.95
+    if honest) and the mean NEES (3 if honest; below it the covariance is too cautious, above it
+    over-confident, which the shares alone do not tell once every epoch is inside)."""
+
+    n: int
+    h_in95: float
+    v_in95: float
+    nees: float
+
+    @classmethod
+    def of(cls, checks: Sequence[EpochCheck]) -> Consistency:
+        if not checks:
+            return cls(0, math.nan, math.nan, math.nan)
+        n = len(checks)
+        return cls(
+            n,
+            sum(c.h_in95 for c in checks) / n,
+            sum(c.v_in95 for c in checks) / n,
+            float(np.mean([c.nees for c in checks])),
+        )
+
+
+def covariance_checks(
+    times: Sequence[GpsTime],
+    errors: Vec,
+    covariances: Mapping[GpsTime, Vec],
+    truth: Mapping[GpsTime, Vec],
+) -> list[EpochCheck]:
+    """One check per epoch with a finite reported ECEF covariance (the others are left out).
+    `times`, `errors`: as `enu_errors`."""
+    out: list[EpochCheck] = []
+    for t, e in zip(times, errors, strict=True):
+        cov = covariances.get(t)
+        if cov is None or not np.all(np.isfinite(cov)):
+            continue
+        r = enu_rotation(*ecef_to_geodetic(np.asarray(truth[t], dtype=float))[:2])
+        c = r @ np.asarray(cov, dtype=float).reshape(3, 3) @ r.T
+        out.append(
+            EpochCheck(
+                float(e[:2] @ np.linalg.solve(c[:2, :2], e[:2])) <= CHI2_95_2DOF,
+                abs(float(e[2])) <= 1.96 * math.sqrt(float(c[2, 2])),
+                float(e @ np.linalg.solve(c, e)),
+            )
+        )
+    return out
 
 
 def accuracy(solutions: Mapping[GpsTime, Vec], truth: Mapping[GpsTime, Vec]) -> AccuracyStats:

@@ -26,7 +26,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coplane.errors import CoplaneError
-from coplane.evaluate.metrics import PooledStats, accuracy, enu_errors, pooled_stats
+from coplane.evaluate.metrics import (
+    Consistency,
+    PooledStats,
+    accuracy,
+    covariance_checks,
+    enu_errors,
+    pooled_stats,
+)
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, process_recording, rtklib_unavailable
 from coplane.evaluate.runner import lockstep_schedule, run_method
 from coplane.geo import ecef_to_geodetic
@@ -48,6 +55,7 @@ class Solutions:
     n_epochs: int  # nominal epochs of the receiver's schedule
     interval_s: float
     positions: dict[str, dict[GpsTime, Vec]] = field(default_factory=dict)
+    covariances: dict[str, dict[GpsTime, Vec]] = field(default_factory=dict)  # ECEF 3x3, as reported
     wall_time_s: dict[str, float] = field(default_factory=dict)
     failures: dict[str, str] = field(default_factory=dict)  # method -> why it gave nothing
     rtklib_note: str = ""
@@ -92,6 +100,7 @@ def solve_receiver(
             continue
         out.wall_time_s[name] = time.perf_counter() - t0
         out.positions[name] = dict(run.positions.get(vid, {}))
+        out.covariances[name] = dict(run.covariances.get(vid, {}))
     if not rtklib:
         return out
     reason = rtklib_unavailable()
@@ -108,6 +117,7 @@ def solve_receiver(
         return out
     out.wall_time_s[RTKLIB_METHOD] = time.perf_counter() - t0
     out.positions[RTKLIB_METHOD] = dict(res.run.positions.get(vid, {}))
+    out.covariances[RTKLIB_METHOD] = dict(res.run.covariances.get(vid, {}))
     out.rtklib_note = res.note
     if vid in res.failures:
         out.failures[RTKLIB_METHOD] = res.failures[vid]
@@ -146,6 +156,10 @@ class StaticRow:
     all: ErrorSummary  # every solved truth epoch
     common: ErrorSummary  # truth epochs that RTKLIB and this method both solve
     wall_time_s: float
+    # the reported covariances against the errors on every solved epoch (n 0: none reported). On
+    # a real receiver this is the check the simulator cannot make: its errors come from the same
+    # models as the weights.
+    consistency: Consistency
 
 
 def _subset(positions: Mapping[GpsTime, Vec], keep: Iterable[GpsTime]) -> dict[GpsTime, Vec]:
@@ -161,7 +175,7 @@ def static_accuracy(sol: Solutions, truth: Mapping[GpsTime, Vec]) -> dict[str, S
     rows: dict[str, StaticRow] = {}
     for name, pos in sol.positions.items():
         st = accuracy(pos, truth)
-        _, e_all = enu_errors(pos, truth)
+        times, e_all = enu_errors(pos, truth)
         common = _subset(pos, ref) if ref is not None else {}
         _, e_common = enu_errors(common, truth)
         rows[name] = StaticRow(
@@ -171,6 +185,7 @@ def static_accuracy(sol: Solutions, truth: Mapping[GpsTime, Vec]) -> dict[str, S
             all=ErrorSummary.of(pooled_stats(e_all)),
             common=ErrorSummary.of(pooled_stats(e_common)),
             wall_time_s=sol.wall_time_s.get(name, math.nan),
+            consistency=Consistency.of(covariance_checks(times, e_all, sol.covariances.get(name, {}), truth)),
         )
     return rows
 
@@ -246,13 +261,14 @@ def static_table(rows: Mapping[str, StaticRow]) -> str:
     """Markdown table of `static_accuracy` rows."""
     head = (
         "| Method | Avail (%) | H median (m) | H RMSE (m) | V RMSE (m) | max abs V (m) "
-        "| common ep. | H median, common (m) | V RMSE, common (m) | run (s) |\n"
-        "|---|---|---|---|---|---|---|---|---|---|\n"
+        "| common ep. | H median, common (m) | V RMSE, common (m) | H / V inside 95 % | mean NEES | run (s) |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     body = "".join(
         f"| {r.method} | {100 * r.availability:.1f} | {_f(r.all.h_median_m)} | {_f(r.all.h_rmse_m)} "
         f"| {_f(r.all.v_rmse_m)} | {_f(r.all.v_max_m)} | {r.common.n} | {_f(r.common.h_median_m)} "
-        f"| {_f(r.common.v_rmse_m)} | {_f(r.wall_time_s, 1)} |\n"
+        f"| {_f(r.common.v_rmse_m)} | {_f(r.consistency.h_in95)} / {_f(r.consistency.v_in95)} "
+        f"| {_f(r.consistency.nees, 1)} | {_f(r.wall_time_s, 1)} |\n"
         for r in rows.values()
     )
     return head + body
