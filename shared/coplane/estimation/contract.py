@@ -31,6 +31,10 @@ class PseudorangeObs:
     sigma_m: float
     elevation_rad: float = float("nan")
     cn0_dbhz: float = float("nan")
+    # 1-sigma of the part of the error that stays the same over the window (the broadcast
+    # atmosphere's residual standalone, the base station's own errors with DGNSS:
+    # `gnss.weighting.common_error_sigma_m`); NaN: unknown. Only the reported covariance uses it.
+    common_sigma_m: float = float("nan")
 
     @property
     def system(self) -> str:
@@ -54,6 +58,7 @@ class PseudorangeColumns:
     sigma_m: Vec
     elevation_rad: Vec  # NaN where not reported
     cn0_dbhz: Vec  # NaN where not reported
+    common_sigma_m: Vec | None = None  # PseudorangeObs.common_sigma_m; None: unknown for every row
 
     def __len__(self) -> int:
         return len(self.sats)

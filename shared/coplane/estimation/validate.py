@@ -83,6 +83,9 @@ class ValidPseudoranges:
     sigma: Vec  # (n,) metres
     elevation: Vec  # (n,) radians
     cn0: Vec  # (n,) dB-Hz
+    # (n,) metres, the error common to the window's epochs (`PseudorangeObs.common_sigma_m`);
+    # NaN where unknown, None when unknown for every row
+    common_sigma: Vec | None = None
 
     def __len__(self) -> int:
         return len(self.sats)
@@ -100,6 +103,7 @@ class ValidPseudoranges:
             self.sigma[idx],
             self.elevation[idx],
             self.cn0[idx],
+            None if self.common_sigma is None else self.common_sigma[idx],
         )
 
 
@@ -253,42 +257,63 @@ def _valid_pseudoranges(
         rejected["pseudorange"] += n - len(keep)
         sats, num = sats[keep], num[keep]
     ids = [cast(str, ids_in[i]) for i in keep]
-    extra = num[:, 3:]  # elevation and C/N0 are optional: anything not finite means unknown
+    extra = num[:, 3:]  # elevation, C/N0, common sigma are optional: anything not finite is unknown
     extra[~np.isfinite(extra)] = np.nan
+    with np.errstate(invalid="ignore"):
+        common = num[:, 5]
+        common[~((common >= 0.0) & (common <= MAX_SIGMA_M))] = np.nan  # not a measurement: unknown
     return ValidPseudoranges(
-        ids, [s[0] for s in ids], sats, num[:, 0], num[:, 1], num[:, 2], num[:, 3], num[:, 4]
+        ids,
+        [s[0] for s in ids],
+        sats,
+        num[:, 0],
+        num[:, 1],
+        num[:, 2],
+        num[:, 3],
+        num[:, 4],
+        None if bool(np.isnan(common).all()) else common,
     )
 
 
 def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
     """Each row's satellite id, position (n, 3) and (rho, satellite clock, sigma, elevation,
-    C/N0) (n, 5) of either input form; NaN wherever a value is malformed, so that the bounds
+    C/N0, common sigma) (n, 6) of either input form; NaN wherever a value is malformed, so that the bounds
     reject its row. Columns of inconsistent shapes are malformed as a whole: every row is NaN."""
     if isinstance(prs, PseudorangeColumns):
         try:
             ids: list[object] = list(prs.sats)
         except TypeError:
-            return [None], np.full((1, 3), np.nan), np.full((1, 5), np.nan)  # one reject
+            return [None], np.full((1, 3), np.nan), np.full((1, 6), np.nan)  # one reject
         n = len(ids)
         try:
             with np.errstate(invalid="ignore"):
                 sats = np.array(prs.sat_pos_m, dtype=float).reshape(n, 3)
+                common = prs.common_sigma_m if prs.common_sigma_m is not None else np.full(n, np.nan)
                 num = np.column_stack(
                     [
                         np.asarray(c, dtype=float).reshape(n)
-                        for c in (prs.rho_m, prs.sat_clock_s, prs.sigma_m, prs.elevation_rad, prs.cn0_dbhz)
+                        for c in (
+                            prs.rho_m,
+                            prs.sat_clock_s,
+                            prs.sigma_m,
+                            prs.elevation_rad,
+                            prs.cn0_dbhz,
+                            common,
+                        )
                     ]
-                ).reshape(n, 5)
+                ).reshape(n, 6)
         except (TypeError, ValueError, AttributeError, OverflowError):
-            return ids, np.full((n, 3), np.nan), np.full((n, 5), np.nan)
+            return ids, np.full((n, 3), np.nan), np.full((n, 6), np.nan)
         return ids, sats, num
     rows = cast(Sequence[PseudorangeObs], prs)
     n = len(rows)
     sats = np.full((n, 3), np.nan)
-    num = np.full((n, 5), np.nan)  # rho, satellite clock, sigma, elevation, C/N0
+    num = np.full((n, 6), np.nan)  # rho, satellite clock, sigma, elevation, C/N0, common sigma
     try:
         sats[:] = [o.sat_pos_m for o in rows]
-        num[:] = [(o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz) for o in rows]
+        num[:] = [
+            (o.rho_m, o.sat_clock_s, o.sigma_m, o.elevation_rad, o.cn0_dbhz, o.common_sigma_m) for o in rows
+        ]
     except (TypeError, ValueError, AttributeError, OverflowError):  # a malformed one: one by one
         for i, o in enumerate(rows):
             v = finite_vec3(getattr(o, "sat_pos_m", None))
@@ -296,7 +321,7 @@ def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
                 sats[i] = v
             num[i] = [
                 x if (x := finite(getattr(o, name, None))) is not None else np.nan
-                for name in ("rho_m", "sat_clock_s", "sigma_m", "elevation_rad", "cn0_dbhz")
+                for name in ("rho_m", "sat_clock_s", "sigma_m", "elevation_rad", "cn0_dbhz", "common_sigma_m")
             ]
     return [getattr(o, "sat", None) for o in rows], sats, num
 

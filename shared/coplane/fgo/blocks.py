@@ -94,4 +94,5 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         has_fix=len(p.prs) >= cfg.min_fix_pseudoranges,
         clock_ref=p.clock_ref,
         bias_keys=bias_keys,
+        common_cov=p.common_cov,
     )

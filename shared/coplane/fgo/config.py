@@ -219,6 +219,14 @@ class FgoConfig:
     # while it is correlated over tens of seconds, so the marginal is over-confident; 1.0 reports
     # it as it is.
     covariance_scale: float = 1.0
+    # ... plus this factor^2 x the covariance of the errors common to the window's epochs
+    # (`fgo.common_error`: the broadcast atmosphere's residual, which DGNSS cancels), which the
+    # white-noise marginal averages away; 0: not added.
+    covariance_common_scale: float = 0.0
+    # With DGNSS, model what the base station leaves as this zenith sigma (m) / sin(elevation) in
+    # that term; 0: not modelled there (covariance_scale, chosen with DGNSS, covers it). Tried
+    # at 0.75 m with covariance_scale 1-2 and not adopted (docs/fgo.md, "An honest covariance").
+    covariance_common_dgnss_m: float = 0.0
     compute_covariance: bool = True
     # Solve each connected cluster (vehicles linked by ranges in the window) on its own.
     split_clusters: bool = True
@@ -339,6 +347,10 @@ class FgoConfig:
             raise ValueError(
                 f"fde_warmup_prior must be 'reported' or 'snapshot', got {self.fde_warmup_prior!r}"
             )
+        for name in ("covariance_common_scale", "covariance_common_dgnss_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
         if self.window_cluster_max < 0:
             raise ValueError(f"window_cluster_max must be >= 0, got {self.window_cluster_max!r}")
         if not (math.isfinite(self.height_link_max_m) and self.height_link_max_m >= 0):

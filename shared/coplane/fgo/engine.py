@@ -246,7 +246,8 @@ class FusionEstimator:
         cov = None if sd.covariance_m2 is None else np.asarray(sd.covariance_m2, dtype=float).reshape(3, 3)
         if cov is not None:
             # a seed is a reported state: its covariance carries `covariance_scale` (an honest
-            # error bound); the graph's own information is that divided out
+            # error bound); the graph's own information is that divided out (the common errors'
+            # term, when reported, stays in: a looser seed, never a tighter one)
             cov = cov / self.config.covariance_scale**2
         cov = F.floored_covariance(cov, SEED_FLOOR_M if cov is not None else cfg.anchor_sigma)
         st.cov[pk] = cov
@@ -315,11 +316,14 @@ class FusionEstimator:
         estimates: dict[str, VehicleEstimate] = {}
         for vid in sorted(rec.blocks):
             blk = rec.blocks[vid]
+            cov = st.cov.get(blk.pos_key, nan_cov) * self.config.covariance_scale**2
+            if blk.common_cov is not None:  # the errors the window cannot average (common_error)
+                cov = cov + blk.common_cov * self.config.covariance_common_scale**2
             estimates[vid] = VehicleEstimate(
                 vehicle_id=vid,
                 time=t,
                 position_m=st.position(blk.pos_key),
-                covariance_m2=st.cov.get(blk.pos_key, nan_cov) * self.config.covariance_scale**2,
+                covariance_m2=cov,
                 clocks_s=_clocks(st, blk),
                 n_pseudoranges=blk.n_pseudoranges,
                 n_ranges=n_ranges.get(vid, 0),

@@ -21,6 +21,7 @@ import numpy as np
 from coplane.estimation.contract import PlaneObs
 from coplane.estimation.validate import ValidPseudoranges, ValidRange, ValidVehicle
 from coplane.fgo import factors as F
+from coplane.fgo.common_error import common_error_covariance
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.links import (
     BiasLink,
@@ -60,6 +61,9 @@ class Prepared:
     restarted: bool = False  # a new track although the window holds earlier states (FgoConfig)
     bias_links: list[BiasLink] = dataclasses.field(default_factory=list)
     clock_ref: str | None = None  # the one receiver clock's system (FgoConfig.clock_isb_sigma_m)
+    # ECEF covariance of the errors common to the window's epochs (`common_error`), for the report
+    # only; None: not asked for (FgoConfig.covariance_common_scale 0) or not determined
+    common_cov: Mat | None = None
 
 
 def prepare_vehicle(
@@ -154,6 +158,13 @@ def prepare_vehicle(
     )
     if cfg.clock_drift_carry and v.drift is not None:
         state.drift_seen[v.vehicle_id] = (v.drift, t)
+    common_cov = None
+    if cfg.covariance_common_scale > 0.0:
+        # an epoch that cannot determine it (few satellites) keeps the last one the window has:
+        # the common errors are the slow ones, and they do not vanish with the satellites
+        common_cov = common_error_covariance(prs, init, cfg.covariance_common_dgnss_m)
+        if common_cov is None and hist:
+            common_cov = hist[-1].common_cov
     return Prepared(
         v.vehicle_id,
         prs,
@@ -170,6 +181,7 @@ def prepare_vehicle(
         restarted,
         bias_links,
         ref,
+        common_cov,
     )
 
 

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
 from coplane.gtime import GpsTime
-from coplane.typing import Vec
+from coplane.typing import Mat, Vec
 
 
 class _Range(Protocol):
@@ -81,6 +81,7 @@ class StateBlock:
     # of its offset from that clock (metres); else None and empty
     clock_ref: str | None = None
     bias_keys: dict[str, int] = field(default_factory=dict)
+    common_cov: Mat | None = None  # Prepared.common_cov: added to the reported covariance only
 
     @property
     def keys(self) -> list[int]:

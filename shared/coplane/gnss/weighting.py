@@ -175,3 +175,23 @@ def standalone_pseudorange_sigma_m(
     """Pseudorange sigma for undifferenced use: receiver error plus the broadcast-iono residual."""
     base = pseudorange_sigma_m(el_rad, cn0_dbhz, system)
     return _out(np.sqrt(base * base + (BROADCAST_IONO_ERROR_FRACTION * np.asarray(iono_m)) ** 2), system)
+
+
+# The part of a pseudorange's error that stays the same over the fusion window (seconds to
+# minutes), which the graph's white-noise model averages down as if it were independent from
+# epoch to epoch: the reported covariance adds it back (`FgoConfig.covariance_common_scale`).
+# Standalone that is the broadcast models' residual atmosphere, with RTKLIB's budget for it
+# (ERR_BRDCI: half the Klobuchar delay; ERR_SAAS: 0.3 m / (sin el + 0.1) for Saastamoinen). DGNSS
+# cancels it (0 here): what a base station leaves, its own multipath among others, is in
+# `FgoConfig.covariance_scale`, chosen with DGNSS.
+SAAS_RESIDUAL_M = 0.3
+
+
+def common_error_sigma_m(el_rad: ArrayLike, iono_m: ArrayLike, dgnss: ArrayLike) -> NDArray[np.float64]:
+    """Per satellite, the 1-sigma (m) of the error common to the window's epochs: the broadcast
+    atmosphere's residual, 0 where a DGNSS correction (`dgnss` True) removed the atmosphere."""
+    sin_el = np.sin(np.maximum(np.asarray(el_rad, dtype=float), RTKLIB_MIN_EL_RAD))
+    residual = np.hypot(
+        BROADCAST_IONO_ERROR_FRACTION * np.asarray(iono_m, dtype=float), SAAS_RESIDUAL_M / (sin_el + 0.1)
+    )
+    return np.where(np.asarray(dgnss, dtype=bool), 0.0, residual)

@@ -14,6 +14,7 @@ import numpy as np
 
 from coplane.estimation.contract import PseudorangeColumns
 from coplane.estimation.limits import MAX_PLANE_SIGMA_M
+from coplane.gnss.weighting import common_error_sigma_m
 from coplane.gtime import GpsTime
 from coplane.messages import EpochTime, NodeMessage, PlaneReport, PlaneSourceName, PlaneSummary
 from coplane.plane.detect import PlaneStatus, RoadPlane
@@ -147,17 +148,21 @@ def pseudorange_columns(m: NodeMessage) -> PseudorangeColumns:
                 s.sigma_m,
                 s.elevation_deg,
                 math.nan if s.cn0_dbhz is None else s.cn0_dbhz,
+                s.iono_m,
+                s.dgnss_m is not None,
             )
             for s in used
         ],
         dtype=float,
-    ).reshape(n, 5)
+    ).reshape(n, 7)
+    elevation = np.radians(num[:, 3])
     return PseudorangeColumns(
         sats=tuple(s.sat for s in used),
         sat_pos_m=np.array([s.sat_pos_ecef_m for s in used], dtype=float).reshape(n, 3),
         rho_m=num[:, 0],
         sat_clock_s=num[:, 1],
         sigma_m=num[:, 2],
-        elevation_rad=np.radians(num[:, 3]),
+        elevation_rad=elevation,
         cn0_dbhz=num[:, 4],
+        common_sigma_m=common_error_sigma_m(elevation, num[:, 5], num[:, 6] != 0.0),
     )
