@@ -214,7 +214,8 @@ VARIANTS: dict[str, dict[str, object]] = {
     },
     # ... second round: the broadcast atmosphere's residual alone (standalone), on the marginal's
     # scale as chosen with DGNSS
-    "cov-atmosphere-0.5": {"covariance_common_scale": 0.5},
+    "no-cov-atmosphere": {"covariance_common_scale": 0.0},  # the default until 2026-11-29
+    "cov-atmosphere-0.5": {"covariance_common_scale": 0.5},  # the default since
     "cov-atmosphere-0.7": {"covariance_common_scale": 0.7},
     "cov-atmosphere-1": {"covariance_common_scale": 1.0},
     # iSAM2's Gauss-Newton steps per epoch: 1 + isam2_extra_iterations (fusion cost, issue 16)
