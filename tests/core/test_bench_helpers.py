@@ -55,3 +55,16 @@ def test_tune_fgo_refuses_a_run_it_cannot_make_before_running_any() -> None:
             timeout=120,
         )
         assert proc.returncode == 2 and says in proc.stderr, proc.stderr[-500:]
+
+
+def test_a_results_header_names_the_blas_kernels() -> None:
+    """The numeric libraries and every loaded BLAS with the kernels it picked (docs/results.md's
+    and the tuning tables' headers), so that runs on different kernels can be told apart."""
+    import numpy as np
+
+    from coplane.evaluate.benchmark import numeric_versions
+
+    np.linalg.inv(np.eye(3))  # numpy's BLAS is loaded with numpy itself; this only uses it
+    text = numeric_versions()
+    assert text.startswith("gtsam ") and "numpy " in text and "scipy " in text
+    assert "blas" in text.lower()

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_info
 
 from coplane.evaluate.metrics import (
     Consistency,
@@ -81,8 +82,17 @@ def numeric_versions() -> str:
     """The numeric libraries' versions, for a benchmark's header. A fresh install moves pooled
     figures in the second decimal: the same commit (06bdd65) gave a training dense-urban `pc`
     H p99 of 9.81 m in one session and 10.09 m after a new `scripts/setup.sh` in the next
-    (library versions or the BLAS kernel; which one was not isolated), so a table names them."""
-    return ", ".join(f"{p} {importlib.metadata.version(p)}" for p in NUMERIC_PACKAGES)
+    (library versions or the BLAS kernel; which one was not isolated), so a table names them, and
+    every BLAS loaded (numpy's and scipy's each bring one) with the kernels it picked for this CPU
+    (OPENBLAS_CORETYPE sets them)."""
+    out = [f"{p} {importlib.metadata.version(p)}" for p in NUMERIC_PACKAGES]
+    for lib in threadpool_info():
+        if lib.get("user_api") == "blas":
+            kernel = lib.get("architecture")
+            out.append(
+                f"{lib.get('internal_api')} {lib.get('version')}" + (f" ({kernel} kernels)" if kernel else "")
+            )
+    return ", ".join(out)
 
 
 def make_recordings(
