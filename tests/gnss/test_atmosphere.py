@@ -349,3 +349,29 @@ def test_repeated_views_and_delays_are_the_same_read_only_arrays() -> None:
     other = broadcast_delays(systems, t, view, both)  # BeiDou's own coefficients now
     assert other[0] is not first[0] and other[0][1] != first[0][1] and other[0][0] == first[0][0]
     assert broadcast_delays(systems, t + 1.0, view, gps_only)[0][0] != first[0][0]
+
+
+def test_broadcast_delays_never_hand_one_view_s_delays_to_another() -> None:
+    """Two vehicles of one epoch in one process (`coplane eval`, the load generator): the second
+    view can land at the address of a first one freed in between. The cache keyed on the view's
+    id then returned the first vehicle's delays (centimetres off, and a different run's allocator
+    gave different positions: docs/results.md's standalone gamp-cp moved between regenerations).
+    Whatever the allocator does, each view gets the delays of its own position (the id-keyed
+    cache failed this within the first few of these loops, 4 cm off)."""
+    from coplane.gnss.geometry import sky_view
+
+    nav = NavData(iono={"G": GPS_HKSC})
+    t = GpsTime(2160, 200000.0)
+    systems = ["G"] * 6
+    rng = np.random.default_rng(3)
+    sats = np.array([0.0, 0.0, 6.4e6]) + rng.normal(0.0, 1.2e7, (6, 3)) + np.array([-2.4e7, 1.2e7, 1.2e7])
+    base = np.array([-2418077.0, 5386069.0, 2405174.0])
+    for k in range(200):
+        a = sky_view(sats, base + k)
+        broadcast_delays(systems, t, a, nav)
+        del a
+        sky_view(sats, base - 1e5)  # another view replaces the freed one in the view cache
+        b = sky_view(sats, base + np.array([2e4, -3e4, 1e4]) + k)  # 40 km away: other delays
+        got = broadcast_delays(systems, t, b, nav)[0]
+        want = [iono_delay_m("G", t, b.lat, b.lon, b.az_rad[i], b.el_rad[i], nav) for i in range(6)]
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-12)

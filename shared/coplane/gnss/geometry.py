@@ -58,7 +58,10 @@ class SkyView:
 # pure functions of their inputs, so a repeated request returns the same (read-only) arrays. One
 # entry each, swapped atomically.
 _last_view: tuple[bytes, bytes, SkyView] | None = None
-_last_delays: tuple[tuple[object, ...], tuple[Vec, Vec]] | None = None
+# The delays' entry holds the view it was computed for: a key with only the view's id matched a
+# later view that the allocator put at a freed one's address (another vehicle of the same epoch,
+# in a process that runs several), which then got the other vehicle's delays.
+_last_delays: tuple[tuple[object, ...], SkyView, tuple[Vec, Vec]] | None = None
 
 
 def _frozen(*arrays: Vec) -> None:
@@ -105,10 +108,10 @@ def broadcast_delays(
     GPS Klobuchar to BeiDou B1I, as RTKLIB 2.4.3 does.
     """
     global _last_delays
-    key = (tuple(systems), t, id(view), tuple(nav.iono.items()), iono, tropo, iono_model)
+    key = (tuple(systems), t, tuple(nav.iono.items()), iono, tropo, iono_model)
     last = _last_delays
-    if last is not None and last[0] == key and _last_view is not None and _last_view[2] is view:
-        return last[1]  # (the view is the cached one, so its id cannot have been reused)
+    if last is not None and last[1] is view and last[0] == key:
+        return last[2]  # the entry keeps its view alive, so `is` cannot match another one
     n = len(systems)
     io = np.zeros(n)
     if iono and n:
@@ -124,5 +127,5 @@ def broadcast_delays(
             io[m] = delay * np.array([scales[x] for x in systems if x in scales])  # x * 1.0 is x: exact
     tr = saastamoinen_m(view.lat, view.h, view.el_rad) if tropo else np.zeros(n)
     _frozen(io, tr)
-    _last_delays = (key, (io, tr))
+    _last_delays = (key, view, (io, tr))
     return io, tr
