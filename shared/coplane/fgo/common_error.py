@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from coplane.estimation.validate import ValidPseudoranges
+from coplane.fgo.screen import design_matrix
 from coplane.gnss.weighting import RTKLIB_MIN_EL_RAD
 from coplane.typing import Mat, Vec
 
@@ -38,14 +39,9 @@ def common_error_covariance(prs: ValidPseudoranges, position: Vec, dgnss_zenith_
         sig = np.where(sig == 0.0, base, sig)
     if not bool(np.all(np.isfinite(sig) & (sig > 0.0))):
         return None
-    systems = sorted(set(prs.systems))
-    n, m = len(prs), 3 + len(systems)
-    if n < m + 1:
+    if len(prs) < 3 + len(set(prs.systems)) + 1:
         return None
-    los = prs.sat_pos - position
-    h = np.zeros((n, m))
-    h[:, :3] = -los / np.linalg.norm(los, axis=1)[:, None]
-    h[np.arange(n), [3 + systems.index(s) for s in prs.systems]] = 1.0
+    h = design_matrix(prs, position)[0]
     info = (h.T / (sig * sig)) @ h
     try:
         cov = np.linalg.inv(info)[:3, :3]

@@ -53,6 +53,22 @@ class ScreenResult:
     offset_cov: np.ndarray | None = None
 
 
+def design_matrix(prs: ValidPseudoranges, position: Vec) -> tuple[Mat, Vec, np.ndarray, int]:
+    """The rows' single-epoch linearisation at `position`: H = [-u_i, e_system(i)] (unknowns: the
+    position, then one clock per system, systems sorted), the ranges |s_i - p|, each row's system
+    index and the number of systems. The FDE's test and the common errors' covariance
+    (`common_error`) share it."""
+    los = prs.sat_pos - position
+    dist = np.linalg.norm(los, axis=1)
+    u = los / dist[:, None]
+    systems = sorted(set(prs.systems))
+    sys_idx = np.array([systems.index(s) for s in prs.systems], dtype=int)
+    h = np.zeros((len(prs), 3 + len(systems)))
+    h[:, :3] = -u
+    h[np.arange(len(prs)), 3 + sys_idx] = 1.0
+    return h, dist, sys_idx, len(systems)
+
+
 def screen_pseudoranges(
     prs: ValidPseudoranges,
     predicted: Vec,
@@ -92,16 +108,8 @@ def screen_pseudoranges(
     keep = np.ones(n, dtype=bool)
     if n == 0:
         return ScreenResult(keep, (), False)
-    los = prs.sat_pos - predicted
-    dist = np.linalg.norm(los, axis=1)
-    u = los / dist[:, None]
+    h_full, dist, sys_idx, n_sys = design_matrix(prs, predicted)
     resid = prs.rho + C * prs.sat_clock - dist
-    systems = sorted(set(prs.systems))
-    sys_idx = np.array([systems.index(s) for s in prs.systems])
-    n_sys = len(systems)
-    h_full = np.zeros((n, 3 + n_sys))
-    h_full[:, :3] = -u
-    h_full[np.arange(n), 3 + sys_idx] = 1.0
     var = prs.sigma**2
     # clocks start from the per-system median residual so that the linear model is centred
     # (statistics.median: np.median's value, without its overhead on a dozen numbers)
