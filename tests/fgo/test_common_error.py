@@ -145,3 +145,10 @@ def test_dgnss_rows_add_nothing_unless_the_base_is_modelled() -> None:
     cov = common_error_covariance(prs, RX, dgnss_zenith_m=0.75)
     ref = common_error_covariance(dataclasses.replace(prs, common_sigma=0.75 / np.sin(prs.elevation)), RX)
     assert cov is not None and ref is not None and np.allclose(cov, ref)
+
+
+@pytest.mark.parametrize("name", ["covariance_common_scale", "covariance_common_dgnss_m"])
+@pytest.mark.parametrize("bad", [-0.1, math.inf, math.nan])
+def test_a_bad_setting_is_refused_naming_it(name: str, bad: float) -> None:
+    with pytest.raises(ValueError, match=name):
+        dataclasses.replace(get_method("pc").fgo, **{name: bad})  # type: ignore[arg-type]
