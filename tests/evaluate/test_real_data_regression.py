@@ -169,6 +169,10 @@ def test_static_accuracy_counts_epochs_inside_the_reported_95_percent_regions() 
     sol.covariances["m"] = {t: 1.0 * np.eye(3) for t in times}  # 1 m sigma: 3 m east is outside
     assert static_accuracy(sol, truth)["m"].consistency.h_in95 == pytest.approx(0.0)
     assert "| 1.00 / 0.88 | 14.7 |" in static_table({"m": rows["m"]})
+    # a singular covariance (zero uncertainty claimed) is outside with an infinite NEES, no error
+    sol.covariances["m"] = {t: np.zeros((3, 3)) for t in times}
+    zero = static_accuracy(sol, truth)["m"].consistency
+    assert zero.n == 10 and zero.h_in95 == 0.0 and zero.v_in95 == 0.0 and math.isinf(zero.nees)
 
 
 def test_trajectory_checks_find_the_excursion_and_skip_gaps() -> None:

@@ -88,7 +88,8 @@ def covariance_checks(
     truth: Mapping[GpsTime, Vec],
 ) -> list[EpochCheck]:
     """One check per epoch with a finite reported ECEF covariance (the others are left out).
-    `times`, `errors`: as `enu_errors`."""
+    `times`, `errors`: as `enu_errors`. A singular covariance claims no error at all in some
+    direction: its epoch is outside both regions with an infinite NEES, never an exception."""
     out: list[EpochCheck] = []
     for t, e in zip(times, errors, strict=True):
         cov = covariances.get(t)
@@ -96,11 +97,16 @@ def covariance_checks(
             continue
         r = enu_rotation(*ecef_to_geodetic(np.asarray(truth[t], dtype=float))[:2])
         c = r @ np.asarray(cov, dtype=float).reshape(3, 3) @ r.T
+        try:
+            h2 = float(e[:2] @ np.linalg.solve(c[:2, :2], e[:2]))
+            nees = float(e @ np.linalg.solve(c, e))
+        except np.linalg.LinAlgError:
+            out.append(EpochCheck(False, False, math.inf))
+            continue
+        v_var = float(c[2, 2])
         out.append(
             EpochCheck(
-                float(e[:2] @ np.linalg.solve(c[:2, :2], e[:2])) <= CHI2_95_2DOF,
-                abs(float(e[2])) <= 1.96 * math.sqrt(float(c[2, 2])),
-                float(e @ np.linalg.solve(c, e)),
+                0.0 <= h2 <= CHI2_95_2DOF, v_var > 0.0 and abs(float(e[2])) <= 1.96 * math.sqrt(v_var), nees
             )
         )
     return out
