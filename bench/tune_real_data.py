@@ -6,8 +6,9 @@
 The simulator shares its error models with the library, so a setting that wins on the training
 seeds (bench/tune_fgo.py) can win for the wrong reason. Before a setting becomes a default it must
 not lose here: the static sets give errors against the surveyed point, the moving drive (no truth)
-the divergence indicators of bench/real_data_regression.py. Variants are bench/tune_fgo.py's (each
-changes the current defaults in one respect); RTKLIB is not rerun (docs/results.md has it).
+the divergence indicators of bench/real_data_regression.py and its errors against RTKLIB's RTK.
+Variants are bench/tune_fgo.py's (each changes the current defaults in one respect); RTKLIB's code
+row is not rerun (docs/results.md has it).
 """
 
 from __future__ import annotations
@@ -93,8 +94,10 @@ def main() -> None:
         f"`{BASE}` with each bench/tune_fgo.py variant (`{BASE}{SEP}<variant>`) on the real sets of "
         "docs/results.md, kinematic processing. A default chosen on the training seeds "
         '(docs/tuning.md) must not lose here. RTKLIB is not rerun, so the "common" columns are '
-        "empty (docs/results.md has them); the moving drive has no truth, so its columns are the "
-        "divergence indicators of docs/results.md (largest 3-D step, largest height excursion).\n",
+        "empty (docs/results.md has them); the moving drive has no truth, so it gets the "
+        "divergence indicators of docs/results.md (largest 3-D step, largest height excursion) and "
+        "the errors against RTKLIB's RTK where that gives a reference (since 2026-11-29; the "
+        "tables made before have only the indicators).\n",
     ]
     parts += set_sections(names, 1, level="##", resolve=variant_method, rtklib=False)
     parts += doppler_section()

@@ -22,6 +22,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -79,7 +80,9 @@ class RtklibResult:
         return text
 
 
-def _options(rec: Recording, dgps: bool, elevation_mask_deg: float) -> tuple[object, object]:
+def rtklib_options(rec: Recording, dgps: bool, elevation_mask_deg: float) -> tuple[Any, Any]:
+    """(prcopt, solopt) for this row's code modes, from RTKLIB's defaults; `rtk_reference` starts
+    from the same options and switches to carrier-phase RTK."""
     import pyrtklib as rtk
 
     d, opt = rtk.prcopt_default, rtk.prcopt_t()
@@ -145,6 +148,22 @@ def read_xyz_solution(path: Path) -> list[tuple[GpsTime, np.ndarray, np.ndarray,
     return out
 
 
+def run_postpos(
+    opt: Any, sopt: Any, files: list[str], out: Path
+) -> tuple[int, list[tuple[GpsTime, np.ndarray, np.ndarray, int]]]:
+    """RTKLIB postpos over `files` (rover, [base,] navigation) into `out`: its return code and the
+    solutions read back (empty when it wrote none)."""
+    import pyrtklib as rtk
+
+    buf = rtk.Arr1Dchar(1024)
+    for i, ch in enumerate(str(out)[:1023]):
+        buf[i] = ch
+    ret = rtk.postpos(
+        rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, opt, sopt, rtk.filopt_t(), files, len(files), buf, "", ""
+    )
+    return int(ret), read_xyz_solution(out) if out.exists() else []
+
+
 def process_recording(
     rec: Recording,
     dgnss: bool | None = None,
@@ -155,13 +174,11 @@ def process_recording(
 
     DGNSS defaults to on when the recording has a base (as `coplane eval`). Needs pyrtklib.
     """
-    import pyrtklib as rtk
-
     use_dgnss = rec.manifest.base is not None if dgnss is None else bool(dgnss)
     if use_dgnss and rec.manifest.base is None:
         raise ValueError(f"recording {rec.manifest.name!r} has no [base]: cannot run RTKLIB DGPS")
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
-    opt, sopt = _options(rec, use_dgnss, elevation_mask_deg)
+    opt, sopt = rtklib_options(rec, use_dgnss, elevation_mask_deg)
     dt = rec.manifest.interval_s
     run = MethodRun(RTKLIB_METHOD, 0.0)
     res = RtklibResult(run, "dgps" if use_dgnss else "single")
@@ -173,27 +190,9 @@ def process_recording(
                 assert rec.manifest.base is not None
                 files.append(str(rec.manifest.base.obs))  # postpos: rover, base, then navigation
             files += [str(p) for p in rec.manifest.nav_files]
-            out = Path(tmp) / f"{vid}.pos"
-            buf = rtk.Arr1Dchar(1024)
-            for i, ch in enumerate(str(out)[:1023]):
-                buf[i] = ch
             t0 = time.perf_counter()
-            ret = rtk.postpos(
-                rtk.gtime_t(),
-                rtk.gtime_t(),
-                0.0,
-                0.0,
-                opt,
-                sopt,
-                rtk.filopt_t(),
-                files,
-                len(files),
-                buf,
-                "",
-                "",
-            )
+            ret, sols = run_postpos(opt, sopt, files, Path(tmp) / f"{vid}.pos")
             elapsed = time.perf_counter() - t0
-            sols = read_xyz_solution(out) if out.exists() else []
             if ret != 0 or not sols:
                 res.failures[vid] = f"postpos returned {ret} with {len(sols)} solutions"
             quality: Counter[str] = Counter()

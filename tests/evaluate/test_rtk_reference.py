@@ -1,0 +1,79 @@
+"""The RTK reference of the moving real drive, and coplane's errors against it.
+
+The Kowloon Tong car has no surveyed trajectory, but its dual-frequency F9P beside the HKSC
+reference station gives RTKLIB's carrier-phase RTK where the phase holds
+(`coplane.evaluate.rtk_reference`). Against it, `non-cp` must meet what issue 12 asks of a real
+drive (H median <= 3.0 m, H RMSE <= 5 m, V RMSE <= 8 m at availability >= 0.99), here on the
+epochs that have a reference (the easier part of the drive); docs/results.md ("Real data") prints
+the full tables.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coplane.evaluate.real_data import solve_receiver, static_accuracy, static_table
+from coplane.evaluate.rtk_reference import RtkReference, rtk_reference
+from coplane.evaluate.rtklib_row import RTKLIB_METHOD
+from coplane.recording.reader import Recording, open_recording
+
+pytestmark = pytest.mark.realdata
+
+KLT = "hk_klt_20210610_f9p_rover_hksc_base"
+TST = "urbannav_hk_tst_20200603_static_f9p"
+
+
+@pytest.fixture(scope="module")
+def klt(real_data: Path) -> Recording:
+    return open_recording(real_data / KLT)
+
+
+@pytest.fixture(scope="module")
+def reference(klt: Recording) -> RtkReference:
+    return rtk_reference(klt)
+
+
+def test_reference_covers_the_drive_where_rtk_holds(reference: RtkReference) -> None:
+    # measured: 88 of 205 epochs, 74 of them from a fixed solution
+    print("\n" + reference.note)
+    assert len(reference.positions) >= 60
+    assert reference.n_fixed >= 0.5 * len(reference.positions)
+    assert reference.n_epochs >= 200
+
+
+def test_reference_is_a_drive_not_a_point(reference: RtkReference) -> None:
+    """A car that moved: the reference spans hundreds of metres with steps a car can make."""
+    times = sorted(reference.positions)
+    xyz = np.array([reference.positions[t] for t in times])
+    assert np.linalg.norm(xyz.max(axis=0) - xyz.min(axis=0)) > 200.0
+    for a, b, pa, pb in zip(times, times[1:], xyz, xyz[1:], strict=False):
+        assert np.linalg.norm(pb - pa) <= 30.0 * (b - a) + 0.5  # 30 m/s and the reference's own error
+
+
+@pytest.mark.parametrize("dgnss", [True, False], ids=["dgnss", "standalone"])
+def test_non_cp_meets_the_real_drive_targets_on_the_reference_epochs(
+    klt: Recording, reference: RtkReference, dgnss: bool
+) -> None:
+    # measured: DGNSS H median 0.63 m, H RMSE 1.12 m, V RMSE 2.34 m; standalone 1.41 / 1.58 / 2.63;
+    # RTKLIB's code row on the same epochs 1.21 / 2.52 / 5.19 (DGPS) and 2.38 / 2.64 / 8.29 (single).
+    # Bounds: issue 12's targets for a real drive
+    sol = solve_receiver(klt, ["non-cp"], dgnss=dgnss, jobs=1)
+    rows = static_accuracy(sol, reference.positions)
+    print(f"\n{KLT} ({'DGNSS' if dgnss else 'standalone'}); {sol.rtklib_note}\n{static_table(rows)}")
+    row = rows["non-cp"]
+    assert row.availability >= 0.99
+    assert row.all.h_median_m <= 3.0
+    assert row.all.h_rmse_m <= 5.0
+    assert row.all.v_rmse_m <= 8.0
+    assert row.common.h_median_m <= rows[RTKLIB_METHOD].common.h_median_m  # measured 0.63 / 1.21, 1.41 / 2.38
+
+
+def test_reference_needs_a_base_and_a_positive_agreement(klt: Recording, real_data: Path) -> None:
+    with pytest.raises(ValueError, match="no \\[base\\]"):
+        rtk_reference(open_recording(real_data / TST))
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="agree_m"):
+            rtk_reference(klt, agree_m=bad)
