@@ -363,9 +363,10 @@ def report(training: bool = False, work: Path | None = None) -> str:
     ]
     t0 = time.perf_counter()
     use, runs = experiment_use(work, seeds, lines)
-    from roadmap_build_length import experiment_build_length  # a module of its own: this one is full
+    from roadmap_build_length import experiment_build_length, experiment_standalone  # this one is full
 
     experiment_build_length(work, seeds["build"], seeds["length"], use, runs, lines)
+    experiment_standalone(work, seeds["build"], lines)
     # the training run prints only: its figure stays in the work folder
     img = work / "roadmap-sharpening-training.png" if training else DOCS / "img" / "roadmap-sharpening.png"
     road_map = experiment_sharpen(work, seeds, lines, img)

@@ -38,3 +38,18 @@ def test_build_twice_show_and_use(tmp_path: Path) -> None:
     )
     assert r.exit_code == 0, r.output
     assert (tmp_path / "ev" / "accuracy.md").exists()
+
+
+def test_a_standalone_drive_builds_no_map_and_says_why(tmp_path: Path) -> None:
+    """Without a base station every reported vertical sigma carries the atmosphere's residual, which
+    the whole drive shares (docs/roadmap.md, 'Without a base station'): the trust filter keeps none
+    of it, and the build says so instead of writing an empty map silently."""
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=60, seed=12)
+    out = tmp_path / "map.sqlite"
+    r = runner.invoke(app, ["map", "build", str(rec), "--out", str(out), "--no-dgnss"])
+    assert r.exit_code == 0, r.output
+    said = " ".join(r.output.split())  # rich wraps at the terminal's width
+    assert "no sample passed the map's trust filter (sigma-up 120)" in said, r.output
+    assert "without a base station" in said, r.output
+    with RoadMapDb(out, readonly=True) as db:
+        assert db.load().stats()["passes"] == 0

@@ -68,6 +68,16 @@ def build(
             table.add_row(
                 ext.recording, ext.method, str(ext.samples), skipped, str(ext.passes), str(len(ext.changes))
             )
+            if not ext.passes and ext.samples > ext.skipped.get("already-mapped", 0):
+                console.print(f"[yellow]{path}: no sample passed the map's trust filter ({skipped})[/yellow]")
+                if ext.skipped.get("sigma-up"):
+                    console.print(
+                        f"[yellow]  {ext.skipped['sigma-up']} had a vertical sigma above max_sigma_up_m "
+                        f"{road_map.config.max_sigma_up_m:g} m: without a base station the reported "
+                        "covariance includes the broadcast atmosphere's residual, which the whole drive "
+                        "shares, so a standalone drive is no evidence of the road at that level "
+                        "(docs/roadmap.md, 'Without a base station')[/yellow]"
+                    )
         stats = road_map.stats()
     console.print(table)
     console.print(", ".join(f"{k} {v}" for k, v in stats.items()))
