@@ -59,6 +59,14 @@ def eval_(
             "--map", help="Road-surface map (`coplane map build`) for the map methods pc-map, pc-self-map."
         ),
     ] = None,
+    truth: Annotated[
+        str,
+        typer.Option(
+            help="Where the errors are measured against: 'recording' (its truth files) or 'rtk' (RTKLIB's"
+            " carrier-phase RTK against the base, where its forward and backward runs agree; for drives"
+            " with dual-frequency RINEX and a base but no surveyed trajectory).",
+        ),
+    ] = "recording",
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
@@ -70,6 +78,8 @@ def eval_(
     fgo_changes = parse_fgo_overrides(fgo or [])
     if fmt not in ("", "tum"):
         raise typer.BadParameter(f"unknown --format {fmt!r} (expected tum)")
+    if truth not in ("recording", "rtk"):
+        raise typer.BadParameter(f"unknown --truth {truth!r} (expected recording or rtk)")
     road_map = None
     if map_file is not None:
         from coplane.store.roadmap_db import RoadMapDb
@@ -89,6 +99,7 @@ def eval_(
         jobs=jobs,
         road_map=road_map,
         fgo=fgo_changes,
+        truth="rtk" if truth == "rtk" else "recording",
     )
     if fmt == "tum":
         from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum

@@ -107,6 +107,9 @@ def write_tables(
         )
     )
     md = "\n\n".join(markdown_table(stats, v) for v in vehicles)
+    notes = (extra or {}).get("notes") or {}
+    if notes:  # what the numbers rest on (the truth used, the RTKLIB mode, changed settings)
+        md += "\n\n" + "\n".join(f"- {key}: {text}" for key, text in notes.items())
     path = out_dir / "accuracy.md"
     path.write_text(md + "\n")
     return path

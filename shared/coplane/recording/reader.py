@@ -16,7 +16,7 @@ taken from the file's own ephemeris messages, else from the recording's navigati
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +30,7 @@ from coplane.recording.rinex_obs import SignalCodes, read_obs
 from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
 from coplane.recording.sfrbx import read_sfrbx_nav
 from coplane.recording.ubx import read_ubx
+from coplane.typing import Vec
 
 MATCH_FRACTION = 0.1  # uwb/truth rows match an epoch within this fraction of the interval
 
@@ -169,6 +170,15 @@ class Recording:
             path = self.manifest.vehicle(vid).truth
             self._truth[vid] = [] if path is None else read_truth(path, self.problems)
         return self._truth[vid]
+
+    def use_truth(self, vid: str, positions: Mapping[GpsTime, Sequence[float] | Vec]) -> None:
+        """Replace the vehicle's truth with `positions` (ECEF antenna, keyed by nominal epoch): a
+        reference made outside the recording, e.g. RTKLIB's RTK (`coplane eval --truth rtk`)."""
+        self.manifest.vehicle(vid)  # KeyError for a vehicle the recording lacks
+        rows = {t: (float(p[0]), float(p[1]), float(p[2])) for t, p in sorted(positions.items())}
+        self._truth[vid] = [TruthPoint(t, xyz) for t, xyz in rows.items()]
+        self._truth_at[vid] = rows
+        self._env_at[vid] = {t: "" for t in rows}
 
     def truth_at(self, vid: str) -> dict[GpsTime, tuple[float, float, float]]:
         """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
