@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from coplane.bus import BadMessage, BusNode, decode, encode
-from coplane.messages import MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
+from coplane.messages import MAX_MAP_COUNTS, MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
 from coplane.roadmap import MapBuilder, RoadMap, TileKey
 from coplane.roadmap.tile import PassEvidence
 from coplane.steps.map_evidence import solution_samples
@@ -112,10 +112,20 @@ class LiveRoadMap:
             log.exception("road map: solution not added", extra={"seq": sol.seq})
 
     def diagnostics(self) -> dict[str, Any]:
-        """The map fields of the server's diagnostics message: the map's common residual and the
-        passes behind it (`DiagnosticsMessage.map_common_offset_m`), none while there is none."""
-        ref = self.map.common.latest
-        return {} if ref is None else {"map_common_offset_m": ref.offset_m, "map_common_passes": ref.passes}
+        """The map fields of the server's diagnostics message: what became of the fleet's evidence
+        (`map_counts`: samples taken, passes added, samples the trust filter skipped by reason, ...;
+        a map that learns nothing, e.g. from a standalone fleet, shows why) and the map's common
+        residual with the passes behind it (`map_common_offset_m`), each only once there is one."""
+        out: dict[str, Any] = {}
+        if counts := self.evidence_counts():
+            out["map_counts"] = dict(sorted(counts.items())[:MAX_MAP_COUNTS])
+        if (ref := self.map.common.latest) is not None:
+            out.update(map_common_offset_m=ref.offset_m, map_common_passes=ref.passes)
+        return out
+
+    def evidence_counts(self) -> Counter[str]:
+        """This server's counts and its builder's skipped samples (`skipped:<reason>`)."""
+        return self.counts + Counter({f"skipped:{k}": n for k, n in self.builder.skipped.items()})
 
     @property
     def cache_size(self) -> int:
@@ -211,8 +221,7 @@ class LiveRoadMap:
         try:
             self._commit(self.builder.flush())
         finally:
-            self.counts.update({f"skipped:{k}": n for k, n in self.builder.skipped.items()})
-            log.info("road map closed", extra={**self.map.stats(), **dict(self.counts)})
+            log.info("road map closed", extra={**self.map.stats(), **dict(self.evidence_counts())})
             self.db.close()
 
     def _commit(self, passes: list[PassEvidence]) -> None:

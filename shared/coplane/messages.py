@@ -48,6 +48,7 @@ Generation = Annotated[str, Field(pattern=r"^[0-9a-f]{8,32}$")]
 
 MAX_SATELLITES = 64
 MAX_RANGES = 256
+MAX_MAP_COUNTS = 64  # kinds of road-map evidence counts in a diagnostics message
 
 
 class _Model(BaseModel):
@@ -325,6 +326,11 @@ class DiagnosticsMessage(_Model):
     # rests on; None while the server has no map or too few recent passes
     map_common_offset_m: float | None = Field(default=None, ge=-1000.0, le=1000.0)
     map_common_passes: int = Field(default=0, ge=0)
+    # what became of the fleet's evidence for the road map (samples, passes_added, skipped:<reason>,
+    # ...; `LiveRoadMap.evidence_counts`): why a map does not learn (e.g. a standalone fleet)
+    map_counts: dict[Annotated[str, Field(max_length=64)], Annotated[int, Field(ge=0)]] = Field(
+        default_factory=dict, max_length=MAX_MAP_COUNTS
+    )
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 

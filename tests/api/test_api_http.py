@@ -151,6 +151,8 @@ def test_metrics_text(fleet: SyntheticFleet) -> None:
     assert m["coplane_fusion_cluster_workers", (("server", ""), ("state", "running"))] == 2
     assert m["coplane_fusion_cluster_workers", (("server", ""), ("state", "lost"))] == 1
     assert m["coplane_map_common_offset_metres", (("server", ""),)] == 0.25
+    assert m["coplane_map_evidence_total", (("kind", "skipped:sigma-up"), ("server", ""))] == 3
+    assert m["coplane_map_evidence_total", (("kind", "passes_added"), ("server", ""))] == 6
 
 
 def test_sse_stream_delivers_solutions_and_limits_clients(fleet: SyntheticFleet) -> None:

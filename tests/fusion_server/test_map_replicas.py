@@ -10,8 +10,8 @@ import numpy as np
 
 from coplane.bus import encode
 from coplane.fusion_server.road_map import LiveRoadMap, server_map
-from coplane.messages import MapTilesMessage
-from coplane.roadmap import PassEvidence, RoadMapConfig, TileKey, TilePlane
+from coplane.messages import DiagnosticsMessage, MapTilesMessage
+from coplane.roadmap import MapSample, PassEvidence, RoadMapConfig, TileKey, TilePlane
 from coplane.steps.map_tiles import MapReceiver, tiles_messages
 from coplane.store.roadmap_db import RoadMapDb
 
@@ -102,6 +102,20 @@ def test_diagnostics_report_the_fleets_common_residual_against_the_map(tmp_path:
     m._commit([_pass(k % 2, f"v{k % 3}", 1.5e9 + k, 0.2) for k in range(40)])
     d = m.diagnostics()
     assert d["map_common_passes"] == 39 and 0.0 < d["map_common_offset_m"] <= 0.2 + 1e-9
+    assert d["map_counts"] == {"passes_added": 40}
+    DiagnosticsMessage(fleet="f1", method="pc", pace="lockstep", epochs_solved=1, **d)  # fits the wire
+    m.close()
+
+
+def test_diagnostics_say_why_the_map_learns_nothing(tmp_path: Path) -> None:
+    """Samples the trust filter skips (a standalone fleet: sigma-up) are counted by reason in the
+    diagnostics, not only in the log at close."""
+    m = LiveRoadMap(_base(tmp_path), {}, fleet="f1")
+    p = np.array([-2418077.0, 5386069.0, 2405174.0])
+    wide = 25.0 * np.eye(3)  # 5 m sigma: above max_sigma_up_m (tested before the horizontal one)
+    for k in range(3):
+        m.builder.add(MapSample("v1", 1.5e9 + k, p, wide, 1.5, True))
+    assert m.diagnostics()["map_counts"] == {"skipped:sigma-up": 3}
     m.close()
 
 

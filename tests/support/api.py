@@ -151,6 +151,7 @@ class SyntheticFleet:
             cluster_workers_lost=1,
             map_common_offset_m=0.25,
             map_common_passes=80,
+            map_counts={"samples": 40, "passes_added": 6, "skipped:sigma-up": 3},
         )
 
     def state(self, history: int = 3600, window: int = 86_400, clock_now: float = 0.0) -> FleetState:

@@ -143,6 +143,16 @@ class FleetCollector(Collector):
             if d.map_common_offset_m is not None:
                 offset.add_metric([server], d.map_common_offset_m)
         yield offset
+        evidence = CounterMetricFamily(
+            "coplane_map_evidence",
+            "What became of the fleet's road-map evidence, per server (samples, passes_added,"
+            " skipped:<reason> of the trust filter, e.g. skipped:sigma-up for a standalone fleet)",
+            labels=["server", "kind"],
+        )
+        for server, d in sorted(st.server_diagnostics.items()):
+            for kind, n in sorted(d.map_counts.items()):
+                evidence.add_metric([server, kind], float(n))
+        yield evidence
         sol = CounterMetricFamily("coplane_api_solutions", "Solutions the API took into its state")
         sol.add_metric([], float(st.solutions))
         yield sol
