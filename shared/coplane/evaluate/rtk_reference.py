@@ -58,12 +58,11 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
     Needs pyrtklib, a `[base]` with its position, and carrier phase on two frequencies in both
     files; raises ValueError when the recording has no base.
     """
-    import pyrtklib as rtk
-
     if rec.manifest.base is None:
         raise ValueError(f"recording {rec.manifest.name!r} has no [base]: no RTK reference")
     if not (math.isfinite(agree_m) and agree_m > 0.0):
         raise ValueError(f"agree_m must be a positive number of metres, got {agree_m!r}")
+    import pyrtklib as rtk  # the optional dependency, once the inputs are known to be usable
     vid = vehicle or rec.manifest.vehicles[0].id
     files = [str(rec.manifest.vehicle(vid).obs), str(rec.manifest.base.obs)]
     files += [str(p) for p in rec.manifest.nav_files]
