@@ -40,6 +40,9 @@ class RtkReference:
     n_fixed: int = 0  # reference epochs taken from a fixed solution
     disagreeing: int = 0  # both runs fixed or float there, but further apart than agree_m
     agree_m: float = 0.5
+    # epochs where both runs fixed: how far apart they were (m); the strictest reference epochs,
+    # e.g. for velocities from position differences (bench/moving_car_rtk.py)
+    both_fixed_m: dict[GpsTime, float] = field(default_factory=dict)
 
     @property
     def note(self) -> str:
@@ -83,7 +86,10 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
         (xf, qf), (xb, qb) = forward[t], backward[t]
         if qf not in (FIX, FLOAT) or qb not in (FIX, FLOAT):
             continue
-        if float(np.linalg.norm(xf - xb)) > agree_m:
+        apart = float(np.linalg.norm(xf - xb))
+        if qf == qb == FIX:
+            ref.both_fixed_m[t] = apart
+        if apart > agree_m:
             ref.disagreeing += 1
             continue
         ref.positions[t] = xf if qf == FIX else xb if qb == FIX else (xf + xb) / 2.0
