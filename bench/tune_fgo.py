@@ -54,6 +54,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "gate3-no-fde": {"fde_k": None, "gate_k": 3.0},
     "cauchy": {"robust": "cauchy"},
     "no-kernel": {"robust": None},  # the FDE alone against outliers (docs/tuning-kernel.md)
+    # no kernel on a track's first epochs (docs/fgo.md, "A moving car against RTK")
+    "robust-warmup-1": {"robust_warmup_epochs": 1},
+    "robust-warmup-5": {"robust_warmup_epochs": 5},
+    "robust-warmup-10": {"robust_warmup_epochs": 10},
     "dcs-1": {"robust": "dcs", "robust_k": 1.0},  # switchable constraints in closed form
     "dcs-4": {"robust": "dcs", "robust_k": 4.0},
     "dcs-9": {"robust": "dcs", "robust_k": 9.0},

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import gtsam
 import numpy as np
 import pytest
 from support.fgo_synthetic import error_stats, make_fleet, run
@@ -112,6 +113,38 @@ def test_gnc_on_the_window_rejects_nlos_that_plain_least_squares_absorbs() -> No
     plain = error_stats(fleet, run(fleet, base), skip=3)
     gnc = error_stats(fleet, run(fleet, dataclasses.replace(base, gnc="tls")), skip=3)
     assert gnc.h_rmse < 0.5 * plain.h_rmse, (gnc.h_rmse, plain.h_rmse)
+
+
+def _robust_pseudoranges(block: object) -> list[bool]:
+    """Whether each pseudorange factor of a state block has a robust noise model."""
+    g = block.graph  # type: ignore[attr-defined]
+    out = []
+    for i in range(g.size()):
+        f = g.at(i)
+        if isinstance(f, gtsam.PseudorangeFactor | gtsam.DifferentialPseudorangeFactor):
+            out.append(isinstance(f.noiseModel(), gtsam.noiseModel.Robust))
+    return out
+
+
+def test_robust_warmup_leaves_a_tracks_first_epochs_without_the_kernel() -> None:
+    """`robust_warmup_epochs` (opt-in, docs/fgo.md "A moving car against RTK"): the pseudoranges
+    of a track's first N epochs are plain least squares, later ones take the kernel."""
+    from coplane.fgo.engine import FusionEstimator
+
+    fleet = make_fleet(2, 8, seed=1)
+    cfg = dataclasses.replace(get_method("non-cp").fgo, robust_warmup_epochs=3)
+    est = FusionEstimator(cfg)
+    seen: dict[int, list[bool]] = {}
+    for k, e in enumerate(fleet.epochs):
+        est.step(e)
+        for blocks in est._state.window.by_vehicle.values():
+            b = blocks[-1]
+            if b.step == k:
+                seen.setdefault(k, []).extend(_robust_pseudoranges(b))
+    assert all(seen[k] and not any(seen[k]) for k in (0, 1, 2)), seen
+    assert all(seen[k] and all(seen[k]) for k in range(3, 8)), seen
+    with pytest.raises(ValueError, match="robust_warmup_epochs"):
+        FgoConfig(robust="huber", robust_warmup_epochs=-1)
 
 
 def test_gnc_needs_the_lm_window_and_no_kernel() -> None:

@@ -45,7 +45,7 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
             prs.sat_clock,
             prs.sigma,
             p.init_pos,
-            cfg.robust,
+            cfg.robust if p.kernel else None,
             cfg.robust_tuning,
             [bias_keys.get(sys) for sys in prs.systems] if bias_keys else None,
         ):

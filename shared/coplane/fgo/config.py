@@ -82,6 +82,11 @@ class FgoConfig:
     # Robust kernel on pseudorange and range factors (NLOS / multipath / UWB outliers).
     robust: Robust | None = None
     robust_k: float | None = None  # None: DEFAULT_ROBUST_K[robust]
+    # ... except on the pseudoranges of a track's first this many epochs (its start or restart),
+    # which the graph's FDE has no prior to screen yet and the agent's RAIM has accepted: in a
+    # weak sky the kernel's optimum can lie metres from the least-squares fix, and the Doppler
+    # links carry that start for tens of seconds (docs/fgo.md, "A moving car against RTK"). 0: off.
+    robust_warmup_epochs: int = 0
     # ... and on the plane factors and the velocity (Doppler / motion) links too: NLOS biases
     # Doppler as well, and a plane fitted across a grade change is wrong for the vehicle on it.
     robust_planes_links: bool = False
@@ -366,6 +371,8 @@ class FgoConfig:
             raise ValueError(
                 f"height_link_settled_epochs must be >= 0, got {self.height_link_settled_epochs!r}"
             )
+        if self.robust_warmup_epochs < 0:
+            raise ValueError(f"robust_warmup_epochs must be >= 0, got {self.robust_warmup_epochs!r}")
         if self.range_warmup_epochs < 0:
             raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
         if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:

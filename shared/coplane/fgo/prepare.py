@@ -64,6 +64,7 @@ class Prepared:
     # ECEF covariance of the errors common to the window's epochs (`common_error`), for the report
     # only; None: not asked for (FgoConfig.covariance_common_scale 0) or not determined
     common_cov: Mat | None = None
+    kernel: bool = True  # its pseudoranges take the robust kernel (`FgoConfig.robust_warmup_epochs`)
 
 
 def prepare_vehicle(
@@ -99,8 +100,8 @@ def prepare_vehicle(
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
     fde_w: Vec | None = None
     restarted = False
+    age = state.step - state.track_start.get(v.vehicle_id, state.step) if hist else 0
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
-        age = state.step - state.track_start.get(v.vehicle_id, state.step)
         prs, fde_w, restart_at = screen(
             prs,
             init,
@@ -182,6 +183,8 @@ def prepare_vehicle(
         bias_links,
         ref,
         common_cov,
+        # a track's first epochs (new, restarted: no history left) go without the kernel
+        kernel=cfg.robust_warmup_epochs == 0 or (bool(hist) and age >= cfg.robust_warmup_epochs),
     )
 
 
