@@ -66,6 +66,7 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
     if not (math.isfinite(agree_m) and agree_m > 0.0):
         raise ValueError(f"agree_m must be a positive number of metres, got {agree_m!r}")
     import pyrtklib as rtk  # the optional dependency, once the inputs are known to be usable
+
     vid = vehicle or rec.manifest.vehicles[0].id
     files = [str(rec.manifest.vehicle(vid).obs), str(rec.manifest.base.obs)]
     files += [str(p) for p in rec.manifest.nav_files]
