@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
@@ -21,6 +22,11 @@ class ApiSettings(ServiceSettings):
 
     recording: Path | None = Field(
         default=None, description="Fleet recording: gives the fleet id, the vehicle list and the truth"
+    )
+    truth: Literal["recording", "rtk"] = Field(
+        default="recording",
+        description="What the accuracy is measured against: the recording's truth files, or RTKLIB's"
+        " carrier-phase RTK to the recording's base where it holds (a drive without a surveyed trajectory)",
     )
     fleet: str | None = Field(
         default=None,

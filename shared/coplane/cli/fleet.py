@@ -89,6 +89,13 @@ def fleet(
             "on the following ports (0: any free ports; printed at start).",
         ),
     ] = None,
+    truth: Annotated[
+        str,
+        typer.Option(
+            help="What the accuracy table and the API measure against: 'recording' (its truth files) or"
+            " 'rtk' (RTKLIB's carrier-phase RTK to the recording's base, where it holds).",
+        ),
+    ] = "recording",
 ) -> None:
     """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
 
@@ -124,6 +131,7 @@ def fleet(
         servers=servers,
         routers=routers,
         cluster_workers=cluster_workers,
+        truth=truth,
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 
@@ -175,6 +183,8 @@ def _check_input(result: FleetResult, strict: bool) -> None:
 def _render(result: FleetResult) -> None:
     if result.interrupted:
         err_console.print("interrupted: the table covers the epochs solved so far")
+    if result.truth_note:
+        err_console.print(result.truth_note)
     if result.failed_agents:
         err_console.print(f"[red]agents failed:[/red] {result.failed_agents} (see --logs)")
     print_accuracy(

@@ -23,8 +23,8 @@ from coplane.evaluate.report import (
     write_solutions,
     write_tables,
 )
-from coplane.evaluate.rtk_reference import rtk_reference
-from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row, rtklib_unavailable
+from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.methods import get_method
 from coplane.recording.reader import Recording
@@ -74,6 +74,7 @@ def evaluate(
     ev = Evaluation(recording=rec.manifest.name)
     if truth == "rtk":
         ev.notes["truth"] = use_rtk_truth(rec)
+        log.info("%s", ev.notes["truth"])
     if fgo:  # in accuracy.json too: these are not the methods' defaults
         changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
         ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"
@@ -128,28 +129,6 @@ def evaluate(
         ev.figures = write_figures(ev, rec, shown, out_dir)
     ev.shown = list(vehicles or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
     return ev
-
-
-def use_rtk_truth(rec: Recording) -> str:
-    """Replace every vehicle's truth by its RTK reference; the line that says what it covers."""
-    if rec.manifest.base is None:
-        raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: no RTK reference")
-    if (reason := rtklib_unavailable()) is not None:
-        raise ConfigError(f"the RTK reference needs RTKLIB: {reason}")
-    notes = []
-    for v in rec.manifest.vehicles:
-        if v.obs.suffix.lower() in (".ubx", ".rtcm3"):
-            raise ConfigError(f"{v.obs}: the RTK reference needs RINEX observations (RTKLIB postpos)")
-        ref = rtk_reference(rec, v.id)
-        rec.use_truth(v.id, ref.positions)
-        notes.append(f"{v.id}: {ref.note}")
-        log.info("truth of %s: %s", v.id, ref.note)
-    if not any(rec.truth_at(v.id) for v in rec.manifest.vehicles):
-        raise ConfigError(
-            f"recording {rec.manifest.name!r}: RTKLIB's RTK gave no reference epoch for any vehicle "
-            "(it needs carrier phase on two frequencies in the vehicles' and the base's RINEX)"
-        )
-    return "errors against RTKLIB's RTK, not a surveyed truth: " + "; ".join(notes)
 
 
 def write_figures(ev: Evaluation, rec: Recording, vehicles: Sequence[str], out_dir: Path) -> list[Path]:

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from coplane.evaluate.rtklib_row import rtklib_options, run_postpos
+from coplane.errors import ConfigError
+from coplane.evaluate.rtklib_row import rtklib_options, rtklib_unavailable, run_postpos
 from coplane.gtime import GpsTime
 from coplane.recording.reader import Recording
 from coplane.typing import Vec
@@ -96,3 +97,26 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
         ref.positions[t] = xf if qf == FIX else xb if qb == FIX else (xf + xb) / 2.0
         ref.n_fixed += int(FIX in (qf, qb))
     return ref
+
+
+def use_rtk_truth(rec: Recording) -> str:
+    """Replace every vehicle's truth by its RTK reference (`--truth rtk` of `coplane eval`,
+    `coplane fleet` and the API); the line that says what it covers. ConfigError, with the reason,
+    when no reference can be made."""
+    if rec.manifest.base is None:
+        raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: no RTK reference")
+    if (reason := rtklib_unavailable()) is not None:
+        raise ConfigError(f"the RTK reference needs RTKLIB: {reason}")
+    notes = []
+    for v in rec.manifest.vehicles:
+        if v.obs.suffix.lower() in (".ubx", ".rtcm3"):
+            raise ConfigError(f"{v.obs}: the RTK reference needs RINEX observations (RTKLIB postpos)")
+        ref = rtk_reference(rec, v.id)
+        rec.use_truth(v.id, ref.positions)
+        notes.append(f"{v.id}: {ref.note}")
+    if not any(rec.truth_at(v.id) for v in rec.manifest.vehicles):
+        raise ConfigError(
+            f"recording {rec.manifest.name!r}: RTKLIB's RTK gave no reference epoch for any vehicle "
+            "(it needs carrier phase on two frequencies in the vehicles' and the base's RINEX)"
+        )
+    return "errors against RTKLIB's RTK, not a surveyed truth: " + "; ".join(notes)

@@ -105,6 +105,7 @@ def fleet_services(
     servers: int = 1,
     routers: Sequence[str] = (),
     cluster_workers: int = 1,
+    truth: str = "recording",
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
@@ -112,7 +113,7 @@ def fleet_services(
     many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N.
     `routers`: the endpoints of a router mesh; the servers and the agents take them in turn (the
     API takes `connect`). `cluster_workers` > 1: each server solves its clusters on that many
-    processes."""
+    processes. `truth`: what the API measures against ("rtk": RTKLIB's RTK reference)."""
     rec = str(recording)
     mesh = list(routers) or [connect]
 
@@ -196,6 +197,7 @@ def fleet_services(
                     str(api_port),
                     *road_map,
                     *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
+                    *(["--truth", truth] if truth != "recording" else []),
                 ],
                 API,
             )

@@ -28,6 +28,7 @@ from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecu
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
+from coplane.evaluate.rtk_reference import use_rtk_truth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
@@ -49,6 +50,7 @@ from coplane.store import map_path
 log = logging.getLogger("coplane.fleet")
 
 PACES = ("lockstep", "realtime")
+TRUTHS = ("recording", "rtk")  # what the accuracy table and the API measure against
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
@@ -76,6 +78,7 @@ class FleetOptions:
     servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
     routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
     cluster_workers: int = 1  # processes per fusion server solving its clusters (same estimates)
+    truth: str = "recording"  # or "rtk": RTKLIB's RTK reference (`evaluate.rtk_reference`), API too
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
@@ -122,6 +125,7 @@ class FleetResult:
     input_problems: dict[str, int] = field(default_factory=dict)  # what the recording's reader found
     input_health: InputHealth | None = None  # records kept vs problems (`--strict`)
     nmea_ports: dict[str, int] = field(default_factory=dict)  # vehicle -> NMEA TCP port (--nmea-port)
+    truth_note: str = ""  # what the truth was, when not the recording's (`--truth rtk`)
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -151,6 +155,9 @@ def run_fleet(
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
+    if o.truth not in TRUTHS:
+        raise ConfigError(f"--truth must be recording or rtk, got {o.truth!r}")
+    truth_note = use_rtk_truth(rec) if o.truth == "rtk" else ""  # refused here, before any process
     fleet_name, vehicles = fleet_of(path)
     if not 1 <= o.servers <= MAX_FLEET_SERVERS:
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
@@ -216,6 +223,7 @@ def run_fleet(
                 servers=o.servers,
                 routers=mesh,
                 cluster_workers=o.cluster_workers,
+                truth=o.truth,
             ):
                 procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
@@ -251,6 +259,7 @@ def run_fleet(
                 input_problems=dict(rec.problems.counts),
                 input_health=input_health(rec),
                 nmea_ports=dict(nmea.ports) if nmea is not None else {},
+                truth_note=truth_note,
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)

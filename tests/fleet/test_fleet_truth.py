@@ -1,0 +1,58 @@
+"""`coplane fleet --truth rtk`: the moving real car replayed as a fleet over Zenoh, measured against
+RTKLIB's RTK reference (`coplane.evaluate.rtk_reference`) in the launcher's table and in the API."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from coplane.api.app import _fleet_of
+from coplane.api.settings import ApiSettings
+from coplane.errors import ConfigError
+from coplane.evaluate.evaluation import evaluate
+from coplane.fleet import FleetOptions, run_fleet
+from coplane.fleet.launcher import fleet_services
+from coplane.recording.reader import open_recording
+
+pytestmark = [pytest.mark.slow, pytest.mark.realdata]
+
+KLT = "hk_klt_20210610_f9p_rover_hksc_base"
+TST = "urbannav_hk_tst_20200603_static_f9p"
+
+
+def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_path: Path) -> None:
+    res = run_fleet(
+        FleetOptions(
+            recording=real_data / KLT,
+            method="non-cp",
+            api=False,
+            certs=tmp_path / "certs",
+            map=Path("none"),
+            port=0,
+            truth="rtk",
+        )
+    )
+    assert "not a surveyed truth" in res.truth_note
+    assert res.truth_vehicles == ["klt1"]
+    st = res.stats["klt1"]
+    # the same numbers as `coplane eval --truth rtk`: lockstep over the bus is the in-process replay
+    ref = evaluate(open_recording(real_data / KLT), ["non-cp"], truth="rtk").stats["non-cp"]["klt1"]
+    assert (st.n_truth, st.n_solved) == (ref.n_truth, ref.n_solved) and st.n_truth >= 60
+    assert st.h_rmse_m == ref.h_rmse_m and st.v_rmse_m == ref.v_rmse_m
+
+
+def test_the_api_and_the_launcher_carry_the_rtk_truth(real_data: Path, tmp_path: Path) -> None:
+    _, vehicles, truth = _fleet_of(ApiSettings(recording=real_data / KLT, truth="rtk"))
+    assert vehicles == ["klt1"] and len(truth["klt1"]) >= 60
+    _, _, none = _fleet_of(ApiSettings(recording=real_data / KLT))
+    assert none["klt1"] == {}  # the recording itself has no rover truth
+    specs = {
+        s.name: s
+        for s in fleet_services(
+            real_data / KLT, "non-cp", "lockstep", 1.0, "tcp/x:1", ["klt1"], True, truth="rtk"
+        )
+    }
+    assert specs["api"].args[-2:] == ["--truth", "rtk"]
+    with pytest.raises(ConfigError, match="no \\[base\\]"):
+        run_fleet(FleetOptions(recording=real_data / TST, api=False, insecure=True, truth="rtk"))
