@@ -22,15 +22,14 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import replace
-from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 from docblock import publish
 from real_data_regression import REAL, STATIC
+from tune_real_data import static_velocity_errors
 
-from coplane.evaluate.real_data import truth_of
-from coplane.evaluate.rtk_reference import rtk_reference
+from coplane.evaluate.rtk_reference import RtkReference, rtk_reference
 from coplane.evaluate.runner import run_method
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
@@ -65,16 +64,15 @@ def _row(name: str, e: np.ndarray) -> str:
     return f"| {name} | {len(e)} | {f(e.mean(axis=0))} | {f(np.sqrt(np.mean(e**2, axis=0)))} |"
 
 
-def doppler_rows() -> list[str]:
+def doppler_rows(rec: Recording, ref: RtkReference) -> list[str]:
     """2-epoch mean Doppler velocity error (ENU): the car on strict RTK pairs, the static sets."""
-    rec = open_recording(REAL / CAR)
-    ref = rtk_reference(rec)
     msgs = node_messages(rec, dgnss=False)
-    strict = sorted(t for t, apart in ref.both_fixed_m.items() if apart <= STRICT_M and t in ref.positions)
+    # both runs fixed within STRICT_M (< agree_m, so these are reference epochs too)
+    strict = {t for t, apart in ref.both_fixed_m.items() if apart <= STRICT_M}
     errs = []
-    for a in strict:
+    for a in sorted(strict):
         b = a + rec.manifest.interval_s
-        if b not in ref.both_fixed_m or ref.both_fixed_m[b] > STRICT_M or b not in ref.positions:
+        if b not in strict:
             continue
         va, vb = msgs.get(a), msgs.get(b)
         if va is None or vb is None or va.velocity is None or vb.velocity is None:
@@ -84,22 +82,14 @@ def doppler_rows() -> list[str]:
         errs.append(r @ dop - r @ (ref.positions[b] - ref.positions[a]) / rec.manifest.interval_s)
     rows = [_row(f"`{CAR}`, moving car, strict RTK pairs", np.array(errs).reshape(-1, 3))]
     for folder, _, _ in STATIC:
-        srec = open_recording(REAL / folder)
-        smsgs = node_messages(srec, dgnss=False)
-        truth = next(iter(truth_of(srec, srec.manifest.vehicles[0].id).values()))
-        r = enu_rotation(*ecef_to_geodetic(truth)[:2])
-        times = sorted(t for t, m in smsgs.items() if m.velocity is not None)
-        vel = {t: np.array(smsgs[t].velocity.velocity_ecef_mps) for t in times}  # type: ignore[union-attr]
-        e = [r @ (0.5 * (vel[a] + vel[b])) for a, b in pairwise(times) if b - a == srec.manifest.interval_s]
-        rows.append(_row(f"`{folder}`, static, every epoch pair", np.array(e).reshape(-1, 3)))
+        e = static_velocity_errors(folder)  # every epoch: consecutive pairs are 1 s apart
+        rows.append(_row(f"`{folder}`, static, every epoch pair", (e[1:] + e[:-1]) / 2.0))
     return rows
 
 
-def start_rows() -> list[str]:
+def start_rows(rec: Recording, ref: RtkReference) -> list[str]:
     """Heights (m, ellipsoidal) at the drive's first epochs and at its first reference epochs."""
-    rec = open_recording(REAL / CAR)
     vid = rec.manifest.vehicles[0].id
-    ref = rtk_reference(rec)
     msgs = node_messages(rec, dgnss=True)
     base = get_method("non-cp")
     assert base.fgo is not None
@@ -134,6 +124,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="write the two blocks into this page")
     args = ap.parse_args()
     command = ".venv/bin/python bench/moving_car_rtk.py " + " ".join(sys.argv[1:])
+    rec = open_recording(REAL / CAR)
+    ref = rtk_reference(rec)  # one RTKLIB run for both tables
     publish(
         args.out,
         "moving_car_doppler",
@@ -144,7 +136,7 @@ def main() -> None:
         [
             "| set | epoch pairs | mean E / N / U (m/s) | RMS E / N / U (m/s) |",
             "|---|---|---|---|",
-            *doppler_rows(),
+            *doppler_rows(rec, ref),
         ],
     )
     publish(
@@ -158,7 +150,7 @@ def main() -> None:
             "| s from start | satellites / VDOP | RTK reference | node message fix | non-cp "
             "| non-cp, no robust kernel | non-cp, the paper's LM window | non-cp-ekf |",
             "|---|---|---|---|---|---|---|---|",
-            *start_rows(),
+            *start_rows(rec, ref),
         ],
     )
 

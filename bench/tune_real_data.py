@@ -40,6 +40,24 @@ def variant_method(name: str) -> MethodSpec:
     return apply_variant(spec, variant) if variant else spec
 
 
+def static_velocity_errors(folder: str) -> np.ndarray:
+    """Every node message's Doppler velocity of a static real set (standalone front end) in the
+    local ENU frame, in epoch order: its error, the true velocity being zero (n, 3) m/s.
+    bench/moving_car_rtk.py sets the moving car beside it."""
+    rec = open_recording(REAL / folder)
+    vid = rec.manifest.vehicles[0].id
+    vel: list[tuple[float, float, float]] = []
+
+    def keep(_sol: SolutionMessage, msgs: dict[str, NodeMessage]) -> None:
+        m = msgs.get(vid)
+        if m is not None and m.velocity is not None:
+            vel.append(m.velocity.velocity_ecef_mps)
+
+    run_method(rec, BASE, dgnss=False, vehicles=[vid], jobs=1, on_solution=keep)
+    truth = next(iter(truth_of(rec, vid).values()))
+    return np.asarray(vel, dtype=float).reshape(-1, 3) @ enu_rotation(*ecef_to_geodetic(truth)[:2]).T
+
+
 def doppler_section() -> list[str]:
     """How good the front end's Doppler velocity really is: a static receiver's true velocity is
     zero, so every node message's velocity is its error. The Doppler links' sigma_v is chosen
@@ -52,20 +70,7 @@ def doppler_section() -> list[str]:
         "|---|---|---|---|---|",
     ]
     for folder, _, _ in STATIC:
-        rec = open_recording(REAL / folder)
-        vid = rec.manifest.vehicles[0].id
-        vel: list[tuple[float, float, float]] = []
-
-        def keep(
-            _sol: SolutionMessage, msgs: dict[str, NodeMessage], vid: str = vid, vel: list = vel
-        ) -> None:
-            m = msgs.get(vid)
-            if m is not None and m.velocity is not None:
-                vel.append(m.velocity.velocity_ecef_mps)
-
-        run_method(rec, BASE, dgnss=False, vehicles=[vid], jobs=1, on_solution=keep)
-        truth = next(iter(truth_of(rec, vid).values()))
-        e = np.asarray(vel) @ enu_rotation(*ecef_to_geodetic(truth)[:2]).T
+        e = static_velocity_errors(folder)
         mean2 = (e[1:] + e[:-1]) / 2.0
 
         def f(x: np.ndarray) -> str:
