@@ -70,7 +70,8 @@ def build(
             )
             if not ext.passes and ext.samples > ext.skipped.get("already-mapped", 0):
                 console.print(f"[yellow]{path}: no sample passed the map's trust filter ({skipped})[/yellow]")
-                if ext.skipped.get("sigma-up"):
+                standalone = dgnss is False or (dgnss is None and rec.manifest.base is None)
+                if standalone and ext.skipped.get("sigma-up"):
                     console.print(
                         f"[yellow]  {ext.skipped['sigma-up']} had a vertical sigma above max_sigma_up_m "
                         f"{road_map.config.max_sigma_up_m:g} m: without a base station the reported "
