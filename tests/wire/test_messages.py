@@ -537,6 +537,20 @@ def test_diagnostics_map_common_offset() -> None:
         rejects(DiagnosticsMessage, {**base, **bad}, "map_common")
 
 
+def test_diagnostics_map_counts_are_bounded() -> None:
+    """What became of the map evidence: named counts, never negative, a bounded number of kinds."""
+    base = {"fleet": "f", "method": "pc", "pace": "lockstep", "epochs_solved": 0}
+    d = DiagnosticsMessage.model_validate({**base, "map_counts": {"samples": 3, "skipped:sigma-up": 3}})
+    assert d.map_counts == {"samples": 3, "skipped:sigma-up": 3}
+    for bad in (
+        {"samples": -1},
+        {"samples": 1.5},
+        {"x" * 65: 1},
+        {f"k{i}": 1 for i in range(65)},
+    ):
+        rejects(DiagnosticsMessage, {**base, "map_counts": bad}, "map_counts")
+
+
 # -- the wire bounds against the estimators' input check ----------------------------------------
 
 
