@@ -6,22 +6,19 @@ derived with `dataclasses.replace`; the estimator never reads globals.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
-from coplane.errors import require_finite_positive
+from coplane.fgo.config_checks import (
+    DEFAULT_ROBUST_K,
+    ROBUST_KERNELS,
+    SOLVERS,
+    Robust,
+    Solver,
+    check_fgo_config,
+)
 
-Solver = Literal["lm-window", "isam2-fixed-lag", "batch-fixed-lag"]
-Robust = Literal["huber", "cauchy", "dcs"]
-
-SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
-ROBUST_KERNELS: tuple[Robust, ...] = ("huber", "cauchy", "dcs")
-
-# Usual 95 %-efficiency tuning constants (in whitened units, i.e. sigmas) when robust_k is None.
-# DCS (dynamic covariance scaling, the closed form of switchable constraints): Phi = 1, the value
-# its authors found to work across pose graphs; weight (2 Phi / (Phi + e^2))^2 beyond e^2 = Phi.
-DEFAULT_ROBUST_K: dict[str, float] = {"huber": 1.345, "cauchy": 2.3849, "dcs": 1.0}
+__all__ = ["DEFAULT_ROBUST_K", "ROBUST_KERNELS", "SOLVERS", "FgoConfig", "Robust", "Solver"]
 
 
 @dataclass(frozen=True)
@@ -270,115 +267,7 @@ class FgoConfig:
     isam2_partial_relinearization_check: bool = True
 
     def __post_init__(self) -> None:
-        if self.solver not in SOLVERS:
-            raise ValueError(f"unknown solver {self.solver!r}; valid: {', '.join(SOLVERS)}")
-        if self.robust is not None and self.robust not in ROBUST_KERNELS:
-            raise ValueError(
-                f"unknown robust kernel {self.robust!r}; valid: None, {', '.join(ROBUST_KERNELS)}"
-            )
-        if self.robust_planes_links and self.robust is None:
-            raise ValueError("robust_planes_links needs a robust kernel (robust='huber', 'cauchy' or 'dcs')")
-        if self.gnc is not None:
-            if self.gnc not in ("tls", "gm"):
-                raise ValueError(f"unknown gnc loss {self.gnc!r}; valid: None, tls, gm")
-            if self.solver != "lm-window" or self.robust is not None:
-                raise ValueError(
-                    "gnc needs solver='lm-window' and robust=None (GNC weighs the factors itself)"
-                )
-            if not 0.0 < self.gnc_inlier_probability < 1.0:
-                raise ValueError(
-                    f"gnc_inlier_probability must be in (0, 1), got {self.gnc_inlier_probability!r}"
-                )
-        if int(self.window_epochs) != self.window_epochs or self.window_epochs < 1:
-            raise ValueError(f"window_epochs must be a positive integer, got {self.window_epochs!r}")
-        optional = (  # thresholds checked where set (None switches each one off)
-            "robust_k",
-            "fde_k",
-            "fde_k_long",
-            "fde_long_below_elevation_deg",
-            "fde_long_below_cn0_dbhz",
-            "fde_long_below_best_cn0_db",
-            "coop_fde_k",
-            "fde_max_sigma_scale",
-            "fde_restart_chi2",
-            "clock_drift_wander",
-            "motion_accel_psd",
-            "clock_accel_psd",
-            "clock_isb_sigma_m",
-        )
-        require_finite_positive(
-            self,
-            (
-                "sigma_v",
-                "range_sigma",
-                "range_warmup_max_m",
-                "height_link_grade",
-                "height_link_sigma_m",
-                "covariance_scale",
-                "clock_rw_sigma",
-                "clock_drift_sigma",
-                "clock_jump_m",
-                "anchor_sigma",
-                "motion_sigma",
-                "max_speed",
-                "motion_sigma_up",
-                "motion_accel_psd_up",
-                "max_vertical_speed",
-                "lm_relative_error_tol",
-                "lm_absolute_error_tol",
-                "isam2_relinearize_threshold",
-                "isam2_converged_m",
-                *(name for name in optional if getattr(self, name) is not None),
-                "coop_fde_radius_m",
-                "fde_prior_floor_m",
-                "pseudorange_sigma_scale",
-            ),
-        )
-        if self.solver == "lm-window" and (
-            self.motion_accel_psd is not None or self.clock_accel_psd is not None
-        ):
-            raise ValueError(
-                "motion_accel_psd and clock_accel_psd need a fixed-lag smoother (solver "
-                "'isam2-fixed-lag' or 'batch-fixed-lag'): the lm-window drops a three-state link when "
-                "its oldest state leaves, and the state after it is left without one"
-            )
-        if self.three_state_max_pseudoranges is not None and self.three_state_max_pseudoranges < 1:
-            raise ValueError(
-                f"three_state_max_pseudoranges must be >= 1 or None, got {self.three_state_max_pseudoranges!r}"
-            )
-        if self.fde_warmup_epochs < 0:
-            raise ValueError(f"fde_warmup_epochs must be >= 0, got {self.fde_warmup_epochs!r}")
-        if self.fde_warmup_prior not in ("reported", "snapshot"):
-            raise ValueError(
-                f"fde_warmup_prior must be 'reported' or 'snapshot', got {self.fde_warmup_prior!r}"
-            )
-        for name in ("covariance_common_scale", "covariance_common_dgnss_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
-        if self.window_cluster_max < 0:
-            raise ValueError(f"window_cluster_max must be >= 0, got {self.window_cluster_max!r}")
-        if not (math.isfinite(self.height_link_max_m) and self.height_link_max_m >= 0):
-            raise ValueError(f"height_link_max_m must be finite and >= 0, got {self.height_link_max_m!r}")
-        if not (
-            math.isfinite(self.height_link_doppler_grade_sigma) and self.height_link_doppler_grade_sigma >= 0
-        ):
-            raise ValueError(
-                "height_link_doppler_grade_sigma must be finite and >= 0, "
-                f"got {self.height_link_doppler_grade_sigma!r}"
-            )
-        if self.height_link_settled_epochs < 0:
-            raise ValueError(
-                f"height_link_settled_epochs must be >= 0, got {self.height_link_settled_epochs!r}"
-            )
-        if self.robust_warmup_epochs < 0:
-            raise ValueError(f"robust_warmup_epochs must be >= 0, got {self.robust_warmup_epochs!r}")
-        if self.range_warmup_epochs < 0:
-            raise ValueError(f"range_warmup_epochs must be >= 0, got {self.range_warmup_epochs!r}")
-        if self.lm_max_iterations < 1 or self.min_fix_pseudoranges < 1 or self.isam2_extra_iterations < 0:
-            raise ValueError(
-                "lm_max_iterations and min_fix_pseudoranges must be >= 1, isam2_extra_iterations >= 0"
-            )
+        check_fgo_config(self)
 
     @property
     def lag(self) -> float:
