@@ -9,8 +9,9 @@ a fusion server's solve costs) runs over them with its defaults, and the CPU of 
 summed after the first `--warmup` epochs (the window and the clusters fill up first; the cost
 per vehicle grows until then). Parts, timed by wrapping them: the input validation, each
 vehicle's preparation (FDE screening, factor blocks), the iSAM2 smoother updates that add an
-epoch's factors (or build a smoother from the window), the updates without new factors (the
-extra iteration and the convergence loop of a new or rebuilt smoother), the marginal
+epoch's factors (or build a smoother from the window), apart for the one per cycle that
+marginalises and relinearises (`FgoConfig.isam2_cycle_updates`) and the others, the updates
+without new factors (the convergence loop of a new or rebuilt smoother), the marginal
 covariances, and the rest of the step (window bookkeeping, clustering, estimates). CPU is
 `time.process_time`: compare the rows of one run, as the host's speed varies between runs.
 """
@@ -23,7 +24,7 @@ import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -69,14 +70,22 @@ def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, fl
         (
             gtsam.IncrementalFixedLagSmoother,
             "update",
+            # the lag is the config's on the update that marginalises and relinearises, and
+            # stretched on the others of its cycle (`SmootherCluster._update`)
             lambda self, *a: (
-                "smoother updates with an epoch's factors" if a else "smoother updates without new factors"
+                "smoother updates with an epoch's factors, marginalising and relinearising"
+                if self.smootherLag() == config.lag
+                else "smoother updates with an epoch's factors, in between"
             ),
         ),
+        # the convergence loop of a new smoother or track, straight to iSAM2
+        (gtsam.ISAM2, "update", lambda *a: "smoother updates without new factors"),
         (smoother, "marginal_covariances", lambda *a: "marginal covariances"),
     ]
     n = 0
-    with timed(*parts[0], cpu), timed(*parts[1], cpu), timed(*parts[2], cpu), timed(*parts[3], cpu):
+    with ExitStack() as stack:
+        for part in parts:
+            stack.enter_context(timed(*part, cpu))
         c0 = time.process_time()
         for epoch in inputs[warmup:]:
             est.step(epoch)

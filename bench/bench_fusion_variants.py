@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/bench_fusion_variants.py [--vehicles 256] [--duration 20] [--seeds 11,12]
         [--training 11] [--variants isam2-full-check,isam2-extra-1,no-range-warmup] [--repeats 3]
-        [--out docs/performance-scale.md]
+        [--out docs/performance-scale.md] [--block bench_fusion_variants]
 
 For each city seed (`coplane simulate --scenario city`) the pc estimator's epoch inputs are recorded
 once (an in-process replay, as `bench_window_clusters.py` does); then the estimator alone runs over
@@ -55,6 +55,7 @@ def main() -> int:
     ap.add_argument("--variants", default="isam2-full-check,isam2-extra-1,no-range-warmup")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--block", default=MARK, help="the docs block to write (a page may hold several)")
     args = ap.parse_args()
     import bench_window_clusters as recorder
     from docblock import write_block
@@ -90,9 +91,9 @@ def main() -> int:
         cmd = (
             f"python bench/bench_fusion_variants.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
             f"--seeds {args.seeds} --training {args.training} --variants {args.variants} --repeats {args.repeats} "
-            f"--out {args.out}"
+            f"--out {args.out}" + (f" --block {args.block}" if args.block != MARK else "")
         )
-        write_block(args.out, MARK, cmd, table)
+        write_block(args.out, args.block, cmd, table)
     return 0
 
 

@@ -232,6 +232,11 @@ VARIANTS: dict[str, dict[str, object]] = {
     "isam2-relin-0.01": {"isam2_relinearize_threshold": 0.01},  # the default until 2026-11-29
     "isam2-relin-0.02": {"isam2_relinearize_threshold": 0.02},
     "isam2-relin-0.1": {"isam2_relinearize_threshold": 0.1},
+    # iSAM2 marginalises and relinearises on one update in n of a cluster's smoother (default 5)
+    "isam2-cycle-1": {"isam2_cycle_updates": 1},  # every update: the default until 2026-11-29
+    "isam2-cycle-2": {"isam2_cycle_updates": 2},
+    "isam2-cycle-3": {"isam2_cycle_updates": 3},
+    "isam2-cycle-8": {"isam2_cycle_updates": 8},
 }
 # GNC needs a batch solve: compare with paper-window (the same window with Huber + FDE). About ten
 # times slower than LM, so not in the default runs (docs/tuning-gnc.md, made with --seeds).

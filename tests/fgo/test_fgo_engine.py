@@ -220,9 +220,11 @@ def test_vehicles_join_leave_and_return(solver: Solver) -> None:
 def test_all_solvers_agree_on_a_clean_case() -> None:
     """No NLOS: LM window, iSAM2 and batch fixed-lag smoothers give similar positions. The window
     and the smoothers differ by design (deleted vs marginalised history). iSAM2 makes one
-    Gauss-Newton step per epoch (`isam2_extra_iterations` 0): measured RMS position difference to
-    the batch smoother 0.064 m (0.073 m with Huber), 0.010 m with one more step per epoch (0.019 m);
-    the same h RMSE, 0.40 m."""
+    Gauss-Newton step per epoch (`isam2_extra_iterations` 0) and relinearises and marginalises on
+    every fifth update only (`isam2_cycle_updates`), where the batch smoother does both at every
+    epoch: measured RMS position difference to the batch smoother 0.101 m (0.117 m with Huber;
+    0.064 / 0.091 m relinearising and marginalising at every update), 0.009 m with one more step
+    per epoch; the same h RMSE, 0.40 m."""
     fleet = make_fleet(4, 30, seed=2)
     # plain least squares (the methods default to Huber; the robust case is checked below)
     runs = {s: run(fleet, dataclasses.replace(get_method("pc", solver=s).fgo, robust=None)) for s in SOLVERS}
@@ -251,7 +253,7 @@ def test_all_solvers_agree_on_a_clean_case() -> None:
         ]
         return math.sqrt(float(np.mean(d)))
 
-    assert rms_diff("isam2-fixed-lag", "batch-fixed-lag") < 0.1
+    assert rms_diff("isam2-fixed-lag", "batch-fixed-lag") < 0.12
     # ... and one more Gauss-Newton step per epoch brings it to the batch optimum
     more = dataclasses.replace(get_method("pc").fgo, robust=None, isam2_extra_iterations=1)
     runs["isam2-2-steps"] = run(fleet, more)
@@ -289,6 +291,12 @@ def test_cluster_split_equals_the_joint_solve(solver: Solver) -> None:
         range_warmup_epochs=0,  # cluster mechanics from the first epoch
         covariance_scale=1.0,  # tolerances below are for the graph's own marginals
     )
+    if solver == "isam2-fixed-lag":
+        # each smoother relinearises on its own cycle (`isam2_cycle_updates`), which its own
+        # history sets (a rebuild, a converging vehicle): split and joint smoothers then relinearise
+        # at different epochs by design (measured up to 0.29 m on this NLOS fleet with Huber), so
+        # the structural claim is checked with a relinearisation at every update
+        cfg = dataclasses.replace(cfg, isam2_cycle_updates=1)
     if solver == "batch-fixed-lag":
         # its marginal priors are relinearised at the slightly different LM points; a Huber kernel
         # (the methods' default) amplifies that to ~1 cm, so the structural claim is checked on

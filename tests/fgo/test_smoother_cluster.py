@@ -7,6 +7,7 @@ is caught on the estimates instead, and the cluster is rebuilt from the window.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -37,6 +38,9 @@ class _Diverged:
 
     def update(self, *args: Any) -> Any:
         return self.real.update(*args)
+
+    def __getattr__(self, name: str) -> Any:  # the lag, the iSAM2: the real smoother's
+        return getattr(self.real, name)
 
     def calculateEstimate(self, keys: Any = None) -> gtsam.Values:
         v = gtsam.Values()
@@ -168,3 +172,43 @@ def test_every_kind_of_key_has_a_relinearisation_threshold_in_its_unit() -> None
     """GTSAM reads a key's threshold from the map without a default: a missing kind is undefined."""
     th = keys.relinearize_thresholds(0.01)
     assert th.size() == 1 + len(keys.CLOCK_CHR) + len(keys.BIAS_CHR)
+
+
+@pytest.mark.parametrize("cycle", [1, 3, 5])
+def test_isam2_marginalises_and_relinearises_once_per_cycle(
+    cycle: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`isam2_cycle_updates`: states leave the smoother on one update per cycle only, so it holds
+    between the window and the window plus a cycle less one epoch, and iSAM2 relinearises on those
+    same updates (both re-eliminate its whole tree). 1 is every update, as GTSAM does."""
+    fleet = make_fleet(2, 24, seed=3)
+    cfg = dataclasses.replace(get_method("pc", solver="isam2-fixed-lag").fgo, isam2_cycle_updates=cycle)
+    held: list[tuple[int, int, int, int]] = []  # (update index, epochs held before, after, relinearised)
+    real = smoother.SmootherCluster._update
+
+    def spy(self: smoother.SmootherCluster, *a: Any) -> Any:
+        before = len(set(self.smoother.timestamps().values()))
+        out = real(self, *a)
+        index = self._updates  # iSAM2's count, this update included
+        relin = self.smoother.getISAM2Result().getVariablesRelinearized()
+        held.append((index, before, len(set(self.smoother.timestamps().values())), relin))
+        return out
+
+    monkeypatch.setattr(smoother.SmootherCluster, "_update", spy)
+    run(fleet, cfg)
+    assert len(held) > 3 * cycle
+    for index, before, after, relin in held:
+        assert after <= cfg.window_epochs + cycle - 1
+        if index % cycle:
+            assert relin == 0
+            if before:  # (a new smoother takes the whole window at once)
+                assert after == before + 1  # nothing left: the new epoch only came in
+    # the smoother did fill beyond the window between cycles (or held exactly it, with 1)
+    assert max(after for *_, after, _ in held) == cfg.window_epochs + cycle - 1
+
+
+def test_isam2_cycle_updates_must_be_a_positive_integer() -> None:
+    base = get_method("pc").fgo
+    for bad in (0, -1, 2.5):
+        with pytest.raises(ValueError, match="isam2_cycle_updates"):
+            dataclasses.replace(base, isam2_cycle_updates=bad)

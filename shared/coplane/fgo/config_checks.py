@@ -117,6 +117,8 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         raise ValueError(f"robust_warmup_epochs must be >= 0, got {cfg.robust_warmup_epochs!r}")
     if cfg.range_warmup_epochs < 0:
         raise ValueError(f"range_warmup_epochs must be >= 0, got {cfg.range_warmup_epochs!r}")
+    if int(cfg.isam2_cycle_updates) != cfg.isam2_cycle_updates or cfg.isam2_cycle_updates < 1:
+        raise ValueError(f"isam2_cycle_updates must be a positive integer, got {cfg.isam2_cycle_updates!r}")
     if cfg.lm_max_iterations < 1 or cfg.min_fix_pseudoranges < 1 or cfg.isam2_extra_iterations < 0:
         raise ValueError(
             "lm_max_iterations and min_fix_pseudoranges must be >= 1, isam2_extra_iterations >= 0"

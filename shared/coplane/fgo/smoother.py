@@ -43,7 +43,8 @@ class SmootherCluster:
         if self.incremental:
             p = gtsam.ISAM2Params()
             p.setRelinearizeThreshold(relinearize_thresholds(cfg.isam2_relinearize_threshold))
-            p.relinearizeSkip = 1
+            # iSAM2 checks relinearisation on every cycle's first update (`_update`)
+            p.relinearizeSkip = int(cfg.isam2_cycle_updates)
             p.enablePartialRelinearizationCheck = cfg.isam2_partial_relinearization_check
             p.findUnusedFactorSlots = True
             # IncrementalFixedLagSmoother's result never carries iSAM2's error (getError() is 0
@@ -54,6 +55,7 @@ class SmootherCluster:
             self.smoother = gtsam.IncrementalFixedLagSmoother(cfg.lag, p)
         else:
             self.smoother = gtsam.BatchFixedLagSmoother(cfg.lag, lm_params(cfg))
+        self._updates = 0  # iSAM2's own count of its updates, which it does not show
 
     def update(
         self,
@@ -87,20 +89,20 @@ class SmootherCluster:
         converge: bool,
     ) -> ClusterResult:
         """Feed GTSAM the new factors and values; with `converge`, iterate until `pos_keys` settle."""
-        res = self.smoother.update(graph, initial, cast(Any, timestamps))
+        res = self._update(graph, initial, timestamps)
         iterations = int(res.getIterations())
         keys = list(estimate_keys)
         if self.incremental:
             for _ in range(self.cfg.isam2_extra_iterations):
-                res = self.smoother.update()
-                iterations += int(res.getIterations())
+                self._relinearize()
+                iterations += 1
             if converge:
                 # iSAM2 makes one Gauss-Newton step per update: from an SPP start (new cluster or
                 # vehicle) iterate until the positions settle, as batch LM would
                 before = self.smoother.calculateEstimate(list(pos_keys))
                 for _ in range(self.cfg.isam2_converge_iterations):
-                    res = self.smoother.update()
-                    iterations += int(res.getIterations())
+                    self._relinearize()
+                    iterations += 1
                     after = self.smoother.calculateEstimate(list(pos_keys))
                     moved = max(
                         float(np.linalg.norm(after.atPoint3(k) - before.atPoint3(k))) for k in pos_keys
@@ -118,6 +120,37 @@ class SmootherCluster:
                 raise RuntimeError(f"smoother returned a non-finite error {error}")
         covs = self.covariances(cov_keys) if cov_keys else {}
         return ClusterResult(values, covs, iterations, float("nan"), error)
+
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, timestamps: dict[int, float]
+    ) -> gtsam.FixedLagSmootherResult:
+        """Add an epoch's factors; iSAM2 marginalises and relinearises on one update per cycle only.
+
+        Marginalising re-eliminates iSAM2's whole Bayes tree, and so does relinearising the many
+        states each epoch moves by centimetres; the other updates of a cycle re-eliminate only the
+        newest epochs (`FgoConfig.isam2_cycle_updates`). Between those updates the lag is stretched
+        by a cycle, so the states that left the window leave the smoother together.
+        """
+        if self.incremental:
+            # iSAM2 counts the update first, then relinearises when its count is a multiple of
+            # relinearizeSkip (GTSAM 4.3's ISAM2::update): marginalise on that same update
+            self._updates += 1
+            cycle = int(self.cfg.isam2_cycle_updates)
+            on_cycle = self._updates % cycle == 0
+            self.smoother.setSmootherLag(self.cfg.lag if on_cycle else self.cfg.lag + cycle)
+        return self.smoother.update(graph, initial, cast(Any, timestamps))
+
+    def _relinearize(self) -> None:
+        """One more iSAM2 step without new factors, relinearising whatever moved beyond the threshold.
+
+        Straight to the iSAM2 (`getISAM2` is the smoother's own, not a copy): with no new factors
+        the fixed-lag smoother has nothing to marginalise or stamp, and only iSAM2 takes
+        `force_relinearize`, which a converging new cluster needs between cycles.
+        """
+        sm = self.smoother
+        assert isinstance(sm, gtsam.IncrementalFixedLagSmoother)  # only iSAM2 iterates this way
+        self._updates += 1
+        sm.getISAM2().update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], None, None, None, True)
 
     def covariances(self, keys: Sequence[int]) -> dict[int, NDArray[np.float64]]:
         """Marginal covariances: iSAM2 has them in its Bayes tree; batch needs gtsam.Marginals."""
