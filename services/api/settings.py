@@ -7,11 +7,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
 
 from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
 
+from coplane.evaluate.rtk_reference import Truth
 from coplane.ids import VEHICLE_ID_PATTERN
 from coplane.runtime import LogLevel, ServiceSettings
 
@@ -23,7 +23,7 @@ class ApiSettings(ServiceSettings):
     recording: Path | None = Field(
         default=None, description="Fleet recording: gives the fleet id, the vehicle list and the truth"
     )
-    truth: Literal["recording", "rtk"] = Field(
+    truth: Truth = Field(
         default="recording",
         description="What the accuracy is measured against: the recording's truth files, or RTKLIB's"
         " carrier-phase RTK to the recording's base where it holds (a drive without a surveyed trajectory)",

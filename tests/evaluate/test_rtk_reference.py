@@ -18,8 +18,9 @@ import pytest
 from typer.testing import CliRunner
 
 from coplane.cli import app
+from coplane.errors import ConfigError
 from coplane.evaluate.real_data import solve_receiver, static_accuracy, static_table
-from coplane.evaluate.rtk_reference import RtkReference, rtk_reference
+from coplane.evaluate.rtk_reference import TRUTHS, RtkReference, parse_truth, rtk_reference
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
@@ -110,3 +111,10 @@ def test_eval_refuses_an_rtk_truth_it_cannot_make(real_data: Path, tmp_path: Pat
         app, ["eval", str(sim), "--methods", "non-cp", "--truth", "rtk", "--out", str(tmp_path)]
     )
     assert r.exit_code != 0 and "no reference epoch" in " ".join(r.output.split()), r.output
+
+
+def test_truth_names_are_checked_once_for_every_command() -> None:
+    """`--truth` of `coplane eval`, `coplane fleet` (and the API's setting) take these two names."""
+    assert [parse_truth(t) for t in TRUTHS] == ["recording", "rtk"]
+    with pytest.raises(ConfigError, match="--truth must be one of recording, rtk, got 'RTK'"):
+        parse_truth("RTK")

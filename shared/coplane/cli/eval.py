@@ -70,6 +70,7 @@ def eval_(
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
+    from coplane.evaluate.rtk_reference import parse_truth
     from coplane.fgo.overrides import parse_fgo_overrides
     from coplane.recording.health import health_warnings, input_health
     from coplane.recording.reader import open_recording
@@ -78,8 +79,7 @@ def eval_(
     fgo_changes = parse_fgo_overrides(fgo or [])
     if fmt not in ("", "tum"):
         raise typer.BadParameter(f"unknown --format {fmt!r} (expected tum)")
-    if truth not in ("recording", "rtk"):
-        raise typer.BadParameter(f"unknown --truth {truth!r} (expected recording or rtk)")
+    truth_kind = parse_truth(truth)
     road_map = None
     if map_file is not None:
         from coplane.store.roadmap_db import RoadMapDb
@@ -99,7 +99,7 @@ def eval_(
         jobs=jobs,
         road_map=road_map,
         fgo=fgo_changes,
-        truth="rtk" if truth == "rtk" else "recording",
+        truth=truth_kind,
     )
     if fmt == "tum":
         from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum

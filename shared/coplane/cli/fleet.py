@@ -103,6 +103,7 @@ def fleet(
     """
     from tqdm import tqdm
 
+    from coplane.evaluate.rtk_reference import parse_truth
     from coplane.fleet import FleetOptions, FleetProcesses, run_fleet
     from coplane.runtime import STOP_GRACE_S, exit_code, stop_signals
 
@@ -131,7 +132,7 @@ def fleet(
         servers=servers,
         routers=routers,
         cluster_workers=cluster_workers,
-        truth=truth,
+        truth=parse_truth(truth),
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

@@ -9,7 +9,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from coplane.evaluate.report import (
     write_solutions,
     write_tables,
 )
-from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.rtk_reference import Truth, use_rtk_truth
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.methods import get_method
@@ -60,7 +60,7 @@ def evaluate(
     jobs: int | None = None,
     road_map: RoadMap | None = None,
     fgo: dict[str, object] | None = None,
-    truth: Literal["recording", "rtk"] = "recording",
+    truth: Truth = "recording",
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3). `fgo`:
     factor-graph settings changed for every FGO method (`--fgo`; the baselines have none).

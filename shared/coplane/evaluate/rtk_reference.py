@@ -19,6 +19,7 @@ import math
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -29,6 +30,19 @@ from coplane.recording.reader import Recording
 from coplane.typing import Vec
 
 FIX, FLOAT = 1, 2  # RTKLIB's solution quality flags
+
+# What accuracy is measured against (`--truth` of `coplane eval`, `coplane fleet` and the API): the
+# recording's truth files, or RTKLIB's RTK reference (`use_rtk_truth`)
+Truth = Literal["recording", "rtk"]
+TRUTHS: tuple[Truth, ...] = ("recording", "rtk")
+
+
+def parse_truth(text: str) -> Truth:
+    """`text` (a `--truth` option) as a Truth; ConfigError naming the choices otherwise."""
+    for truth in TRUTHS:
+        if text == truth:
+            return truth
+    raise ConfigError(f"--truth must be one of {', '.join(TRUTHS)}, got {text!r}")
 
 
 @dataclass

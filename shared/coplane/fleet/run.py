@@ -28,7 +28,7 @@ from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecu
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
-from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.rtk_reference import Truth, parse_truth, use_rtk_truth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
@@ -50,7 +50,6 @@ from coplane.store import map_path
 log = logging.getLogger("coplane.fleet")
 
 PACES = ("lockstep", "realtime")
-TRUTHS = ("recording", "rtk")  # what the accuracy table and the API measure against
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
@@ -78,7 +77,7 @@ class FleetOptions:
     servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
     routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
     cluster_workers: int = 1  # processes per fusion server solving its clusters (same estimates)
-    truth: str = "recording"  # or "rtk": RTKLIB's RTK reference (`evaluate.rtk_reference`), API too
+    truth: Truth = "recording"  # or "rtk": RTKLIB's RTK reference (`evaluate.rtk_reference`), API too
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
@@ -155,9 +154,9 @@ def run_fleet(
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
-    if o.truth not in TRUTHS:
-        raise ConfigError(f"--truth must be recording or rtk, got {o.truth!r}")
-    truth_note = use_rtk_truth(rec) if o.truth == "rtk" else ""  # refused here, before any process
+    truth_note = (
+        use_rtk_truth(rec) if parse_truth(o.truth) == "rtk" else ""
+    )  # refused here, before any process
     fleet_name, vehicles = fleet_of(path)
     if not 1 <= o.servers <= MAX_FLEET_SERVERS:
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
