@@ -212,3 +212,32 @@ def test_isam2_cycle_updates_must_be_a_positive_integer() -> None:
     for bad in (0, -1, 2.5):
         with pytest.raises(ValueError, match="isam2_cycle_updates"):
             dataclasses.replace(base, isam2_cycle_updates=bad)
+
+
+def test_between_cycles_isam2_re_eliminates_only_part_of_its_tree(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Why the cycle saves CPU (docs/fgo.md, "Once per cycle"): the update that marginalises and
+    relinearises re-eliminates at least every variable the smoother keeps, while an update in
+    between re-eliminates fewer than it holds (the newest epochs). Once a smoother has been through
+    its first cycle; 4 vehicles linked by ranges, the methods' iSAM2 defaults."""
+    cfg = get_method("pc", solver="isam2-fixed-lag").fgo
+    assert cfg is not None and cfg.isam2_cycle_updates > 1
+    seen: list[tuple[bool, int, int]] = []  # (on the cycle, variables re-eliminated, variables held)
+    real = smoother.SmootherCluster._update
+
+    def spy(self: smoother.SmootherCluster, *a: Any) -> Any:
+        out = real(self, *a)
+        on_cycle = self._updates % self.cfg.isam2_cycle_updates == 0
+        reeliminated = self.smoother.getISAM2Result().getVariablesReeliminated()
+        seen.append((on_cycle, reeliminated, self.smoother.getLinearizationPoint().size()))
+        return out
+
+    monkeypatch.setattr(smoother.SmootherCluster, "_update", spy)
+    run(make_fleet(4, 30, seed=2), cfg)
+    first = next(i for i, (on, _, _) in enumerate(seen) if on)
+    after = seen[first + 1 :]
+    assert sum(on for on, _, _ in after) >= 3 and sum(not on for on, _, _ in after) >= 10
+    for on, reeliminated, held in after:
+        if on:
+            assert reeliminated >= held
+        else:
+            assert reeliminated < held
