@@ -26,7 +26,7 @@ from pydantic.json_schema import models_json_schema
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from coplane import __version__
-from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.rtk_reference import use_rtk_truth, use_truth_files
 from coplane.gtime import GpsTime
 from coplane.recording.manifest import load_manifest
 from coplane.recording.reader import open_recording
@@ -59,6 +59,8 @@ def _fleet_of(settings: ApiSettings) -> tuple[str, list[str], dict[str, dict[Gps
     rec = open_recording(settings.recording)
     if settings.truth == "rtk":
         log.info("truth: %s", use_rtk_truth(rec))
+    elif settings.truth_dir is not None:
+        log.info("truth: %s", use_truth_files(rec, settings.truth_dir))
     truth = {v.id: dict(rec.truth_at(v.id)) for v in man.vehicles}
     return settings.fleet or fleet_id(man.name), [v.id for v in man.vehicles], truth
 

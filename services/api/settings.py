@@ -28,6 +28,11 @@ class ApiSettings(ServiceSettings):
         description="What the accuracy is measured against: the recording's truth files, or RTKLIB's"
         " carrier-phase RTK to the recording's base where it holds (a drive without a surveyed trajectory)",
     )
+    truth_dir: Path | None = Field(
+        default=None,
+        description="A directory of <vehicle>.csv truth files (the recording format's) replacing the"
+        " recording's truth: how `coplane fleet --truth rtk` hands over the RTK reference it made once",
+    )
     fleet: str | None = Field(
         default=None,
         pattern=VEHICLE_ID_PATTERN,  # a fleet id is a key chunk too, under the same rule
@@ -91,4 +96,8 @@ class ApiSettings(ServiceSettings):
     def _fleet_known(self) -> ApiSettings:
         if self.recording is None and self.fleet is None:
             raise ValueError("give --recording or --fleet: the API must know which fleet to watch")
+        if self.truth_dir is not None and (self.truth != "recording" or self.recording is None):
+            raise ValueError(
+                "--truth_dir replaces a --recording's truth files: give it with --recording, without --truth"
+            )
         return self

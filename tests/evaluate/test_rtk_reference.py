@@ -20,7 +20,14 @@ from typer.testing import CliRunner
 from coplane.cli import app
 from coplane.errors import ConfigError
 from coplane.evaluate.real_data import solve_receiver, static_accuracy, static_table
-from coplane.evaluate.rtk_reference import TRUTHS, RtkReference, parse_truth, rtk_reference
+from coplane.evaluate.rtk_reference import (
+    TRUTHS,
+    RtkReference,
+    parse_truth,
+    rtk_reference,
+    save_truth,
+    use_truth_files,
+)
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
@@ -118,3 +125,25 @@ def test_truth_names_are_checked_once_for_every_command() -> None:
     assert [parse_truth(t) for t in TRUTHS] == ["recording", "rtk"]
     with pytest.raises(ConfigError, match="--truth must be one of recording, rtk, got 'RTK'"):
         parse_truth("RTK")
+
+
+def test_truth_files_hand_a_reference_over_and_bad_rows_are_counted(tmp_path: Path) -> None:
+    """`save_truth` / `use_truth_files`: how `coplane fleet --truth rtk` gives the API the reference
+    it made once. Every epoch comes back; a broken row is reported, counted and skipped, the rest kept."""
+    from coplane.api.settings import ApiSettings
+
+    sim = simulate("urban-loop", tmp_path / "sim", vehicles=2, duration_s=10, seed=3)
+    rec = open_recording(sim)
+    want = {v.id: rec.truth_at(v.id) for v in rec.manifest.vehicles}
+    out = save_truth(rec, tmp_path / "truth")
+    lines = (out / "u2.csv").read_text().splitlines()
+    lines[3] = lines[3].replace(",", ";", 1)
+    (out / "u2.csv").write_text("\n".join(lines) + "\n")
+    back = open_recording(sim)
+    assert "u1: 10 epochs; u2: 9 epochs" in use_truth_files(back, out)
+    assert back.truth_at("u1") == want["u1"]  # written to 0.1 mm, as the recording's are
+    assert back.problems.total == 1 and len(back.truth_at("u2")) == len(want["u2"]) - 1
+    with pytest.raises(ConfigError, match="does not exist"):
+        use_truth_files(back, tmp_path / "nowhere")
+    with pytest.raises(ValueError, match="truth_dir"):
+        ApiSettings(recording=sim, truth="rtk", truth_dir=out)

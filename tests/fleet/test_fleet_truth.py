@@ -5,13 +5,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import httpx
 import pytest
 
 from coplane.api.app import _fleet_of
 from coplane.api.settings import ApiSettings
 from coplane.errors import ConfigError
 from coplane.evaluate.evaluation import evaluate
-from coplane.fleet import FleetOptions, run_fleet
+from coplane.evaluate.rtk_reference import save_truth, use_rtk_truth
+from coplane.fleet import FleetOptions, free_port, run_fleet
 from coplane.fleet.launcher import fleet_services
 from coplane.recording.reader import open_recording
 
@@ -22,16 +24,22 @@ TST = "urbannav_hk_tst_20200603_static_f9p"
 
 
 def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_path: Path) -> None:
+    """The table, the API (handed the launcher's reference, listening before the first epoch) and
+    `coplane eval` give the same numbers."""
+    port, seen = free_port(), []
     res = run_fleet(
         FleetOptions(
             recording=real_data / KLT,
             method="non-cp",
-            api=False,
+            api_port=port,
             certs=tmp_path / "certs",
             map=Path("none"),
             port=0,
             truth="rtk",
-        )
+        ),
+        serve=lambda _: seen.extend(
+            httpx.get(f"http://127.0.0.1:{port}/accuracy", timeout=10).json()["entries"]
+        ),
     )
     assert "not a surveyed truth" in res.truth_note
     assert res.truth_vehicles == ["klt1"]
@@ -40,6 +48,10 @@ def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_p
     ref = evaluate(open_recording(real_data / KLT), ["non-cp"], truth="rtk").stats["non-cp"]["klt1"]
     assert (st.n_truth, st.n_solved) == (ref.n_truth, ref.n_solved) and st.n_truth >= 60
     assert st.h_rmse_m == ref.h_rmse_m and st.v_rmse_m == ref.v_rmse_m
+    (api,) = seen
+    assert (api["n_truth"], api["n_solved"]) == (st.n_truth, st.n_solved)
+    assert api["h_rmse_m"] == pytest.approx(st.h_rmse_m, abs=1e-4)  # the files keep 0.1 mm
+    assert api["v_rmse_m"] == pytest.approx(st.v_rmse_m, abs=1e-4)
 
 
 def test_the_api_and_the_launcher_carry_the_rtk_truth(real_data: Path, tmp_path: Path) -> None:
@@ -47,12 +59,25 @@ def test_the_api_and_the_launcher_carry_the_rtk_truth(real_data: Path, tmp_path:
     assert vehicles == ["klt1"] and len(truth["klt1"]) >= 60
     _, _, none = _fleet_of(ApiSettings(recording=real_data / KLT))
     assert none["klt1"] == {}  # the recording itself has no rover truth
+    # the launcher makes the reference once and hands the API its files: the same epochs and positions
+    rec = open_recording(real_data / KLT)
+    use_rtk_truth(rec)
+    handed = save_truth(rec, tmp_path / "truth")
+    _, _, files = _fleet_of(ApiSettings(recording=real_data / KLT, truth_dir=handed))
+    assert files["klt1"].keys() == truth["klt1"].keys()
+    assert (
+        max(
+            max(abs(a - b) for a, b in zip(p, truth["klt1"][t], strict=True))
+            for t, p in files["klt1"].items()
+        )
+        < 1e-4
+    )
     specs = {
         s.name: s
         for s in fleet_services(
-            real_data / KLT, "non-cp", "lockstep", 1.0, "tcp/x:1", ["klt1"], True, truth="rtk"
+            real_data / KLT, "non-cp", "lockstep", 1.0, "tcp/x:1", ["klt1"], True, truth_dir=handed
         )
     }
-    assert specs["api"].args[-2:] == ["--truth", "rtk"]
+    assert specs["api"].args[-2:] == ["--truth_dir", str(handed)]
     with pytest.raises(ConfigError, match="no \\[base\\]"):
         run_fleet(FleetOptions(recording=real_data / TST, api=False, insecure=True, truth="rtk"))

@@ -127,3 +127,15 @@ def test_a_process_that_ignores_sigterm_is_killed_and_logged(caplog: pytest.LogC
         procs.stop_many(["stubborn"], 0.2)
     assert p.returncode == -signal.SIGKILL
     assert [r.__dict__.get("service") for r in caplog.records] == ["stubborn"]
+
+
+def test_a_service_that_dies_before_listening_is_reported_at_once() -> None:
+    """The launcher waits for the API to listen before the agents start; if it exits instead, the
+    run stops with its exit code at once rather than after the whole wait."""
+    from coplane.errors import CoplaneError
+
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    t0 = time.monotonic()
+    with pytest.raises(CoplaneError, match="exited with code 3"):
+        wait_for_port(free_port(), 30.0, proc)
+    assert time.monotonic() - t0 < 10.0

@@ -26,6 +26,7 @@ import numpy as np
 from coplane.errors import ConfigError
 from coplane.evaluate.rtklib_row import rtklib_options, rtklib_unavailable, run_postpos
 from coplane.gtime import GpsTime
+from coplane.recording.csvfiles import read_truth, write_truth
 from coplane.recording.reader import Recording
 from coplane.typing import Vec
 
@@ -134,3 +135,30 @@ def use_rtk_truth(rec: Recording) -> str:
             "(it needs carrier phase on two frequencies in the vehicles' and the base's RINEX)"
         )
     return "errors against RTKLIB's RTK, not a surveyed truth: " + "; ".join(notes)
+
+
+def save_truth(rec: Recording, directory: Path) -> Path:
+    """Every vehicle's truth as `<vehicle>.csv` (the recording format's truth files) in `directory`.
+
+    How `coplane fleet --truth rtk` hands the API the reference it made: RTKLIB's two runs per
+    vehicle take longer than the replay's start, so they are made once (`use_truth_files`).
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    for v in rec.manifest.vehicles:
+        write_truth(directory / f"{v.id}.csv", rec.truth(v.id))
+    return directory
+
+
+def use_truth_files(rec: Recording, directory: Path) -> str:
+    """Replace every vehicle's truth by `directory/<vehicle>.csv` where that file exists (`save_truth`);
+    the line that says what was used. Bad rows are reported, counted in `rec.problems` and skipped."""
+    if not directory.is_dir():
+        raise ConfigError(f"truth directory {directory} does not exist")
+    used = []
+    for v in rec.manifest.vehicles:
+        path = directory / f"{v.id}.csv"
+        if path.is_file():
+            points = read_truth(path, rec.problems)
+            rec.use_truth(v.id, {p.time: p.ecef_m for p in points})
+            used.append(f"{v.id}: {len(points)} epochs")
+    return f"truth files in {directory} ({'; '.join(used) or 'none for these vehicles'})"

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from coplane.bus.security import API, FUSION, ROUTER, BusSecurity, vehicle_identity
+from coplane.errors import CoplaneError
 from coplane.recording.manifest import load_manifest
 from coplane.replay import fleet_id
 
@@ -42,10 +43,19 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_for_port(port: int, timeout: float = 15.0) -> None:
-    """Return once something listens on 127.0.0.1:`port` (the router is up)."""
+API_SERVICE = "api"  # the API's name among the fleet's services (and in docker-compose)
+
+
+def wait_for_port(port: int, timeout: float = 15.0, proc: subprocess.Popen[bytes] | None = None) -> None:
+    """Return once something listens on 127.0.0.1:`port` (the router is up); CoplaneError at
+    once if `proc`, the process that should listen there, has exited."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
+        if proc is not None and (rc := proc.poll()) is not None:
+            raise CoplaneError(
+                f"the process that should listen on port {port} (pid {proc.pid}) exited with code {rc}"
+                " before it did (--logs DIR keeps its output)"
+            )
         with socket.socket() as s:
             if s.connect_ex(("127.0.0.1", port)) == 0:
                 return
@@ -105,7 +115,7 @@ def fleet_services(
     servers: int = 1,
     routers: Sequence[str] = (),
     cluster_workers: int = 1,
-    truth: str = "recording",
+    truth_dir: Path | None = None,
 ) -> list[ServiceSpec]:
     """The fleet's processes. `start_unix_s`: realtime agents' shared wall-clock origin. `map_path`:
     a road-surface map the fusion server (its one writer) extends and shares on the bus, where the
@@ -113,7 +123,8 @@ def fleet_services(
     many fusion servers share the fleet by region (docs/scale.md), named fusion-server-1..N.
     `routers`: the endpoints of a router mesh; the servers and the agents take them in turn (the
     API takes `connect`). `cluster_workers` > 1: each server solves its clusters on that many
-    processes. `truth`: what the API measures against ("rtk": RTKLIB's RTK reference)."""
+    processes. `truth_dir`: truth files replacing the recording's for the API (`--truth rtk` makes
+    RTKLIB's reference once, in the launcher, and hands it over there)."""
     rec = str(recording)
     mesh = list(routers) or [connect]
 
@@ -186,7 +197,7 @@ def fleet_services(
     if api:
         out.append(
             ServiceSpec(
-                "api",
+                API_SERVICE,
                 API_MODULE,
                 [
                     "--recording",
@@ -197,7 +208,7 @@ def fleet_services(
                     str(api_port),
                     *road_map,
                     *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
-                    *(["--truth", truth] if truth != "recording" else []),
+                    *(["--truth_dir", str(truth_dir)] if truth_dir is not None else []),
                 ],
                 API,
             )

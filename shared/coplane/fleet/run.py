@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -28,11 +29,13 @@ from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecu
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
-from coplane.evaluate.rtk_reference import Truth, parse_truth, use_rtk_truth
+from coplane.evaluate.rtk_reference import Truth, parse_truth, save_truth, use_rtk_truth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
+    API_SERVICE,
     FleetProcesses,
+    ServiceSpec,
     fleet_of,
     fleet_services,
     free_port,
@@ -50,6 +53,7 @@ from coplane.store import map_path
 log = logging.getLogger("coplane.fleet")
 
 PACES = ("lockstep", "realtime")
+API_START_TIMEOUT_S = 60.0  # the API loads its solutions log before it listens
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
@@ -180,6 +184,8 @@ def run_fleet(
     procs = procs if procs is not None else FleetProcesses()
     nmea: NmeaServer | None = None
     procs.log_dir, procs.security = o.logs, security
+    # the API measures against the RTK reference made above, not a second one of its own
+    truth_files = tempfile.TemporaryDirectory(prefix="coplane-truth-") if truth_note and o.api else None
     log.info("fleet starting", extra={"fleet": fleet_name, "vehicles": len(vehicles), "router": connect})
     try:
         procs.start(router_spec(port, security.secure, fleet_name))
@@ -205,26 +211,35 @@ def run_fleet(
                 listeners=[nmea.publish] if nmea is not None else [],
             )
         with collector:
+            truth_dir = save_truth(rec, Path(truth_files.name)) if truth_files is not None else None
+
+            def services(start: float | None) -> list[ServiceSpec]:
+                return fleet_services(
+                    path,
+                    o.method,
+                    o.pace,
+                    o.speed,
+                    connect,
+                    vehicles,
+                    o.api,
+                    o.api_port,
+                    o.seed,
+                    o.interruption,
+                    start,
+                    map_path=road_map.resolve() if road_map is not None else None,
+                    servers=o.servers,
+                    routers=mesh,
+                    cluster_workers=o.cluster_workers,
+                    truth_dir=truth_dir,
+                )
+
+            if o.api:  # listening means subscribed (uvicorn binds after the lifespan): it sees every epoch
+                api = procs.start(next(s for s in services(None) if s.name == API_SERVICE))
+                wait_for_port(o.api_port, API_START_TIMEOUT_S, api)
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
-            for spec in fleet_services(
-                path,
-                o.method,
-                o.pace,
-                o.speed,
-                connect,
-                vehicles,
-                o.api,
-                o.api_port,
-                o.seed,
-                o.interruption,
-                start,
-                map_path=road_map.resolve() if road_map is not None else None,
-                servers=o.servers,
-                routers=mesh,
-                cluster_workers=o.cluster_workers,
-                truth=o.truth,
-            ):
-                procs.start(spec)
+            for spec in services(start):
+                if spec.name != API_SERVICE:
+                    procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
             while any(procs.procs[a].poll() is None for a in agents) and not stop.wait(POLL_S):
                 if progress is not None:
@@ -270,3 +285,5 @@ def run_fleet(
         procs.stop_all()
         if nmea is not None:
             nmea.close()
+        if truth_files is not None:
+            truth_files.cleanup()
