@@ -53,7 +53,7 @@ from coplane.store import map_path
 log = logging.getLogger("coplane.fleet")
 
 PACES = ("lockstep", "realtime")
-API_START_TIMEOUT_S = 60.0  # the API loads its solutions log before it listens
+API_START_TIMEOUT_S = 60.0  # the API loads its solutions log (up to ~30 s by default) before it listens
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
@@ -235,7 +235,13 @@ def run_fleet(
 
             if o.api:  # listening means subscribed (uvicorn binds after the lifespan): it sees every epoch
                 api = procs.start(next(s for s in services(None) if s.name == API_SERVICE))
-                wait_for_port(o.api_port, API_START_TIMEOUT_S, api)
+                try:
+                    wait_for_port(o.api_port, API_START_TIMEOUT_S, api)
+                except TimeoutError:  # a long solutions log to load: the replay does not wait for it
+                    log.warning(
+                        "the API is not listening yet; its accuracy may miss the first epochs",
+                        extra={"waited_s": API_START_TIMEOUT_S},
+                    )
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
             for spec in services(start):
                 if spec.name != API_SERVICE:
