@@ -31,6 +31,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 from docblock import write_block  # bench/ is the script's directory, first on sys.path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -241,9 +242,15 @@ def memory_table(r: dict, args: argparse.Namespace) -> str:
         t, rss = series[k]
         lines.append(f"| {t:.0f} | {(k + 1) / n:.0%} | {rss[0]:.0f} |")
     half = [x[1][0] for x in series[n // 2 :]]
+    # growth as a least-squares slope, not two samples of a band that breathes with the garbage
+    # collector; per 10 minutes of the drive (lockstep runs faster than real time)
+    slope = (
+        float(np.polyfit([x[0] for x in series[n // 2 :]], half, 1)[0]) * float(r["wall_s"]) / args.duration
+    )
     lines += [
         "",
-        f"second half: {min(half):.0f} .. {max(half):.0f} MB, last - first {half[-1] - half[0]:+.0f} MB",
+        f"second half: {min(half):.0f} .. {max(half):.0f} MB, last - first {half[-1] - half[0]:+.0f} MB; "
+        f"trend {600 * slope:+.1f} MB per 10 minutes of the drive (least squares over its {len(half)} samples)",
     ]
     return "\n".join(lines)
 
