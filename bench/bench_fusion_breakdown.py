@@ -1,7 +1,7 @@
 """Where a fusion server's estimator spends its CPU on a city (issue 16: the 1.0 ms target).
 
     .venv/bin/python bench/bench_fusion_breakdown.py [--vehicles 256] [--duration 20] [--seed 11]
-        [--warmup 10] [--out docs/performance-scale.md]
+        [--warmup 10] [--block NAME] [--out docs/performance-scale.md]
 
 A simulated city (`coplane simulate --scenario city`) is replayed in process with method pc while
 the estimator's epoch inputs are recorded; then the estimator alone (`FusionEstimator.step`, what
@@ -14,6 +14,9 @@ marginalises and relinearises (`FgoConfig.isam2_cycle_updates`) and the others, 
 without new factors (the convergence loop of a new or rebuilt smoother), the marginal
 covariances, and the rest of the step (window bookkeeping, clustering, estimates). CPU is
 `time.process_time`: compare the rows of one run, as the host's speed varies between runs.
+A second table counts the smoother tasks: an epoch fed to a cluster's smoother, or a smoother
+built or rebuilt from the window (a cluster that merged, split or took a vehicle with earlier
+states), with their sizes, GTSAM updates and CPU: a denser city rebuilds more.
 """
 
 from __future__ import annotations
@@ -83,7 +86,24 @@ def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, fl
         (smoother, "marginal_covariances", lambda *a: "marginal covariances"),
     ]
     n = 0
+    tasks: dict[str, float] = defaultdict(float)
+    run_one = smoother.LocalSmoothers.run_one
+
+    def counted(self: Any, task: Any) -> Any:
+        """What each smoother task was: the new epoch fed to a smoother, or a smoother (re)built
+        from the window, as a cluster merged, split or took a vehicle with earlier states."""
+        kind = "built" if task.create else "fed"
+        c0 = time.process_time()
+        res = run_one(self, task)
+        tasks[f"{kind} cpu"] += time.process_time() - c0
+        tasks[f"{kind} tasks"] += 1
+        tasks[f"{kind} vehicles"] += len(task.vehicles)
+        tasks[f"{kind} updates"] += getattr(res, "iterations", 0)
+        return res
+
     with ExitStack() as stack:
+        smoother.LocalSmoothers.run_one = counted
+        stack.callback(setattr, smoother.LocalSmoothers, "run_one", run_one)
         for part in parts:
             stack.enter_context(timed(*part, cpu))
         c0 = time.process_time()
@@ -93,7 +113,23 @@ def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, fl
         total = time.process_time() - c0
     cpu["rest of the step (window, clusters, estimates)"] = total - sum(cpu.values())
     cpu["whole step"] = total
-    return dict(cpu), n
+    return dict(cpu), n, dict(tasks)
+
+
+def task_rows(tasks: dict[str, float], n: int, epochs: int) -> list[str]:
+    """The smoother tasks of the timed epochs: how many, how big, how many GTSAM updates each, and
+    their CPU (the same CPU as the parts above, split another way)."""
+    rows = [
+        "| smoother tasks | per epoch | vehicles each (mean) | GTSAM updates each (mean) | CPU ms / vehicle-epoch |",
+        "|---|---|---|---|---|",
+    ]
+    for kind, what in (("fed", "fed the new epoch"), ("built", "built or rebuilt from the window")):
+        k = max(tasks.get(f"{kind} tasks", 0.0), 1.0)
+        rows.append(
+            f"| {what} | {tasks.get(f'{kind} tasks', 0.0) / epochs:.1f} | {tasks.get(f'{kind} vehicles', 0.0) / k:.1f} "
+            f"| {tasks.get(f'{kind} updates', 0.0) / k:.1f} | {1e3 * tasks.get(f'{kind} cpu', 0.0) / n:.2f} |"
+        )
+    return rows
 
 
 def main() -> int:
@@ -103,6 +139,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--block", default=MARK, help="the docs block to write (one per city size)")
     args = ap.parse_args()
     import bench_window_clusters as recorder  # the same recorded inputs as the window-bound table
     from docblock import machine, publish
@@ -111,13 +148,14 @@ def main() -> int:
         rec = Path(tmp) / "city"
         recorder.simulate_city(rec, args.vehicles, args.duration, args.seed)
         config, inputs = recorder.record_inputs(rec)  # pc's estimator config, defaults
-    cpu, n = breakdown(inputs, config, args.warmup)
+    cpu, n, tasks = breakdown(inputs, config, args.warmup)
     total = cpu["whole step"]
     rows = ["| part | CPU ms / vehicle-epoch | share |", "|---|---|---|"]
     for part, sec in sorted(cpu.items(), key=lambda kv: -kv[1]):
         if part != "whole step":
             rows.append(f"| {part} | {1e3 * sec / n:.2f} | {100 * sec / total:.0f} % |")
     rows.append(f"| **whole step** | **{1e3 * total / n:.2f}** | 100 % |")
+    rows += ["", *task_rows(tasks, n, len(inputs) - args.warmup)]
     head = (
         f"machine: {machine(cpus=False)}; city of {args.vehicles} vehicles x "
         f"{args.duration:.0f} s (seed {args.seed}), method pc, the estimator alone on recorded inputs, "
@@ -125,9 +163,11 @@ def main() -> int:
     )
     cmd = (
         f"python bench/bench_fusion_breakdown.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
-        f"--seed {args.seed} --warmup {args.warmup} --out {args.out}"
+        f"--seed {args.seed} --warmup {args.warmup}"
+        + (f" --block {args.block}" if args.block != MARK else "")
+        + f" --out {args.out}"
     )
-    publish(args.out, MARK, cmd, head, rows)
+    publish(args.out, args.block, cmd, head, rows)
     return 0
 
 
