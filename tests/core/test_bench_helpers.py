@@ -68,3 +68,22 @@ def test_a_results_header_names_the_blas_kernels() -> None:
     text = numeric_versions()
     assert text.startswith("gtsam ") and "numpy " in text and "scipy " in text
     assert "blas" in text.lower()
+
+
+def test_the_memory_table_gives_the_second_half_trend_per_10_minutes_of_the_drive(bench_path: None) -> None:
+    """The 30-minute memory table's growth is a least-squares slope over the second half, scaled
+    from wall time to the drive's time (a lockstep run is faster than real time)."""
+    import argparse
+
+    import bench_scale
+
+    args = argparse.Namespace(vehicles=64, duration=1800.0, pace="lockstep")
+    # 400 s of wall for 1800 s of drive; the second half grows by 0.01 MB per wall second
+    series = [(float(t), [300.0 + (0.01 * (t - 200) if t >= 200 else 0.0)]) for t in range(10, 410, 10)]
+    run = {"rss_series": series, "solved": 1, "wall_s": 400.0, "server_peak_rss_mb": [304]}
+    line = bench_scale.memory_table(run, args).splitlines()[-1]
+    # 0.01 MB/s x 400/1800 x 600 s = 1.33 MB per 10 minutes of the drive
+    assert "trend +1.3 MB per 10 minutes of the drive" in line, line
+    # a band that breathes (0 / +5 MB in turn) reads +5 MB from two samples, a tenth of it as a trend
+    flat = {**run, "rss_series": [(t, [300.0 + (5.0 if k % 2 else 0.0)]) for k, (t, _) in enumerate(series)]}
+    assert "last - first +5 MB; trend +0.5 MB" in bench_scale.memory_table(flat, args).splitlines()[-1]
