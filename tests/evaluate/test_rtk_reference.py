@@ -140,7 +140,7 @@ def test_truth_files_hand_a_reference_over_and_bad_rows_are_counted(tmp_path: Pa
     lines[3] = lines[3].replace(",", ";", 1)
     (out / "u2.csv").write_text("\n".join(lines) + "\n")
     back = open_recording(sim)
-    assert "u1: 10 epochs; u2: 9 epochs" in use_truth_files(back, out)
+    assert "u1: 10 epochs; u2: 9 epochs; 1 bad rows skipped" in use_truth_files(back, out)
     assert back.truth_at("u1") == want["u1"]  # written to 0.1 mm, as the recording's are
     assert back.problems.total == 1 and len(back.truth_at("u2")) == len(want["u2"]) - 1
     with pytest.raises(ConfigError, match="does not exist"):

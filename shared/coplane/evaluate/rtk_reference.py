@@ -155,10 +155,13 @@ def use_truth_files(rec: Recording, directory: Path) -> str:
     if not directory.is_dir():
         raise ConfigError(f"truth directory {directory} does not exist")
     used = []
+    bad_before = rec.problems.total
     for v in rec.manifest.vehicles:
         path = directory / f"{v.id}.csv"
         if path.is_file():
             points = read_truth(path, rec.problems)
             rec.use_truth(v.id, {p.time: p.ecef_m for p in points})
             used.append(f"{v.id}: {len(points)} epochs")
+    if bad := rec.problems.total - bad_before:
+        used.append(f"{bad} bad rows skipped")
     return f"truth files in {directory} ({'; '.join(used) or 'none for these vehicles'})"

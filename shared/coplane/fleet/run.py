@@ -158,9 +158,8 @@ def run_fleet(
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
-    truth_note = (
-        use_rtk_truth(rec) if parse_truth(o.truth) == "rtk" else ""
-    )  # refused here, before any process
+    # a recording without a base or RTKLIB is refused here, before any process starts
+    truth_note = use_rtk_truth(rec) if parse_truth(o.truth) == "rtk" else ""
     fleet_name, vehicles = fleet_of(path)
     if not 1 <= o.servers <= MAX_FLEET_SERVERS:
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
