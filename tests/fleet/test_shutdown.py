@@ -139,3 +139,26 @@ def test_a_service_that_dies_before_listening_is_reported_at_once() -> None:
     with pytest.raises(CoplaneError, match="exited with code 3"):
         wait_for_port(free_port(), 30.0, proc)
     assert time.monotonic() - t0 < 10.0
+
+
+def test_an_api_slow_to_listen_does_not_hold_the_replay(
+    recording: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An API with a long solutions log to load listens late: after `api_start_timeout_s` the
+    replay starts without it, says so, and still solves every epoch it solves in process (here the
+    wait is 0 s, so the API cannot be listening yet)."""
+    from coplane.evaluate.runner import run_method
+    from coplane.fleet import FleetOptions, run_fleet
+    from coplane.recording.reader import open_recording
+
+    options = FleetOptions(
+        recording=recording, api_port=free_port(), port=0, insecure=True, api_start_timeout_s=0.0
+    )
+    with caplog.at_level("WARNING", logger="coplane.fleet"):
+        result = run_fleet(options)
+    assert any("the API is not listening yet" in r.getMessage() for r in caplog.records)
+    assert result.api_url is not None and not result.failed_agents and not result.interrupted
+    in_process = run_method(open_recording(recording), "pc")
+    assert {v: len(p) for v, p in result.run.positions.items()} == {
+        v: len(p) for v, p in in_process.positions.items()
+    }

@@ -99,6 +99,42 @@ def fusion_name(i: int, servers: int) -> str:
     return "fusion-server" if servers == 1 else f"fusion-server-{i}"
 
 
+def map_args(map_path: Path | str | None) -> list[str]:
+    """The `--map` arguments of a server or the API: "auto", the service's own default (its state
+    directory); None, no map. With several servers each keeps its own replica beside the file
+    (docs/scale.md, "The road map across servers")."""
+    return [] if map_path == "auto" else ["--map", str(map_path) if map_path is not None else "none"]
+
+
+def api_spec(
+    recording: Path,
+    connect: str,
+    api_port: int = 8000,
+    road_map: Sequence[str] = (),
+    servers: int = 1,
+    truth_dir: Path | None = None,
+) -> ServiceSpec:
+    """The API's process. The launcher starts it on its own, before the others, and waits until it
+    listens (it has then subscribed), so that it sees every epoch. `road_map`: `map_args`'s
+    arguments; `truth_dir`: truth files replacing the recording's (`--truth rtk`)."""
+    return ServiceSpec(
+        API_SERVICE,
+        API_MODULE,
+        [
+            "--recording",
+            str(recording),
+            "--connect",
+            f'["{connect}"]',
+            "--port",
+            str(api_port),
+            *road_map,
+            *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
+            *(["--truth_dir", str(truth_dir)] if truth_dir is not None else []),
+        ],
+        API,
+    )
+
+
 def fleet_services(
     recording: Path,
     method: str,
@@ -132,9 +168,7 @@ def fleet_services(
         return f'["{mesh[k % len(mesh)]}"]'
 
     start = ["--start_unix_s", f"{start_unix_s:.3f}"] if start_unix_s is not None else []
-    # "auto": the server's own default (its state directory); None: no map. With several servers
-    # each keeps its own replica beside the file (docs/scale.md, "The road map across servers")
-    road_map = [] if map_path == "auto" else ["--map", str(map_path) if map_path is not None else "none"]
+    road_map = map_args(map_path)
     regional = ["--regions", "true"] if servers > 1 else []
     workers = ["--cluster_workers", str(cluster_workers)] if cluster_workers > 1 else []
     out = [
@@ -195,24 +229,7 @@ def fleet_services(
             )
         )
     if api:
-        out.append(
-            ServiceSpec(
-                API_SERVICE,
-                API_MODULE,
-                [
-                    "--recording",
-                    rec,
-                    "--connect",
-                    f'["{connect}"]',
-                    "--port",
-                    str(api_port),
-                    *road_map,
-                    *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
-                    *(["--truth_dir", str(truth_dir)] if truth_dir is not None else []),
-                ],
-                API,
-            )
-        )
+        out.append(api_spec(recording, connect, api_port, road_map, servers, truth_dir))
     return out
 
 

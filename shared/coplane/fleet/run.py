@@ -33,12 +33,12 @@ from coplane.evaluate.rtk_reference import Truth, parse_truth, save_truth, use_r
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
-    API_SERVICE,
     FleetProcesses,
-    ServiceSpec,
+    api_spec,
     fleet_of,
     fleet_services,
     free_port,
+    map_args,
     router_spec,
     wait_for_port,
 )
@@ -53,7 +53,6 @@ from coplane.store import map_path
 log = logging.getLogger("coplane.fleet")
 
 PACES = ("lockstep", "realtime")
-API_START_TIMEOUT_S = 60.0  # the API loads its solutions log (up to ~30 s by default) before it listens
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
@@ -82,6 +81,9 @@ class FleetOptions:
     routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
     cluster_workers: int = 1  # processes per fusion server solving its clusters (same estimates)
     truth: Truth = "recording"  # or "rtk": RTKLIB's RTK reference (`evaluate.rtk_reference`), API too
+    # how long the replay waits for the API to listen: it loads its solutions log first (up to
+    # ~30 s at the default size); after that the replay starts anyway, with a warning
+    api_start_timeout_s: float = 60.0
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
@@ -212,39 +214,38 @@ def run_fleet(
         with collector:
             truth_dir = save_truth(rec, Path(truth_files.name)) if truth_files is not None else None
 
-            def services(start: float | None) -> list[ServiceSpec]:
-                return fleet_services(
-                    path,
-                    o.method,
-                    o.pace,
-                    o.speed,
-                    connect,
-                    vehicles,
-                    o.api,
-                    o.api_port,
-                    o.seed,
-                    o.interruption,
-                    start,
-                    map_path=road_map.resolve() if road_map is not None else None,
-                    servers=o.servers,
-                    routers=mesh,
-                    cluster_workers=o.cluster_workers,
-                    truth_dir=truth_dir,
-                )
-
+            map_file = road_map.resolve() if road_map is not None else None
             if o.api:  # listening means subscribed (uvicorn binds after the lifespan): it sees every epoch
-                api = procs.start(next(s for s in services(None) if s.name == API_SERVICE))
+                api = procs.start(
+                    api_spec(path, connect, o.api_port, map_args(map_file), o.servers, truth_dir)
+                )
                 try:
-                    wait_for_port(o.api_port, API_START_TIMEOUT_S, api)
+                    wait_for_port(o.api_port, o.api_start_timeout_s, api)
                 except TimeoutError:  # a long solutions log to load: the replay does not wait for it
                     log.warning(
                         "the API is not listening yet; its accuracy may miss the first epochs",
-                        extra={"waited_s": API_START_TIMEOUT_S},
+                        extra={"waited_s": o.api_start_timeout_s},
                     )
+            # the realtime origin can only be fixed once the API is up
             start = time.time() + REALTIME_START_DELAY_S if o.pace == "realtime" else None
-            for spec in services(start):
-                if spec.name != API_SERVICE:
-                    procs.start(spec)
+            for spec in fleet_services(
+                path,
+                o.method,
+                o.pace,
+                o.speed,
+                connect,
+                vehicles,
+                False,  # the API runs already
+                o.api_port,
+                o.seed,
+                o.interruption,
+                start,
+                map_path=map_file,
+                servers=o.servers,
+                routers=mesh,
+                cluster_workers=o.cluster_workers,
+            ):
+                procs.start(spec)
             agents = [n for n in procs.procs if n.startswith("agent-")]
             while any(procs.procs[a].poll() is None for a in agents) and not stop.wait(POLL_S):
                 if progress is not None:
