@@ -129,7 +129,8 @@ def test_truth_names_are_checked_once_for_every_command() -> None:
 
 def test_truth_files_hand_a_reference_over_and_bad_rows_are_counted(tmp_path: Path) -> None:
     """`save_truth` / `use_truth_files`: how `coplane fleet --truth rtk` gives the API the reference
-    it made once. Every epoch comes back; a broken row is reported, counted and skipped, the rest kept."""
+    it made once. Every epoch comes back with its environment label; a broken row is reported,
+    counted and skipped, the rest kept."""
     from coplane.api.settings import ApiSettings
 
     sim = simulate("urban-loop", tmp_path / "sim", vehicles=2, duration_s=10, seed=3)
@@ -142,6 +143,9 @@ def test_truth_files_hand_a_reference_over_and_bad_rows_are_counted(tmp_path: Pa
     back = open_recording(sim)
     assert "u1: 10 epochs; u2: 9 epochs; 1 bad rows skipped" in use_truth_files(back, out)
     assert back.truth_at("u1") == want["u1"]  # written to 0.1 mm, as the recording's are
+    assert back.environment_at("u1") == rec.environment_at("u1") and set(
+        rec.environment_at("u1").values()
+    ) - {""}
     assert back.problems.total == 1 and len(back.truth_at("u2")) == len(want["u2"]) - 1
     with pytest.raises(ConfigError, match="does not exist"):
         use_truth_files(back, tmp_path / "nowhere")

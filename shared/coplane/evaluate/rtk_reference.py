@@ -145,7 +145,7 @@ def save_truth(rec: Recording, directory: Path) -> Path:
     """
     directory.mkdir(parents=True, exist_ok=True)
     for v in rec.manifest.vehicles:
-        write_truth(directory / f"{v.id}.csv", rec.truth(v.id))
+        write_truth(directory / f"{v.id}.csv", rec.truth(v.id))  # with their environment labels
     return directory
 
 
@@ -160,7 +160,7 @@ def use_truth_files(rec: Recording, directory: Path) -> str:
         path = directory / f"{v.id}.csv"
         if path.is_file():
             points = read_truth(path, rec.problems)
-            rec.use_truth(v.id, {p.time: p.ecef_m for p in points})
+            rec.use_truth(v.id, {p.time: p.ecef_m for p in points}, {p.time: p.environment for p in points})
             used.append(f"{v.id}: {len(points)} epochs")
     if bad := rec.problems.total - bad_before:
         used.append(f"{bad} bad rows skipped")

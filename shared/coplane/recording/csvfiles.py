@@ -186,12 +186,23 @@ def write_uwb(path: str | Path, ranges: Iterable[UwbRange]) -> Path:
 
 
 def write_truth(path: str | Path, points: Iterable[TruthPoint]) -> Path:
-    """truth/<id>.csv, positions to 0.1 mm."""
+    """truth/<id>.csv, positions to 0.1 mm; with an `environment` column when any point has a label,
+    so that a copy keeps the per-environment accuracy of the original."""
+    rows = list(points)
+    if not any(p.environment for p in rows):
+        return _write_lines(
+            path,
+            TRUTH_COLUMNS,
+            (
+                f"{p.time.week},{_tow(p.time.tow)},{p.ecef_m[0]:.4f},{p.ecef_m[1]:.4f},{p.ecef_m[2]:.4f}"
+                for p in rows
+            ),
+        )
     return _write_lines(
         path,
-        TRUTH_COLUMNS,
+        (*TRUTH_COLUMNS, "environment"),
         (
-            f"{p.time.week},{_tow(p.time.tow)},{p.ecef_m[0]:.4f},{p.ecef_m[1]:.4f},{p.ecef_m[2]:.4f}"
-            for p in points
+            f"{p.time.week},{_tow(p.time.tow)},{p.ecef_m[0]:.4f},{p.ecef_m[1]:.4f},{p.ecef_m[2]:.4f},{p.environment}"
+            for p in rows
         ),
     )

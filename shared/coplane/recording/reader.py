@@ -171,14 +171,21 @@ class Recording:
             self._truth[vid] = [] if path is None else read_truth(path, self.problems)
         return self._truth[vid]
 
-    def use_truth(self, vid: str, positions: Mapping[GpsTime, Sequence[float] | Vec]) -> None:
+    def use_truth(
+        self,
+        vid: str,
+        positions: Mapping[GpsTime, Sequence[float] | Vec],
+        environment: Mapping[GpsTime, str] | None = None,
+    ) -> None:
         """Replace the vehicle's truth with `positions` (ECEF antenna, keyed by nominal epoch): a
-        reference made outside the recording, e.g. RTKLIB's RTK (`coplane eval --truth rtk`)."""
+        reference made outside the recording, e.g. RTKLIB's RTK (`coplane eval --truth rtk`).
+        `environment`: the label of each epoch, where the reference has one."""
         self.manifest.vehicle(vid)  # KeyError for a vehicle the recording lacks
+        env = environment or {}
         rows = {t: (float(p[0]), float(p[1]), float(p[2])) for t, p in sorted(positions.items())}
-        self._truth[vid] = [TruthPoint(t, xyz) for t, xyz in rows.items()]
+        self._truth[vid] = [TruthPoint(t, xyz, env.get(t, "")) for t, xyz in rows.items()]
         self._truth_at[vid] = rows
-        self._env_at[vid] = {t: "" for t in rows}
+        self._env_at[vid] = {t: env.get(t, "") for t in rows}
 
     def truth_at(self, vid: str) -> dict[GpsTime, tuple[float, float, float]]:
         """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
