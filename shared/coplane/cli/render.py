@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -10,12 +12,31 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-console = Console()
-err_console = Console(stderr=True)  # errors and notes: stdout stays the report
+PIPE_WIDTH = 160  # columns of a report written to a file or a pipe
+
+
+def _console(stderr: bool = False) -> Console:
+    """Rich's console. Written to a file or a pipe (CI logs, `| tee`), rich assumes 80 columns and
+    cuts the tables' labels and headers; there the tables get `PIPE_WIDTH` instead (their natural
+    width: rich does not stretch a table). A terminal's own width, or $COLUMNS, still rules."""
+    stream = sys.stderr if stderr else sys.stdout
+    wide = not stream.isatty() and "COLUMNS" not in os.environ
+    return Console(stderr=stderr, width=PIPE_WIDTH if wide else None)
+
+
+console = _console()
+err_console = _console(stderr=True)  # errors and notes: stdout stays the report
 
 
 def fmt(x: float) -> str:
     return "-" if not np.isfinite(x) else f"{x:.2f}"
+
+
+def label_column(table: Table, name: str, labels: list[str]) -> None:
+    """A first column whose labels (method or vehicle names) are never cut: on a narrow or
+    non-terminal console (80 columns, CI logs) rich would shorten `non-cp-ekf` to `non-cp-…`,
+    and the numbers' headers wrap instead."""
+    table.add_column(name, no_wrap=True, min_width=max([len(name), *map(len, labels)]))
 
 
 def print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
@@ -29,7 +50,7 @@ def print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
     if len(stats) == 1:
         ((label, per),) = stats.items()
         table = Table(title=f"{title}: {label}")
-        table.add_column("vehicle")
+        label_column(table, "vehicle", [v for v in vehicles if v in per])
         for col in TABLE_COLUMNS:
             table.add_column(col, justify="right")
         for vid in vehicles:
@@ -39,7 +60,7 @@ def print_accuracy(title: str, stats: dict, vehicles: list[str]) -> None:
         return
     for vid in vehicles:
         table = Table(title=f"{title}: vehicle {vid}")
-        table.add_column("method")
+        label_column(table, "method", [label for label, per in stats.items() if vid in per])
         for col in TABLE_COLUMNS:
             table.add_column(col, justify="right")
         for label, per in stats.items():

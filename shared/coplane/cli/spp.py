@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from coplane.cli.render import STRICT_HELP, check_input, console, fmt, print_problems
+from coplane.cli.render import STRICT_HELP, check_input, console, fmt, label_column, print_problems
 
 COLUMNS = (
     "vehicle",
@@ -44,8 +44,9 @@ def spp(
 
     report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=True)
     table = Table(title=f"SPP {'DGNSS' if report.dgnss else 'standalone'}: {report.recording}")
-    for col in COLUMNS:
-        table.add_column(col, justify="right" if col not in ("vehicle", "no fix: reasons") else "left")
+    label_column(table, COLUMNS[0], [v.vehicle for v in report.vehicles])
+    for col in COLUMNS[1:]:
+        table.add_column(col, justify="left" if col == "no fix: reasons" else "right")
     for v in report.vehicles:
         st = v.accuracy
         reasons = ", ".join(f"{k} x{n}" for k, n in v.no_solution.most_common(3))
