@@ -34,6 +34,13 @@ def simulate_command(
             help="Start the drive this many seconds after the scenario's start: same roads, another sky.",
         ),
     ] = 0.0,
+    doppler: Annotated[
+        bool,
+        typer.Option(
+            help="Write Doppler observations; --no-doppler: pseudoranges and C/N0 only, as from a"
+            " receiver or stream without Doppler (RTCM MSM4)."
+        ),
+    ] = True,
 ) -> None:
     """Simulate a fleet drive (GNSS, UWB, truth) and write it as a fleet recording."""
     from coplane.sim import run_simulation, write_recording
@@ -48,7 +55,7 @@ def simulate_command(
     except ValueError as exc:  # sim reports bad arguments (a window past the ephemerides) as ValueError
         raise ConfigError(str(exc)) from exc
     t1 = time.perf_counter()
-    path = write_recording(result, out)
+    path = write_recording(result, out, doppler)
     t2 = time.perf_counter()
     n_obs = sum(len(e.sats) for eps in result.vehicle_obs.values() for e in eps)
     n_ep = len(result.times)

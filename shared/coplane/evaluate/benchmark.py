@@ -96,14 +96,20 @@ def numeric_versions() -> str:
 
 
 def make_recordings(
-    scenario: str, seeds: Sequence[int], out_dir: Path, vehicles: int = 4, duration_s: float = 300.0
+    scenario: str,
+    seeds: Sequence[int],
+    out_dir: Path,
+    vehicles: int = 4,
+    duration_s: float = 300.0,
+    doppler: bool = True,
 ) -> list[Recording]:
-    """Simulate (or reuse, if already written) one recording per seed."""
+    """Simulate (or reuse, if already written) one recording per seed; `doppler` False: receivers
+    that log no Doppler (`coplane.sim.write.write_recording`), the same drives otherwise."""
     recs = []
     for seed in seeds:
-        path = out_dir / f"{scenario}-{seed}"
+        path = out_dir / f"{scenario}-{seed}{'' if doppler else '-no-doppler'}"
         if not (path / "fleet.toml").exists():
-            simulate(scenario, path, vehicles, duration_s, seed)
+            simulate(scenario, path, vehicles, duration_s, seed, doppler=doppler)
         recs.append(open_recording(path))
     return recs
 

@@ -98,10 +98,12 @@ def simulate(
     seed: int = 0,
     progress: bool = False,
     start_offset_s: float = 0.0,
+    doppler: bool = True,
 ) -> Path:
-    """Simulate a fleet and write the recording; returns its directory."""
+    """Simulate a fleet and write the recording; returns its directory. `doppler` False: the
+    receivers log no Doppler (`write_recording`)."""
     result = run_simulation(scenario, vehicles, duration_s, seed, progress, start_offset_s=start_offset_s)
-    return write_recording(result, out_dir)
+    return write_recording(result, out_dir, doppler)
 
 
 # --- the bundled default recording --------------------------------------------------------------

@@ -8,12 +8,14 @@ contains wall-clock time, so the same seed gives byte-identical files. See docs/
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 from coplane.gtime import GpsTime
 from coplane.recording.csvfiles import write_uwb
 from coplane.recording.manifest import write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, UwbSpec, VehicleSpec
+from coplane.recording.rinex_obs import DEFAULT_SIGNALS
 from coplane.recording.writer import write_obs
 from coplane.sim.motion import FleetTrack
 from coplane.sim.result import SimResult
@@ -45,8 +47,12 @@ def write_truth_csv(path: Path, times: list[GpsTime], track: FleetTrack, v: int)
     path.write_text("\n".join(lines) + "\n", encoding="ascii", newline="\n")
 
 
-def write_recording(result: SimResult, out_dir: str | Path) -> Path:
-    """Write the fleet recording (fleet.toml, nav/, base/, vehicles/, uwb.csv, truth/)."""
+def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True) -> Path:
+    """Write the fleet recording (fleet.toml, nav/, base/, vehicles/, uwb.csv, truth/).
+
+    `doppler` False: the RINEX files carry no Doppler, as from a receiver or a stream that gives
+    none (an RTCM MSM4 stream, many loggers' pseudorange-only RINEX); every estimator then runs
+    without Doppler velocities."""
     # absolute: the manifest's paths are written relative to its root, which a relative `out_dir`
     # (e.g. `coplane simulate --out sim`) would otherwise count twice ("sim/sim/nav/...")
     out = Path(out_dir).resolve()
@@ -56,7 +62,10 @@ def write_recording(result: SimResult, out_dir: str | Path) -> Path:
     (out / "nav").mkdir(exist_ok=True)
     shutil.copyfile(result.nav_path, out / nav_rel)  # the real file, byte for byte
 
-    obs_types: dict[str, tuple[str, ...]] = dict(SIGNAL_TYPES)
+    obs_types: dict[str, tuple[str, ...]] = {
+        sys: tuple(c for c in codes if doppler or c[0] != "D") for sys, codes in SIGNAL_TYPES.items()
+    }
+    signals = None if doppler else {sys: replace(DEFAULT_SIGNALS[sys], doppler=None) for sys in SIGNAL_TYPES}
     specs = []
     for v, vid in enumerate(result.vehicle_ids):
         first = result.track.ecef[0, v]
@@ -74,7 +83,7 @@ def write_recording(result: SimResult, out_dir: str | Path) -> Path:
             interval_s=sc.interval_s,
         )
         obs_path = out / "vehicles" / f"{vid}.obs"
-        write_obs(obs_path, header, result.vehicle_obs[vid])
+        write_obs(obs_path, header, result.vehicle_obs[vid], signals=signals)
         truth_path = out / "truth" / f"{vid}.csv"
         write_truth_csv(truth_path, result.times, result.track, v)
         specs.append(VehicleSpec(vid, obs_path, float(result.track.antenna_height_m[v]), truth_path))
@@ -92,7 +101,7 @@ def write_recording(result: SimResult, out_dir: str | Path) -> Path:
             interval_s=sc.interval_s,
         )
         base_path = out / "base" / f"{sc.base.name}.obs"
-        write_obs(base_path, header, result.base_obs)
+        write_obs(base_path, header, result.base_obs, signals=signals)
         base_spec = BaseSpec(base_path, (bpos[0], bpos[1], bpos[2]))
 
     uwb_spec = None
