@@ -7,7 +7,7 @@ Defaults are chosen on these seeds and reported on others: the training set is
 `coplane.evaluate.benchmark.TRAINING` and must never be used for docs/results.md (which reports
 `HELD_OUT`). `--validation` runs on `VALIDATION` instead: the seeds that check a choice the
 training seeds won but could not settle (never reported either). `--standalone` runs every method
-without the recordings' base station. Each variant changes the method's current defaults
+without the recordings' base station; `--no-doppler` on the same drives recorded without Doppler. Each variant changes the method's current defaults
 (`ROBUST_FGO`, or the plane step's `PlaneConfig` for a `PLANE_VARIANTS` name); prints pooled
 (all vehicles, all recordings) H/V RMSE, the horizontal median, p99 and maximum, and the same
 pooled per environment of the truth (the simulator's road sections). The comparison these
@@ -111,6 +111,35 @@ VARIANTS: dict[str, dict[str, object]] = {
         "motion_accel_psd": 0.0625,
         "motion_accel_psd_up": 0.01,
     },
+    # receivers without Doppler (`--no-doppler`): a constant velocity over the last three positions
+    # instead of the frozen difference of the last two, at the EKF baselines' own densities (1.0
+    # horizontal, 0.1 vertical, `baselines.fleet_filter`) and at a quarter of them
+    "cv-ekf": {"motion_accel_psd": 1.0, "motion_accel_psd_up": 0.1},
+    "cv-ekf-quarter": {"motion_accel_psd": 0.25, "motion_accel_psd_up": 0.025},
+    # and for those receivers the fallback's velocity, the difference of the last two estimates
+    # (FgoConfig.no_doppler_velocity, docs/tuning-no-doppler.md); each variant on the previous
+    # defaults (the 3-D difference, no covariance), as before they were chosen
+    "no-doppler-estimates": {"no_doppler_velocity": "estimates", "no_doppler_velocity_covariance": 0.0},
+    "no-doppler-horizontal": {"no_doppler_velocity": "horizontal", "no_doppler_velocity_covariance": 0.0},
+    "no-doppler-none": {"no_doppler_velocity": "none", "no_doppler_velocity_covariance": 0.0},
+    "no-doppler-estimates-cov-1": {"no_doppler_velocity": "estimates", "no_doppler_velocity_covariance": 1.0},
+    "no-doppler-horizontal-cov-1": {
+        "no_doppler_velocity": "horizontal",
+        "no_doppler_velocity_covariance": 1.0,
+    },
+    "no-doppler-horizontal-cov-0.1": {
+        "no_doppler_velocity": "horizontal",
+        "no_doppler_velocity_covariance": 0.1,
+    },
+    "no-doppler-horizontal-cov-0.25": {
+        "no_doppler_velocity": "horizontal",
+        "no_doppler_velocity_covariance": 0.25,
+    },
+    "no-doppler-horizontal-cov-0.5": {
+        "no_doppler_velocity": "horizontal",
+        "no_doppler_velocity_covariance": 0.5,
+    },
+    "cv-ekf-drift": {"motion_accel_psd": 1.0, "motion_accel_psd_up": 0.1, "clock_accel_psd": 0.1},
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},
     "sigma-v-0.2": {"sigma_v": 0.2},
@@ -320,6 +349,11 @@ def main() -> None:
         action="store_true",
         help="every method without the recordings' base station (no DGNSS), as docs/results.md's standalone section",
     )
+    ap.add_argument(
+        "--no-doppler",
+        action="store_true",
+        help="the same drives recorded without Doppler (a receiver or stream that gives none)",
+    )
     args = ap.parse_args()
     training = dict(VALIDATION if args.validation else TRAINING)
     if args.seeds and args.validation:
@@ -345,6 +379,7 @@ def main() -> None:
             ap.error(f"--runs {':'.join(run)!r}: {what} (method:variant[+variant], see VARIANTS)")
     kind = "validation" if args.validation else "training"
     mode = ", without a base station (standalone)" if args.standalone else ""
+    mode += ", recorded without Doppler" if args.no_doppler else ""
     lines = [
         f"# Tuning on the {kind} seeds{mode}\n",
         f"Output of `.venv/bin/python bench/tune_fgo.py {' '.join(sys.argv[1:])}` ({dt.date.today()}): "
@@ -364,7 +399,7 @@ def main() -> None:
     dgnss = False if args.standalone else None  # None: with the recordings' base
     with tempfile.TemporaryDirectory() as tmp:
         for scen, seeds in training.items():
-            recs = make_recordings(scen, seeds, Path(tmp), 4, args.duration)
+            recs = make_recordings(scen, seeds, Path(tmp), 4, args.duration, not args.no_doppler)
             lines += [f"\n## `{scen}`, seeds {', '.join(map(str, seeds))}\n", *header]
             print("\n".join(lines[-3:]), flush=True)
             for m, name in runs:

@@ -97,6 +97,9 @@ class VehicleEpochInput:
     spp_position: Vec | None = None  # initial guess; None when SPP had no fix
     clock_drift_mps: float | None = None  # Doppler clock drift, for the clock between factor
     antenna_height_m: float | None = None  # above the road: the height links (FgoConfig) need it
+    # whether the receiver reported any Doppler this epoch: False for one that gives none (an RTCM
+    # MSM4 stream, a pseudorange-only log), None when it tracked no satellite (nothing to tell)
+    doppler_observed: bool | None = True
 
 
 @dataclass(frozen=True)

@@ -120,6 +120,7 @@ class ValidVehicle:
     drift: float | None = None  # Doppler receiver clock drift, m/s
     antenna_height_m: float | None = None  # above the road, 0-10 m
     standstill: bool = False  # the velocity is a detected standstill's zero
+    doppler_observed: bool | None = True  # VehicleEpochInput.doppler_observed
 
 
 @dataclass(frozen=True)
@@ -226,7 +227,11 @@ def validate_vehicle(
         if antenna is None or not 0.0 <= antenna <= MAX_ANTENNA_HEIGHT_M:
             rejected["antenna_height"] += 1
             antenna = None
-    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna, standstill)
+    doppler = vin.doppler_observed
+    if doppler is not None and not isinstance(doppler, bool):
+        rejected["doppler_observed"] += 1
+        doppler = True  # not a yes or no: taken as a receiver with Doppler (the estimator's usual case)
+    return ValidVehicle(vid, prs, velocity, vsig, plane, spp, drift, antenna, standstill, doppler)
 
 
 def _valid_pseudoranges(

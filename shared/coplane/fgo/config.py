@@ -13,6 +13,7 @@ from coplane.fgo.config_checks import (
     DEFAULT_ROBUST_K,
     ROBUST_KERNELS,
     SOLVERS,
+    NoDopplerVelocity,
     Robust,
     Solver,
     check_fgo_config,
@@ -194,6 +195,19 @@ class FgoConfig:
     motion_sigma: float = 2.0
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
+    # A vehicle whose receiver reports no Doppler at all (an RTCM MSM4 stream, a pseudorange-only
+    # log; `GraphState.no_doppler`) has no velocity but the difference of its last two estimates,
+    # which the fallback above extrapolates every epoch. "estimates": that difference, as for a
+    # Doppler outage (the bare default); "horizontal": without its local-up part, so that the
+    # height is held by `motion_sigma_up` rather than pushed by noise (ROBUST_FGO);
+    # "none": no velocity (zero with max_speed). Chosen on the training seeds recorded without
+    # Doppler (docs/tuning-no-doppler.md).
+    no_doppler_velocity: NoDopplerVelocity = "estimates"
+    # ... and its sigma also carries this share of the two estimates' summed covariances (/ dt^2):
+    # a velocity made from poorly determined positions is then a loose link, not a confident
+    # extrapolation that runs away (1: the estimates' errors independent; consecutive ones are
+    # correlated, so less). 0: the fallback's sigma alone (the bare default).
+    no_doppler_velocity_covariance: float = 0.0
     # Opt-in: without Doppler, a vehicle with two earlier states in the window keeps a constant
     # velocity over its last three positions (`factors.acceleration_factor`), a white-noise
     # acceleration of these spectral densities (m^2/s^3, horizontal and along local up), instead

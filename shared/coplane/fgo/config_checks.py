@@ -17,6 +17,8 @@ Robust = Literal["huber", "cauchy", "dcs"]
 
 SOLVERS: tuple[Solver, ...] = ("lm-window", "isam2-fixed-lag", "batch-fixed-lag")
 ROBUST_KERNELS: tuple[Robust, ...] = ("huber", "cauchy", "dcs")
+NoDopplerVelocity = Literal["estimates", "horizontal", "none"]  # FgoConfig.no_doppler_velocity
+NO_DOPPLER_VELOCITIES: tuple[NoDopplerVelocity, ...] = ("estimates", "horizontal", "none")
 
 # Usual 95 %-efficiency tuning constants (in whitened units, i.e. sigmas) when robust_k is None.
 # DCS (dynamic covariance scaling, the closed form of switchable constraints): Phi = 1, the value
@@ -39,6 +41,10 @@ def check_fgo_config(cfg: FgoConfig) -> None:
             raise ValueError("gnc needs solver='lm-window' and robust=None (GNC weighs the factors itself)")
         if not 0.0 < cfg.gnc_inlier_probability < 1.0:
             raise ValueError(f"gnc_inlier_probability must be in (0, 1), got {cfg.gnc_inlier_probability!r}")
+    if cfg.no_doppler_velocity not in NO_DOPPLER_VELOCITIES:
+        raise ValueError(
+            f"unknown no_doppler_velocity {cfg.no_doppler_velocity!r}; valid: {', '.join(NO_DOPPLER_VELOCITIES)}"
+        )
     if int(cfg.window_epochs) != cfg.window_epochs or cfg.window_epochs < 1:
         raise ValueError(f"window_epochs must be a positive integer, got {cfg.window_epochs!r}")
     optional = (  # thresholds checked where set (None switches each one off)
@@ -98,7 +104,7 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         raise ValueError(f"fde_warmup_epochs must be >= 0, got {cfg.fde_warmup_epochs!r}")
     if cfg.fde_warmup_prior not in ("reported", "snapshot"):
         raise ValueError(f"fde_warmup_prior must be 'reported' or 'snapshot', got {cfg.fde_warmup_prior!r}")
-    for name in ("covariance_common_scale", "covariance_common_dgnss_m"):
+    for name in ("covariance_common_scale", "covariance_common_dgnss_m", "no_doppler_velocity_covariance"):
         value = getattr(cfg, name)
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be finite and >= 0, got {value!r}")

@@ -16,8 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.config_checks import NoDopplerVelocity
 from coplane.fgo.state import GraphState
 from coplane.fgo.window import StateBlock
+from coplane.geo import up_vector
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.typing import Vec
@@ -84,6 +86,7 @@ def displacement(
     state: GraphState,
     cfg: FgoConfig,
     three_state: bool = True,
+    no_doppler: bool = False,
 ) -> MotionLink:
     """Eq. 35-36 displacement to the previous state, or the motion fallback without Doppler.
 
@@ -91,23 +94,59 @@ def displacement(
     one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
     state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
     zero with sigma max_speed * dt; the fallbacks' vertical sigma is bounded by what a road allows
-    (`motion_sigma_up`, `max_vertical_speed`).
+    (`motion_sigma_up`, `max_vertical_speed`). `no_doppler`: the receiver gives no Doppler at all,
+    so the difference of estimates is all it ever has (`FgoConfig.no_doppler_velocity`).
     """
     last = hist[-1]
     if velocity is not None:
         v = 0.5 * (velocity + last.velocity) if last.velocity is not None else velocity
         return MotionLink(last.pos_key, last.step, v * dt, cfg.sigma_v * dt, "velocity")
     v_last: Vec | None = last.velocity
-    if v_last is None and len(hist) >= 2:
+    var_h = var_up = 0.0  # the variance (m^2/s^2) of a velocity made from two estimates
+    mode: NoDopplerVelocity = cfg.no_doppler_velocity if no_doppler else "estimates"
+    if v_last is None and len(hist) >= 2 and mode != "none":
         prev = hist[-2]
-        v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / (last.time - prev.time)
+        dt0 = last.time - prev.time
+        v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / dt0
+        if no_doppler and (mode == "horizontal" or cfg.no_doppler_velocity_covariance > 0):
+            v_last, var_h, var_up = _estimated_velocity(v_last, last, prev, dt0, mode, state, cfg)
     if three_state and cfg.motion_accel_psd is not None and len(hist) >= 2 and last.time - hist[-2].time > 0:
         return constant_velocity(hist, dt, state, cfg)
     if v_last is not None:
-        sigma, sigma_up = cfg.motion_sigma * dt, cfg.motion_sigma_up * dt
+        sigma = math.sqrt(cfg.motion_sigma**2 + var_h) * dt
+        sigma_up = math.sqrt(cfg.motion_sigma_up**2 + var_up) * dt
         return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
     sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
     return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))
+
+
+def _estimated_velocity(
+    v: Vec,
+    last: StateBlock,
+    prev: StateBlock,
+    dt0: float,
+    mode: NoDopplerVelocity,
+    state: GraphState,
+    cfg: FgoConfig,
+) -> tuple[Vec, float, float]:
+    """A receiver without Doppler: the velocity between its last two estimates, horizontal only
+    when `mode` says so, and its variance (m^2/s^2, horizontal per axis and up) from their
+    reported covariances (`FgoConfig.no_doppler_velocity_covariance`; 0 where either is unknown).
+
+    Why: that velocity is extrapolated every epoch, and where the estimates are poor (a deep
+    canyon, few satellites) a confident extrapolation feeds its own error forward. On the dense
+    city recorded without Doppler the frozen 3-D difference ran vehicles kilometres away
+    (docs/tuning-no-doppler.md)."""
+    u = up_vector(state.position(last.pos_key))
+    if mode == "horizontal":
+        v = v - float(v @ u) * u
+    c1, c0 = state.cov.get(last.pos_key), state.cov.get(prev.pos_key)
+    if cfg.no_doppler_velocity_covariance <= 0 or c1 is None or c0 is None:
+        return v, 0.0, 0.0
+    cv = cfg.no_doppler_velocity_covariance * (c1 + c0) / (dt0 * dt0)
+    up = float(u @ cv @ u)
+    var_h = max(0.0, 0.5 * (float(np.trace(cv)) - up))
+    return v, var_h, up if mode == "estimates" else 0.0  # horizontal: nothing extrapolated up
 
 
 def constant_velocity(hist: deque[StateBlock], dt: float, state: GraphState, cfg: FgoConfig) -> MotionLink:

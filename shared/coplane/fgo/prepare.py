@@ -77,6 +77,8 @@ def prepare_vehicle(
     plane = v.plane if cfg.use_planes else None
     velocity, spp = v.velocity, v.spp
     hist = state.window.by_vehicle.get(v.vehicle_id)
+    if v.doppler_observed is not None:  # None: no satellite to tell by; keep what the last one said
+        (state.no_doppler.discard if v.doppler_observed else state.no_doppler.add)(v.vehicle_id)
     limit = cfg.three_state_max_pseudoranges
     three_state = limit is None or 1 <= len(prs) <= limit  # where the opt-in links may apply
     link: MotionLink | None = None
@@ -85,7 +87,7 @@ def prepare_vehicle(
         dt = t - last.time
         p_last = state.position(last.pos_key)
         if cfg.use_velocity:
-            link = displacement(hist, velocity, dt, state, cfg, three_state)
+            link = displacement(hist, velocity, dt, state, cfg, three_state, v.vehicle_id in state.no_doppler)
             init = p_last + link.displacement
         elif spp is not None:
             init = spp

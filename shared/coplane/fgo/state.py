@@ -37,6 +37,9 @@ class GraphState:
     # with FgoConfig.clock_drift_carry, each vehicle's last Doppler clock drift (m/s) and its epoch:
     # the clock's step through epochs without one (`links.clock_drift`); it outlives the window
     drift_seen: dict[str, tuple[float, GpsTime]] = field(default_factory=dict)
+    # the vehicles whose receiver reports no Doppler, as their latest epoch with satellites said
+    # (`VehicleEpochInput.doppler_observed`): their motion link is `FgoConfig.no_doppler_velocity`
+    no_doppler: set[str] = field(default_factory=set)
 
     def position(self, key: int) -> Vec:
         return np.array(self.values.atPoint3(key), dtype=float)

@@ -126,6 +126,12 @@ class MethodSpec:
 #     the window's epochs (`fgo.common_error`; DGNSS cancels it, so DGNSS reports are unchanged):
 #     without a base station the heights' 95 % containment on the training seeds went 0.81-0.84
 #     -> 0.95-0.96 (docs/fgo.md "An honest covariance"; 0.7 and 1.0 only more cautious).
+#   - a receiver that reports no Doppler at all (an RTCM MSM4 stream, a pseudorange-only log)
+#     extrapolates only the horizontal part of its last two estimates' difference, its sigma
+#     loosened by half their summed covariances: the 3-D difference at 0.5 m/s ran the dense
+#     city's vehicles kilometres away, and the real car without Doppler 45 m (training seeds
+#     recorded without Doppler; a smaller share diverged on the validation seeds;
+#     docs/fgo.md "Receivers without Doppler"). Receivers with Doppler are not touched.
 # Opt-in, not defaults (docs/fgo.md; `coplane eval --fgo key=value`): the road-height links (they
 # win on the training seeds and lose the validation seeds' deep canyons) and a stricter FDE on
 # faint satellites (one-sided it biases heights by -0.3 m, two-sided it lost validation V).
@@ -143,6 +149,8 @@ ROBUST_FGO: dict[str, object] = {
     "covariance_scale": 4.5,
     "covariance_common_scale": 0.5,
     "clock_isb_sigma_m": 0.5,
+    "no_doppler_velocity": "horizontal",
+    "no_doppler_velocity_covariance": 0.5,
 }
 
 

@@ -26,7 +26,14 @@ from coplane.estimation.contract import (
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
 from coplane.methods import MethodSpec, interrupt_range
-from coplane.steps.wire import cov9, epoch_time, plane_summary, pseudorange_columns, tuple3
+from coplane.steps.wire import (
+    cov9,
+    doppler_observed,
+    epoch_time,
+    plane_summary,
+    pseudorange_columns,
+    tuple3,
+)
 
 if TYPE_CHECKING:
     from coplane.fgo.solve import Smoothers  # imports GTSAM: only for the annotation
@@ -157,6 +164,7 @@ class FusionStep:
             spp_position=np.array(m.spp.position_ecef_m) if m.spp.position_ecef_m is not None else None,
             clock_drift_mps=m.velocity.clock_drift_mps if m.velocity is not None else None,
             antenna_height_m=m.antenna_height_m,
+            doppler_observed=doppler_observed(m),
         )
 
     def solve(

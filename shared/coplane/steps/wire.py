@@ -134,6 +134,18 @@ def plane_summary(p: PlaneReport | None) -> PlaneSummary | None:
     )
 
 
+def doppler_observed(m: NodeMessage) -> bool | None:
+    """Whether the node's receiver reported any Doppler this epoch (its velocity, or a Doppler
+    on any tracked satellite); None when it tracked none. A receiver without Doppler (an RTCM MSM4
+    stream, a pseudorange-only log) gets the estimator's motion model for that case
+    (`FgoConfig.no_doppler_velocity`)."""
+    if m.velocity is not None:
+        return True
+    if not m.satellites:
+        return None
+    return any(s.doppler_hz is not None for s in m.satellites)
+
+
 def pseudorange_columns(m: NodeMessage) -> PseudorangeColumns:
     """The pseudoranges a node message marks used, as the estimator's columns: one pass over the
     satellites and one array per kind of value, not an object per satellite (the fusion server
