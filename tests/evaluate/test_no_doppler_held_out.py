@@ -1,0 +1,49 @@
+"""Receivers without Doppler on the held-out dense city (docs/results.md, "Held-out benchmark,
+receivers without Doppler"; docs/fgo.md, "Receivers without Doppler"): the factor graph keeps its
+vehicles where the EKF baselines run away, and `pc` is ahead of every baseline. These seeds chose
+nothing (HELD_OUT, the benchmark of docs/results.md: every seed, 4 vehicles x 200 s); limits are
+the issue's 0.85 where it holds, else the measured values (in the docstrings, printed with -s)
+plus a margin for another CPU's last bits.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from coplane.evaluate.benchmark import (
+    BASELINES,
+    HELD_OUT,
+    HELD_OUT_DURATION_S,
+    make_recordings,
+    pooled_by_environment,
+)
+from coplane.evaluate.metrics import PooledStats
+
+pytestmark = pytest.mark.slow
+SCENARIO = "dense-urban"
+
+
+@pytest.fixture(scope="module")
+def stats(tmp_path_factory: pytest.TempPathFactory) -> dict[str, PooledStats]:
+    tmp = tmp_path_factory.mktemp("no-doppler")
+    recs = make_recordings(SCENARIO, HELD_OUT[SCENARIO], tmp, 4, HELD_OUT_DURATION_S, doppler=False)
+    out = {m: pooled_by_environment(recs, m)[0]["all"] for m in ("pc", "non-cp", *BASELINES)}
+    for m, s in out.items():
+        print(
+            f"{SCENARIO} without Doppler, {m}: H RMSE {s.h_rmse_m:.2f} max {s.h_max_m:.1f}, V RMSE {s.v_rmse_m:.2f}"
+        )
+    return out
+
+
+def test_the_graph_does_not_run_away(stats: dict[str, PooledStats]) -> None:
+    """Largest horizontal errors, measured 2026-11-30: pc 52 m, non-cp 106 m (the EKF baselines
+    309-314 m; with the settings before, the training seeds' pc reached 4 km)."""
+    assert stats["pc"].h_max_m < 70.0
+    assert stats["non-cp"].h_max_m < 140.0
+    assert stats["non-cp"].h_rmse_m < 0.5 * stats["non-cp-ekf"].h_rmse_m  # 12.1 against 33.0 m
+
+
+def test_pc_is_ahead_of_every_baseline(stats: dict[str, PooledStats]) -> None:
+    """pc / best baseline (gamp-cp), measured 2026-11-30: H 0.79, V 0.69."""
+    assert stats["pc"].h_rmse_m <= 0.85 * min(stats[m].h_rmse_m for m in BASELINES)
+    assert stats["pc"].v_rmse_m <= 0.8 * min(stats[m].v_rmse_m for m in BASELINES)
