@@ -32,7 +32,7 @@ MARK = "bench_fusion_variants"
 def compare(rec_dir: Path, variants: list[str], repeats: int) -> dict[str, dict[str, float]]:
     """Per variant ("default" first): median CPU ms per vehicle-epoch, H and V RMSE."""
     import bench_window_clusters as recorder
-    from tune_fgo import VARIANTS
+    from fgo_variants import VARIANTS
 
     config, inputs = recorder.record_inputs(rec_dir)  # pc's estimator config, defaults
     configs = {"default": config} | {v: dataclasses.replace(config, **VARIANTS[v]) for v in variants}  # type: ignore[arg-type]
