@@ -10,7 +10,9 @@ shares the host's drift. Wall time is `step` over every epoch (the pool's proces
 and ready before it); CPU is this process's plus the children's (counted once they exit), and
 shipping is what this process spent serialising the children's graphs and values and reading
 their results. Each row also says whether its positions and covariances equal the single
-process's bit for bit.
+process's bit for bit. A second table splits the wall time of the runs on several processes
+(`SmootherPool.busy_s`, `wait_s`, `shipping_s`): what the server's process spent solving, waiting
+for its children and shipping, and the rest of its step.
 """
 
 from __future__ import annotations
@@ -58,6 +60,8 @@ def run_once(config: Any, inputs: list[Any], workers: int) -> dict[str, Any]:
     cpu = time.process_time() - cpu0
     tasks = list(pool.tasks) if isinstance(pool, SmootherPool) else [0]
     shipping = pool.shipping_s if isinstance(pool, SmootherPool) else 0.0
+    busy = list(pool.busy_s) if isinstance(pool, SmootherPool) else [0.0]
+    waiting = pool.wait_s if isinstance(pool, SmootherPool) else 0.0
     est.close()
     child1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu += (child1.ru_utime + child1.ru_stime) - (child0.ru_utime + child0.ru_stime)
@@ -68,6 +72,8 @@ def run_once(config: Any, inputs: list[Any], workers: int) -> dict[str, Any]:
         "digest": digest.hexdigest(),
         "tasks": tasks,
         "shipping": shipping,
+        "busy": busy,
+        "waiting": waiting,
     }
 
 
@@ -113,6 +119,26 @@ def main() -> int:
             f"| {w} | {wall:.2f} | {n / wall:.0f} | {base / wall:.2f} | {1e3 * cpu / n:.2f} | {1e3 * ship / n:.2f} | {tasks} | "
             f"{'yes' if same else 'NO'} |"
         )
+    if any(w > 1 for w in counts):
+        rows += [
+            "",
+            "Where a multi-process run's wall time goes (median of the runs; the server is worker 0, "
+            "a child's solves include reading its requests): the server's own solves, its time waiting "
+            "for the children after them, its shipping, and the rest of the step, which no child shares.",
+            "",
+            "| workers (processes) | wall s | server's solves s | children's solves s | server waiting s | "
+            "server shipping s | rest of the step s |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for w in (w for w in counts if w > 1):
+            med = {k: statistics.median(x[k] for x in runs[w]) for k in ("wall", "waiting", "shipping")}
+            own = statistics.median(x["busy"][0] for x in runs[w])
+            children = [statistics.median(x["busy"][i] for x in runs[w]) for i in range(1, w)]
+            rest = med["wall"] - own - med["waiting"] - med["shipping"]
+            rows.append(
+                f"| {w} | {med['wall']:.2f} | {own:.2f} | {' / '.join(f'{c:.2f}' for c in children)} | "
+                f"{med['waiting']:.2f} | {med['shipping']:.2f} | {rest:.2f} |"
+            )
     head = (
         f"machine: {machine()}; "
         f"city of {args.vehicles} vehicles x {args.duration:.0f} s (seed {args.seed}), method pc, the "

@@ -54,6 +54,8 @@ def _solve(
             assert est.workers == (workers, 1)  # what the server's diagnostics report
         if tasks is not None and isinstance(est._smoothers, P.SmootherPool):
             tasks += est._smoothers.tasks
+            pool = est._smoothers  # where its time went: each process's solves, this one's waits
+            assert len(pool.busy_s) == workers and all(b > 0 for b in pool.busy_s) and pool.wait_s >= 0
         return out
     finally:
         est.close()

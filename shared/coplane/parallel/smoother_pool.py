@@ -179,6 +179,10 @@ class SmootherPool:
         self.dead: set[int] = set()
         self.tasks = [0] * workers  # tasks each worker was given: how the load spread
         self.shipping_s = 0.0  # this process's seconds spent packing and unpacking children's tasks
+        # where a round's time goes, for benchmarks: each worker's seconds solving its tasks, and
+        # this process's seconds waiting for children's replies after its own solves (idle)
+        self.busy_s = [0.0] * workers
+        self.wait_s = 0.0
 
     @property
     def workers(self) -> int:
@@ -243,11 +247,14 @@ class SmootherPool:
             self._measured(0, time.perf_counter() - t0, [tasks[i] for i in by_worker[0]])
         for w, shipping_s in sent.items():
             idx = by_worker[w]
+            t0 = time.perf_counter()
             try:
                 raw = self._recv_bytes(w)
             except (OSError, EOFError) as exc:
                 self._lost(w, idx, out, exc)
                 continue
+            finally:
+                self.wait_s += time.perf_counter() - t0
             t0 = time.perf_counter()
             busy_s, replies = pickle.loads(raw)
             for i, reply in zip(idx, replies, strict=True):
@@ -261,6 +268,7 @@ class SmootherPool:
         return [r if r is not None else RuntimeError("no reply") for r in out]
 
     def _measured(self, w: int, seconds: float, tasks: list[SmootherTask]) -> None:
+        self.busy_s[w] += seconds
         vehicles = sum(len(t.vehicles) for t in tasks)
         if vehicles:
             a = COST_SMOOTHING
