@@ -7,6 +7,13 @@ table.
 
 from __future__ import annotations
 
+
+def _no_doppler(velocity: str, share: float) -> dict[str, object]:
+    """The motion link of a receiver without Doppler (FgoConfig.no_doppler_velocity and its
+    covariance share), both set, so that a variant does not depend on the current defaults."""
+    return {"no_doppler_velocity": velocity, "no_doppler_velocity_covariance": share}
+
+
 # Each variant changes the current defaults (ROBUST_FGO) in one respect, so every row is an
 # ablation of what the methods run; "previous-defaults" is the graph before the robust defaults.
 VARIANTS: dict[str, dict[str, object]] = {
@@ -91,27 +98,14 @@ VARIANTS: dict[str, dict[str, object]] = {
     # and for those receivers the fallback's velocity, the difference of the last two estimates
     # (FgoConfig.no_doppler_velocity, docs/tuning-no-doppler.md); each variant on the previous
     # defaults (the 3-D difference, no covariance), as before they were chosen
-    "no-doppler-estimates": {"no_doppler_velocity": "estimates", "no_doppler_velocity_covariance": 0.0},
-    "no-doppler-horizontal": {"no_doppler_velocity": "horizontal", "no_doppler_velocity_covariance": 0.0},
-    "no-doppler-none": {"no_doppler_velocity": "none", "no_doppler_velocity_covariance": 0.0},
-    "no-doppler-estimates-cov-1": {"no_doppler_velocity": "estimates", "no_doppler_velocity_covariance": 1.0},
-    "no-doppler-horizontal-cov-1": {
-        "no_doppler_velocity": "horizontal",
-        "no_doppler_velocity_covariance": 1.0,
-    },
-    "no-doppler-horizontal-cov-0.1": {
-        "no_doppler_velocity": "horizontal",
-        "no_doppler_velocity_covariance": 0.1,
-    },
-    "no-doppler-horizontal-cov-0.25": {
-        "no_doppler_velocity": "horizontal",
-        "no_doppler_velocity_covariance": 0.25,
-    },
-    "no-doppler-horizontal-cov-0.5": {
-        "no_doppler_velocity": "horizontal",
-        "no_doppler_velocity_covariance": 0.5,
-    },
-    "cv-ekf-drift": {"motion_accel_psd": 1.0, "motion_accel_psd_up": 0.1, "clock_accel_psd": 0.1},
+    "no-doppler-estimates": _no_doppler("estimates", 0.0),
+    "no-doppler-horizontal": _no_doppler("horizontal", 0.0),
+    "no-doppler-none": _no_doppler("none", 0.0),
+    "no-doppler-estimates-cov-1": _no_doppler("estimates", 1.0),
+    "no-doppler-horizontal-cov-0.1": _no_doppler("horizontal", 0.1),
+    "no-doppler-horizontal-cov-0.25": _no_doppler("horizontal", 0.25),
+    "no-doppler-horizontal-cov-0.5": _no_doppler("horizontal", 0.5),
+    "no-doppler-horizontal-cov-1": _no_doppler("horizontal", 1.0),
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},
     "sigma-v-0.2": {"sigma_v": 0.2},

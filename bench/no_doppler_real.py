@@ -40,7 +40,10 @@ LABEL = "SYS / # / OBS TYPES"
 def without_doppler(text: str) -> str:
     """RINEX 3 observations with every Doppler (`D..`) type and its column taken out. Headers may
     list a system's types over continuation lines; each data line is the satellite and 16-column
-    fields in the header's order."""
+    fields in the header's order.
+
+    A text edit, not coplane's reader and writer: the writer keeps the one signal per system the
+    estimators use, and RTKLIB's RTK reference needs the file's L2 phases as they are."""
     lines = text.splitlines()
     end = next(i for i, line in enumerate(lines) if "END OF HEADER" in line[60:])
     types: dict[str, list[str]] = {}
