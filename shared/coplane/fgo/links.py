@@ -108,7 +108,7 @@ def displacement(
         prev = hist[-2]
         dt0 = last.time - prev.time
         v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / dt0
-        if no_doppler and (mode == "horizontal" or cfg.no_doppler_velocity_covariance > 0):
+        if no_doppler:
             v_last, var_h, var_up = _estimated_velocity(v_last, last, prev, dt0, mode, state, cfg)
     if three_state and cfg.motion_accel_psd is not None and len(hist) >= 2 and last.time - hist[-2].time > 0:
         return constant_velocity(hist, dt, state, cfg)
@@ -137,10 +137,12 @@ def _estimated_velocity(
     canyon, few satellites) a confident extrapolation feeds its own error forward. On the dense
     city recorded without Doppler the frozen 3-D difference ran vehicles kilometres away
     (docs/tuning-no-doppler.md)."""
+    c1, c0 = state.cov.get(last.pos_key), state.cov.get(prev.pos_key)
+    if mode == "estimates" and (cfg.no_doppler_velocity_covariance <= 0 or c1 is None or c0 is None):
+        return v, 0.0, 0.0  # as for a Doppler outage: nothing to do
     u = up_vector(state.position(last.pos_key))
     if mode == "horizontal":
         v = v - float(v @ u) * u
-    c1, c0 = state.cov.get(last.pos_key), state.cov.get(prev.pos_key)
     if cfg.no_doppler_velocity_covariance <= 0 or c1 is None or c0 is None:
         return v, 0.0, 0.0
     cv = cfg.no_doppler_velocity_covariance * (c1 + c0) / (dt0 * dt0)

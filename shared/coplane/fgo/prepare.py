@@ -77,8 +77,11 @@ def prepare_vehicle(
     plane = v.plane if cfg.use_planes else None
     velocity, spp = v.velocity, v.spp
     hist = state.window.by_vehicle.get(v.vehicle_id)
-    if v.doppler_observed is not None:  # None: no satellite to tell by; keep what the last one said
-        (state.no_doppler.discard if v.doppler_observed else state.no_doppler.add)(v.vehicle_id)
+    # None: no satellite to tell by; keep what the last epoch with satellites said
+    if v.doppler_observed is False:
+        state.no_doppler.add(v.vehicle_id)
+    elif v.doppler_observed:
+        state.no_doppler.discard(v.vehicle_id)
     limit = cfg.three_state_max_pseudoranges
     three_state = limit is None or 1 <= len(prs) <= limit  # where the opt-in links may apply
     link: MotionLink | None = None
