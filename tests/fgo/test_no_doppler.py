@@ -64,7 +64,7 @@ def _motion_ups(fleet: SyntheticFleet, cfg: FgoConfig, observed: bool) -> list[f
         last = est._state.window.by_vehicle["v01"][-1]
         for ln in last.links:
             if ln.kind == "motion":
-                ups.append(float(np.asarray(ln.factor.measured()) @ up_vector(last.init_pos)))
+                ups.append(float(np.asarray(ln.factor().measured()) @ up_vector(last.init_pos)))
     return ups
 
 

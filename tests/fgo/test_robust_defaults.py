@@ -117,7 +117,7 @@ def test_gnc_on_the_window_rejects_nlos_that_plain_least_squares_absorbs() -> No
 
 def _robust_pseudoranges(block: object) -> list[bool]:
     """Whether each pseudorange factor of a state block has a robust noise model."""
-    g = block.graph  # type: ignore[attr-defined]
+    g = block.graph()  # type: ignore[attr-defined]
     out = []
     for i in range(g.size()):
         f = g.at(i)

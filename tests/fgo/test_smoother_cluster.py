@@ -17,6 +17,7 @@ import pytest
 from support.fgo_synthetic import make_fleet, run
 
 from coplane.fgo import factors, keys, smoother, window
+from coplane.fgo.recipes import Recipe
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.methods import get_method
@@ -55,8 +56,7 @@ def test_a_non_finite_estimate_raises() -> None:
     sm = smoother.SmootherCluster(cfg, ["a"])
     sm.smoother = _Diverged(sm.smoother)  # type: ignore[assignment]
     pk = keys.position_key(0, 0)  # a kind iSAM2 has a relinearisation threshold for
-    g = gtsam.NonlinearFactorGraph()
-    g.add(gtsam.PriorFactorPoint3(pk, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    prior = Recipe(factors.position_prior, pk, np.zeros(3), np.eye(3))
     init = gtsam.Values()
     init.insert(pk, np.ones(3))
     blk = window.StateBlock(
@@ -67,7 +67,7 @@ def test_a_non_finite_estimate_raises() -> None:
         clock_keys={},
         init_pos=np.ones(3),
         init_clocks={},
-        graph=g,
+        recipes=[prior],
         counts={},
         links=[],
         n_pseudoranges=0,
@@ -134,18 +134,25 @@ def _huber_snapshot(clock_guess_error_m: float) -> tuple[window.StateBlock, gtsa
             np.linalg.norm(sat - receiver) + C * clock_s + rng.normal(0, 1.0) + (40.0 if i == 0 else 0.0)
         )
     pk, ck = keys.position_key(0, 0), keys.clock_key(0, 0, "G")
-    g = gtsam.NonlinearFactorGraph()
-    for f in factors.pseudorange_factors(
-        pk, [ck] * 9, rho, np.array(sats), [0.0] * 9, [2.0] * 9, receiver, robust="huber", robust_k=1.345
-    ):
-        g.add(f)
+    prs = Recipe(
+        factors.pseudorange_factors,
+        pk,
+        [ck] * 9,
+        rho,
+        np.array(sats),
+        [0.0] * 9,
+        [2.0] * 9,
+        receiver,
+        "huber",
+        1.345,
+    )
     init = gtsam.Values()
     init_pos = receiver + np.array([3.0, -2.0, 4.0])
     init.insert(pk, init_pos)
     init.insert(ck, clock_s + clock_guess_error_m / C)
     blk = window.StateBlock(
         vehicle_id="a", step=0, time=GpsTime(2100, 0.0), pos_key=pk, clock_keys={"G": ck},
-        init_pos=init_pos, init_clocks={ck: clock_s}, graph=g, counts={}, links=[],
+        init_pos=init_pos, init_clocks={ck: clock_s}, recipes=[prs], counts={}, links=[],
         n_pseudoranges=9, plane_used=False, velocity=None, clock_drift_mps=None, has_fix=True,
     )  # fmt: skip
     return blk, init
@@ -162,7 +169,7 @@ def test_isam2_reaches_the_graphs_optimum_whatever_the_clocks_first_guess(clock_
     params.setMaxIterations(100)
     params.setRelativeErrorTol(1e-12)
     params.setAbsoluteErrorTol(1e-12)
-    best = gtsam.GaussNewtonOptimizer(blk.graph, init, params).optimize().atPoint3(blk.pos_key)
+    best = gtsam.GaussNewtonOptimizer(blk.graph(), init, params).optimize().atPoint3(blk.pos_key)
     sm = smoother.SmootherCluster(cfg, ["a"])
     res = sm.update([blk], [], [], init, {k: 0.0 for k in blk.keys}, [], 0, blk.keys, converge=True)
     assert np.linalg.norm(res.values.atPoint3(blk.pos_key) - best) < 0.02

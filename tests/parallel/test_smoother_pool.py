@@ -7,6 +7,7 @@ process behind.
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -21,9 +22,11 @@ from support.fgo_synthetic import SyntheticFleet, make_fleet
 
 from coplane.estimation.contract import FleetSolution
 from coplane.fgo.engine import FusionEstimator
+from coplane.fgo.factors import position_prior
 from coplane.fgo.keys import clock_key, is_position_key, position_key
+from coplane.fgo.recipes import Recipe, from_wire, to_wire
 from coplane.fgo.smoother import SmootherTask
-from coplane.fgo.window import StateBlock
+from coplane.fgo.window import StateBlock, build_graph, graph_recipes
 from coplane.gtime import GpsTime
 from coplane.methods.registry import get_method
 from coplane.parallel import smoother_pool as P
@@ -76,6 +79,38 @@ def test_two_workers_give_the_sequential_estimates_bit_for_bit() -> None:
             assert np.array_equal(ea.position_m, eb.position_m), (a.time, vid)
             assert np.array_equal(ea.covariance_m2, eb.covariance_m2, equal_nan=True), (a.time, vid)
             assert ea.clocks_s == eb.clocks_s
+
+
+def test_a_window_ships_as_recipes_that_build_its_graph_factor_for_factor() -> None:
+    """What a child builds from the recipes (`graph_recipes`, sent through pickle) is the graph
+    the server's own process solves (`build_graph`): the same factors in the same order, with the
+    same errors. An estimator that ships nothing keeps no recipe arguments."""
+    fleet = _fleet()
+    cfg = get_method("pc").fgo
+    assert cfg is not None
+    local = FusionEstimator(cfg)
+    shipping = FusionEstimator(cfg)
+    shipping._settle = False  # as with a pool, without starting processes
+    for epoch in fleet.epochs[:8]:
+        local.step(epoch)
+        shipping.step(epoch)
+    blocks = [b for hist in shipping._state.window.by_vehicle.values() for b in hist]
+    ranges = [r for rec in shipping._state.window.steps for r in rec.ranges]
+    prior = Recipe(position_prior, blocks[0].pos_key, np.ones(3), np.eye(3))
+    oldest = shipping._state.step - cfg.window_epochs + 2  # a link to a state that left is dropped
+    here = build_graph(blocks, ranges, [prior], oldest)
+    wire = pickle.loads(pickle.dumps(to_wire(graph_recipes(blocks, ranges, [prior], oldest))))
+    there = from_wire(wire)
+    values = shipping._state.values
+    assert there.size() == here.size() > 100
+    for i in range(here.size()):
+        assert there.at(i).keys() == here.at(i).keys()
+        assert there.at(i).error(values) == here.at(i).error(values)
+    assert all(b.recipes for b in blocks)
+    assert all(not b.recipes for hist in local._state.window.by_vehicle.values() for b in hist)
+    assert all(
+        ln.args == () for hist in local._state.window.by_vehicle.values() for b in hist for ln in b.links
+    )
 
 
 def test_a_dead_worker_costs_its_clusters_a_rebuild_not_the_estimator() -> None:
@@ -170,13 +205,12 @@ def test_a_worker_ends_when_its_estimator_is_killed(tmp_path: Path) -> None:
 def _prior_task(slot: int, create: bool, step: int) -> SmootherTask:
     """A one-vehicle task: a prior on one position (enough for a smoother to solve)."""
     pk = position_key(0, step)
-    g = gtsam.NonlinearFactorGraph()
-    g.add(gtsam.PriorFactorPoint3(pk, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    prior = Recipe(position_prior, pk, np.ones(3), np.eye(3))
     init = gtsam.Values()
     init.insert(pk, np.zeros(3))
     blk = StateBlock(
         vehicle_id="a", step=step, time=GpsTime(2100, float(step)), pos_key=pk, clock_keys={},
-        init_pos=np.zeros(3), init_clocks={}, graph=g, counts={}, links=[], n_pseudoranges=0,
+        init_pos=np.zeros(3), init_clocks={}, recipes=[prior], counts={}, links=[], n_pseudoranges=0,
         plane_used=False, velocity=None, clock_drift_mps=None, has_fix=True,
     )  # fmt: skip
     return SmootherTask(slot, create, ["a"], [blk], [], [], init, {pk: float(step)}, [pk], 0, [pk], False)

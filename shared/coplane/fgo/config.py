@@ -300,12 +300,6 @@ class FgoConfig:
         return float(self.window_epochs - 1)
 
     @property
-    def linear_links(self) -> bool:
-        """Whether the graph holds linear factors (`factors.linear_container`): the three-state
-        links, which the smoother pool must ship apart."""
-        return self.motion_accel_psd is not None or self.clock_accel_psd is not None
-
-    @property
     def robust_tuning(self) -> float | None:
         if self.robust is None:
             return None

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import time
 
-import gtsam
 import numpy as np
 
 from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate, VehicleSeed
@@ -35,6 +34,7 @@ from coplane.fgo.cooperative import cooperative_exclusion
 from coplane.fgo.height_links import height_links
 from coplane.fgo.keys import CLOCK_CHR, clock_key, position_key
 from coplane.fgo.prepare import Prepared, prepare_vehicle, undetermined
+from coplane.fgo.recipes import Recipe
 from coplane.fgo.smoother import LocalSmoothers
 from coplane.fgo.solve import ClusterSolver, Smoothers
 from coplane.fgo.state import GraphState, StepStats
@@ -55,6 +55,9 @@ class FusionEstimator:
         for several processes (the same estimates); default: in this process."""
         self.config = config or FgoConfig()
         self._smoothers: Smoothers = smoothers if smoothers is not None else LocalSmoothers(self.config)
+        # this process solves every cluster: build each factor as it is made and keep no recipe
+        # (the recipes' arguments serve only to ship a factor to another process)
+        self._settle = isinstance(self._smoothers, LocalSmoothers)
         self.reset()
 
     def reset(self) -> None:
@@ -144,21 +147,26 @@ class FusionEstimator:
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):
             blk = build_block(preps[vid], k, t, st.keys, cfg)
+            if self._settle:
+                blk.settle()
             rec.blocks[vid] = blk
             st.values.insertPoint3(blk.pos_key, blk.init_pos)
             for ck, clock_s in blk.init_clocks.items():
                 st.values.insert(ck, c=clock_s)  # keyword: pybind11 tries ~50 overloads for a float
+        kernel = (cfg.robust, cfg.robust_tuning)
         for r in ranges:
             ka, kb = rec.blocks[r.a].pos_key, rec.blocks[r.b].pos_key
-            factor = F.range_factor(
-                ka, kb, r.range_m, r.sigma_or(cfg.range_sigma), cfg.robust, cfg.robust_tuning
-            )
-            rec.ranges.append(RangeEdge(r.a, r.b, ka, kb, factor))
+            sigma = r.sigma_or(cfg.range_sigma)
+            edge = RangeEdge(r.a, r.b, ka, kb, "range", F.range_factor, ka, kb, r.range_m, sigma, *kernel)
+            rec.ranges.append(edge)
         if cfg.use_planes and cfg.height_link_max_m > 0:
             n_set = cfg.height_link_settled_epochs
             rec.ranges += height_links(
                 ranges, rec.blocks, valid.vehicles, cfg, lambda v: k - st.track_start[v] >= n_set
             )
+        if self._settle:
+            for edge in rec.ranges:
+                edge.settle()
         st.window.push(rec)
 
         views = [
@@ -251,14 +259,13 @@ class FusionEstimator:
             cov = cov / self.config.covariance_scale**2
         cov = F.floored_covariance(cov, SEED_FLOOR_M if cov is not None else cfg.anchor_sigma)
         st.cov[pk] = cov
-        g = gtsam.NonlinearFactorGraph()
-        g.add(F.position_prior(pk, pos, cov))
+        seed = [Recipe(F.position_prior, pk, pos, cov)]
         clocks = {s: c for s, c in sorted(sd.clocks_s.items()) if s in CLOCK_CHR}
         cks = {s: clock_key(slot, k, s) for s in clocks}
         # the log has no clock covariance: the position's, which GNSS geometry ties to the clock
         clock_sigma_m = max(SEED_CLOCK_FLOOR_M, float(np.sqrt(np.trace(cov))))
         for s, ck in cks.items():
-            g.add(F.clock_prior(ck, clocks[s], clock_sigma_m / C))
+            seed.append(Recipe(F.clock_prior, ck, clocks[s], clock_sigma_m / C))
         return StateBlock(
             vehicle_id=sd.vehicle_id,
             step=k,
@@ -267,7 +274,7 @@ class FusionEstimator:
             clock_keys=cks,
             init_pos=pos,
             init_clocks={cks[s]: c for s, c in clocks.items()},
-            graph=g,
+            recipes=seed,
             counts={"seed": 1 + len(cks)},
             links=[],
             n_pseudoranges=0,

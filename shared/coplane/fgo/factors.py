@@ -283,7 +283,7 @@ def acceleration_factor(
     function of the window's positions, so pseudoranges that move the earlier states move the
     velocity carried forward (an EKF's velocity state does the same). The relation is linear, so
     a JacobianFactor is exact; GTSAM has no native nonlinear factor on three Point3 and a
-    CustomFactor (a Python callback) could not be serialised to the smoother pool's processes.
+    CustomFactor would call back into Python at every linearisation.
     The container's linearisation point is the origin: the factor's b is then the relation's own
     constant (zero), and GTSAM re-centres it at every linearisation.
     """
@@ -309,8 +309,7 @@ def bias_factor(prev_key: int, key: int, sigma_m: float) -> gtsam.BetweenFactorD
 
 def linear_container(jf: gtsam.JacobianFactor, is_point: Sequence[bool]) -> gtsam.LinearContainerFactor:
     """A linear factor held at the origin, as this module builds them: `is_point[i]` says whether
-    the i-th key is a Point3 (else a double clock). The smoother pool rebuilds its factors with it
-    (a double in the held linearisation point cannot go through GTSAM's serialisation)."""
+    the i-th key is a Point3 (else a double clock)."""
     origin = gtsam.Values()
     for k, point in zip(jf.keys(), is_point, strict=True):
         if point:

@@ -14,6 +14,7 @@ import numpy as np
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.keys import BIAS_CHR, POSITION_CHR
+from coplane.fgo.recipes import Recipe
 from coplane.fgo.window import (
     ClusterResult,
     RangeEdge,
@@ -37,7 +38,8 @@ def gnc_candidates(
     for b in blocks:
         n = b.counts.get("pseudorange", 0) + b.counts.get("plane", 0)
         out.extend(range(i, i + n))
-        i += int(b.graph.size()) + sum(1 for ln in b.links if ln.prev_step >= oldest_step)
+        i += int(b.graph().size())
+        i += sum(len(ln.factors()) for ln in b.links if ln.prev_step >= oldest_step)
     out.extend(range(i, i + len(ranges)))
     return out
 
@@ -46,7 +48,7 @@ def solve_gnc_window(
     cfg: FgoConfig,
     blocks: Sequence[StateBlock],
     ranges: Sequence[RangeEdge],
-    priors: Sequence[gtsam.NonlinearFactor],
+    priors: Sequence[Recipe],
     initial: gtsam.Values,
     cov_keys: Sequence[int],
     oldest_step: int,
@@ -54,7 +56,7 @@ def solve_gnc_window(
     """`solve_lm_window` with GTSAM's graduated non-convexity instead of LM; the marginals of the
     inliers' graph."""
     graph = build_graph(blocks, ranges, priors, oldest_step)
-    cand = set(gnc_candidates(blocks, ranges, len(priors), oldest_step))
+    cand = set(gnc_candidates(blocks, ranges, sum(len(p.factors()) for p in priors), oldest_step))
     params = gtsam.GncLMParams(lm_params(cfg))
     params.setLossType(gtsam.GncLossType.TLS if cfg.gnc == "tls" else gtsam.GncLossType.GM)
     # TLS may reject every pseudorange of one system at an epoch: a loose prior (1e-5 s, 3 km) on

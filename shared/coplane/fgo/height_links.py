@@ -54,10 +54,9 @@ def height_links(
             rise, grade = predicted
             diff += rise
         sigma = math.hypot(cfg.height_link_sigma_m, grade * r.range_m)
-        factor = F.height_link_factor(
-            a.pos_key, b.pos_key, a.init_pos, b.init_pos, diff, sigma, cfg.robust, cfg.robust_tuning
-        )
-        out.append(RangeEdge(r.a, r.b, a.pos_key, b.pos_key, factor, "height_link"))
+        ka, kb = a.pos_key, b.pos_key
+        args = (ka, kb, a.init_pos, b.init_pos, diff, sigma, cfg.robust, cfg.robust_tuning)
+        out.append(RangeEdge(r.a, r.b, ka, kb, "height_link", F.height_link_factor, *args))
     return out
 
 

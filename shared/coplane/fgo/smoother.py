@@ -3,7 +3,8 @@
 `SmootherCluster` wraps GTSAM's iSAM2 (or batch LM) fixed-lag smoother for the vehicles of one
 cluster. Its `update` builds the graph of what is new (the whole window on a rebuild, else one
 epoch) and `solve_graph` feeds it to GTSAM: the split lets a pool of worker processes
-(`coplane.parallel`) receive a graph built by the estimator and solve it where the smoother lives.
+(`coplane.parallel`) receive the recipes of a graph (`coplane.fgo.recipes`) and build and solve
+it where the smoother lives.
 
 `SmootherTask` is one attempt at solving a cluster's epoch with the smoother of one slot;
 `LocalSmoothers` runs tasks on smoothers held in this process (the default, one core);
@@ -22,6 +23,7 @@ from numpy.typing import NDArray
 
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.keys import relinearize_thresholds
+from coplane.fgo.recipes import Recipe
 from coplane.fgo.window import (
     ClusterResult,
     RangeEdge,
@@ -61,7 +63,7 @@ class SmootherCluster:
         self,
         blocks: Sequence[StateBlock],
         ranges: Sequence[RangeEdge],
-        priors: Sequence[gtsam.NonlinearFactor],
+        priors: Sequence[Recipe],
         initial: gtsam.Values,
         timestamps: dict[int, float],
         cov_keys: Sequence[int],
@@ -180,7 +182,7 @@ class SmootherTask:
     vehicles: list[str]
     blocks: Sequence[StateBlock]
     ranges: Sequence[RangeEdge]
-    priors: Sequence[gtsam.NonlinearFactor]
+    priors: Sequence[Recipe]
     initial: gtsam.Values
     timestamps: dict[int, float]
     cov_keys: list[int]

@@ -20,6 +20,7 @@ import numpy as np
 from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.gnc import solve_gnc_window
+from coplane.fgo.recipes import Recipe
 from coplane.fgo.smoother import LocalSmoothers, SmootherTask
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import ClusterResult, ClusterView, StateBlock, StepRecord, solve_lm_window
@@ -127,7 +128,7 @@ class ClusterSolver:
     def _initial(self, blocks: Sequence[StateBlock]) -> gtsam.Values:
         return self.state.values.extract([key for b in blocks for key in b.keys])
 
-    def _anchors(self, vehicles: Sequence[str]) -> list[gtsam.NonlinearFactor]:
+    def _anchors(self, vehicles: Sequence[str]) -> list[Recipe]:
         """Loose priors on each vehicle's oldest window state that was solved before.
 
         Mean: its latest estimate. Covariance: what was reported for it when it was the newest
@@ -136,32 +137,32 @@ class ClusterSolver:
         window it grows like dead reckoning instead of pinning the vehicle.
         """
         st = self.state
-        out: list[gtsam.NonlinearFactor] = []
+        out: list[Recipe] = []
         for v in vehicles:
             oldest = st.window.by_vehicle[v][0]
             if oldest.step == st.step:
                 continue  # created this epoch: nothing to anchor to
             cov = F.floored_covariance(st.cov.get(oldest.pos_key), self.cfg.anchor_sigma)
-            out.append(F.position_prior(oldest.pos_key, st.position(oldest.pos_key), cov))
+            out.append(Recipe(F.position_prior, oldest.pos_key, st.position(oldest.pos_key), cov))
             # one receiver clock (FgoConfig.clock_isb_sigma_m) that epochs without its system's
             # satellites carry: only its differences to the offsets are observed there, so the
             # window's first such clock needs a value (loose: 1 km) once its link has left
             first = next((b for b in st.window.by_vehicle[v] if b.clock_ref is not None), None)
             if first is not None and first.clock_ref is not None and first.step != st.step:
                 ck = first.clock_keys[first.clock_ref]
-                out.append(F.clock_prior(ck, st.clock(ck), ANCHOR_CLOCK_SIGMA_M / C))
+                out.append(Recipe(F.clock_prior, ck, st.clock(ck), ANCHOR_CLOCK_SIGMA_M / C))
         return out
 
-    def _strong_priors(self, blocks: Sequence[StateBlock]) -> list[gtsam.NonlinearFactor]:
+    def _strong_priors(self, blocks: Sequence[StateBlock]) -> list[Recipe]:
         """Retry after a GTSAM failure: every state gets a prior at its current value."""
         cov = np.eye(3) * self.cfg.anchor_sigma**2
-        out: list[gtsam.NonlinearFactor] = []
+        out: list[Recipe] = []
         for b in blocks:
-            out.append(F.position_prior(b.pos_key, self.state.position(b.pos_key), cov))
+            out.append(Recipe(F.position_prior, b.pos_key, self.state.position(b.pos_key), cov))
             for ck in b.clock_keys.values():
-                out.append(F.clock_prior(ck, self.state.clock(ck), FALLBACK_CLOCK_SIGMA_S))
+                out.append(Recipe(F.clock_prior, ck, self.state.clock(ck), FALLBACK_CLOCK_SIGMA_S))
             for bk in b.bias_keys.values():  # offsets from the receiver clock, metres
-                out.append(F.clock_prior(bk, self.state.clock(bk), FALLBACK_CLOCK_SIGMA_S * C))
+                out.append(Recipe(F.clock_prior, bk, self.state.clock(bk), FALLBACK_CLOCK_SIGMA_S * C))
         return out
 
     def _drop_new(self, vehicles: Sequence[str], rec: StepRecord, reason: str, stats: StepStats) -> None:

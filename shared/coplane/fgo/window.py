@@ -1,8 +1,8 @@
 """The sliding window (per-epoch factor blocks) and the three ways to solve a cluster of it.
 
 The window keeps, per epoch, each vehicle's `StateBlock` (its keys, initial values and its own
-factors, built once) and the epoch's range factors; nothing is rebuilt later, so the per-epoch
-Python cost is proportional to what is new, not to the window.
+factors, made once, as `Recipe`s) and the epoch's range factors; nothing is remade later, so the
+per-epoch Python cost is proportional to what is new, not to the window.
 
 Solvers, one instance per cluster of vehicles (connected by ranges within the window):
   - `solve_lm_window`: the paper's scheme, stateless: graph = the window's blocks + ranges +
@@ -16,9 +16,9 @@ Solvers, one instance per cluster of vehicles (connected by ranges within the wi
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import gtsam
 import numpy as np
@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from coplane.components import UnionFind
 from coplane.fgo.config import FgoConfig
+from coplane.fgo.recipes import Recipe, realise
 from coplane.gtime import GpsTime
 from coplane.typing import Mat, Vec
 
@@ -44,17 +45,19 @@ class _Range(Protocol):
 R = TypeVar("R", bound=_Range)
 
 
-@dataclass(frozen=True)
-class Link:
+class Link(Recipe):
     """A factor from an earlier state of the vehicle (velocity / motion / clock step).
 
     Kept apart from the block's own factors because it dies with the earlier state: when that
     state leaves the window, the paper deletes "the old states and their associated factors".
     """
 
-    prev_step: int
-    kind: str
-    factor: gtsam.NonlinearFactor
+    __slots__ = ("kind", "prev_step")
+
+    def __init__(self, prev_step: int, kind: str, build: Callable[..., Any], *args: Any) -> None:
+        super().__init__(build, *args)
+        self.prev_step = prev_step
+        self.kind = kind
 
 
 @dataclass
@@ -68,8 +71,8 @@ class StateBlock:
     clock_keys: dict[str, int]  # GNSS system -> key, systems sorted
     init_pos: Vec
     init_clocks: dict[int, float]  # clock key -> seconds (an offset's key -> metres)
-    graph: gtsam.NonlinearFactorGraph  # factors on this epoch's variables only
-    counts: dict[str, int]  # of `graph`, by kind
+    recipes: list[Recipe]  # factors on this epoch's variables only
+    counts: dict[str, int]  # of the factors of `recipes`, by kind
     links: list[Link]
     n_pseudoranges: int
     plane_used: bool
@@ -82,22 +85,37 @@ class StateBlock:
     clock_ref: str | None = None
     bias_keys: dict[str, int] = field(default_factory=dict)
     common_cov: Mat | None = None  # Prepared.common_cov: added to the reported covariance only
+    _graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property
     def keys(self) -> list[int]:
         return [self.pos_key, *self.clock_keys.values(), *self.bias_keys.values()]
 
+    def settle(self) -> None:
+        """Build the block's factors and links now and keep only them (`Recipe.settle`)."""
+        self.graph()
+        self.recipes = []
+        for ln in self.links:
+            ln.settle()
 
-@dataclass
-class RangeEdge:
-    """A factor between two vehicles' states of one epoch: a range, or a height link beside one."""
+    def graph(self) -> gtsam.NonlinearFactorGraph:
+        """The factors of `recipes`, built once: a window graph takes them in one call."""
+        if self._graph is None:
+            self._graph = realise(self.recipes)
+        return self._graph
 
-    a: str
-    b: str
-    key_a: int
-    key_b: int
-    factor: gtsam.NonlinearFactor
-    kind: str = "range"  # "range" | "height_link": what the factor counts expose
+
+class RangeEdge(Recipe):
+    """A factor between two vehicles' states of one epoch: a range, or a height link beside one
+    (`kind`, what the factor counts expose)."""
+
+    __slots__ = ("a", "b", "key_a", "key_b", "kind")
+
+    def __init__(
+        self, a: str, b: str, key_a: int, key_b: int, kind: str, build: Callable[..., Any], *args: Any
+    ) -> None:
+        super().__init__(build, *args)
+        self.a, self.b, self.key_a, self.key_b, self.kind = a, b, key_a, key_b, kind
 
 
 def edge_counts(edges: Iterable[RangeEdge]) -> dict[str, int]:
@@ -262,23 +280,37 @@ def lm_params(cfg: FgoConfig) -> gtsam.LevenbergMarquardtParams:
     return p
 
 
+def graph_recipes(
+    blocks: Sequence[StateBlock],
+    ranges: Sequence[RangeEdge],
+    extra: Sequence[Recipe],
+    oldest_step: int,
+) -> list[Recipe]:
+    """Priors + blocks (own factors, links to states still in the window) + ranges, in the
+    order of the graph's factors."""
+    out = list(extra)
+    for b in blocks:
+        out.extend(b.recipes)
+        out.extend(ln for ln in b.links if ln.prev_step >= oldest_step)
+    out.extend(ranges)
+    return out
+
+
 def build_graph(
     blocks: Sequence[StateBlock],
     ranges: Sequence[RangeEdge],
-    extra: Sequence[gtsam.NonlinearFactor],
+    extra: Sequence[Recipe],
     oldest_step: int,
 ) -> gtsam.NonlinearFactorGraph:
-    """Priors + blocks (own factors, links to states still in the window) + ranges."""
-    g = gtsam.NonlinearFactorGraph()
-    for f in extra:
-        g.add(f)
+    """The graph of `graph_recipes`, with each block's own factors added in one call."""
+    g = realise(extra)
     for b in blocks:
-        g.push_back(b.graph)
+        g.push_back(b.graph())
         for ln in b.links:
             if ln.prev_step >= oldest_step:
-                g.add(ln.factor)
+                g.add(ln.factor())
     for r in ranges:
-        g.add(r.factor)
+        g.add(r.factor())
     return g
 
 
@@ -294,7 +326,7 @@ def solve_lm_window(
     cfg: FgoConfig,
     blocks: Sequence[StateBlock],
     ranges: Sequence[RangeEdge],
-    priors: Sequence[gtsam.NonlinearFactor],
+    priors: Sequence[Recipe],
     initial: gtsam.Values,
     cov_keys: Sequence[int],
     oldest_step: int,

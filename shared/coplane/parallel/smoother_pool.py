@@ -4,16 +4,18 @@ GTSAM's Python wrapper keeps the GIL while it optimises (docs/performance-scale.
 GTSAM"), so threads cannot solve two clusters at once, and GTSAM's own TBB threading works inside
 one elimination, not across our independent clusters (and the PyPI wheel has no TBB). A
 smoother's iSAM2 state cannot be moved cheaply either. So each smoother is pinned to a process for
-its life: the estimator keeps the window and builds every graph, and a slot's epoch goes, as a
-graph and its new values, to the process that holds the slot's smoother. A smoother rebuilt for a
-merged or split cluster is a new slot and goes to the process whose solves would end first (the
-vehicles it holds times its measured solve seconds per vehicle). The estimator's own process is
+its life: the estimator keeps the window and makes every graph's recipes, and a slot's epoch goes,
+as those recipes (`coplane.fgo.recipes`: builders and plain arguments, far cheaper to pickle than
+GTSAM's text serialisation of the factors) and its new values, to the process that holds the
+slot's smoother, which builds the factors. A smoother rebuilt for a merged or split cluster is a
+new slot and goes to the process whose solves would end first (the vehicles it holds times its
+measured solve seconds per vehicle). The estimator's own process is
 worker 0, so `SmootherPool(config, N)` uses N cores with N - 1 child processes.
 
 The solution is the sequential one, bit for bit: a smoother's results depend only on its own
-inputs, which the same graphs and values reach in every process (GTSAM's serialisation keeps
-doubles exact; tests/parallel/test_smoother_pool.py). A dead child costs its clusters a rebuild on the others,
-never the estimator.
+inputs, which the same recipes and values reach in every process (pickling keeps doubles exact,
+and the builders are deterministic; tests/parallel/test_smoother_pool.py). A dead child costs its
+clusters a rebuild on the others, never the estimator.
 
 Requests and replies are pickled over the anonymous `multiprocessing` pipes between the server and
 the children it started (no address anyone else can connect to), so nothing from the bus or a
@@ -38,11 +40,11 @@ import gtsam
 import numpy as np
 
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.factors import linear_container
 from coplane.fgo.keys import is_position_key
+from coplane.fgo.recipes import from_wire, to_wire
 from coplane.fgo.smoother import LocalSmoothers, SmootherCluster, SmootherTask
 from coplane.fgo.solve import Smoothers
-from coplane.fgo.window import ClusterResult, build_graph
+from coplane.fgo.window import ClusterResult, graph_recipes
 
 log = logging.getLogger("coplane.parallel")
 CLOSE_TIMEOUT_S = 5.0
@@ -87,29 +89,6 @@ def unpack_values(packed: Packed) -> gtsam.Values:
     return out
 
 
-LinearParts = list[tuple[int, gtsam.JacobianFactor]]
-
-
-def pack_graph(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, LinearParts]:
-    """`graph` with its linear factors (the estimator's three-state links, `fgo.factors`) taken out
-    and kept apart by index: their held linearisation point has clock doubles, which GTSAM's
-    serialisation refuses. Their slots stay (empty) so the child's factor indices are the same."""
-    parts: LinearParts = []
-    for i in range(graph.size()):
-        f = graph.at(i)
-        if isinstance(f, gtsam.LinearContainerFactor):
-            parts.append((i, f.toJacobian()))
-            graph.remove(i)
-    return graph, parts
-
-
-def unpack_graph(graph: gtsam.NonlinearFactorGraph, parts: LinearParts) -> gtsam.NonlinearFactorGraph:
-    for i, jf in parts:
-        keys = jf.keys()
-        graph.replace(i, linear_container(jf, [is_position_key(k) for k in keys]))
-    return graph
-
-
 _ERRORS: dict[str, type[RuntimeError]] = {}
 
 
@@ -135,12 +114,12 @@ def _serve(conn: Connection, cfg: FgoConfig) -> None:
         for slot in drops:
             smoothers.pop(slot, None)
         replies: list[tuple[Any, ...]] = []
-        for slot, create, vehicles, graph, initial, stamps, cov_keys, keys, pos_keys, converge in tasks:
+        for slot, create, vehicles, recipes, initial, stamps, cov_keys, keys, pos_keys, converge in tasks:
             if create:
                 smoothers[slot] = SmootherCluster(cfg, vehicles)
             try:
                 res = smoothers[slot].solve_graph(
-                    unpack_graph(*graph), unpack_values(initial), stamps, cov_keys, keys, pos_keys, converge
+                    from_wire(recipes), unpack_values(initial), stamps, cov_keys, keys, pos_keys, converge
                 )
                 replies.append(
                     ("ok", pack_values(res.values), res.covariances, res.iterations, res.error_after)
@@ -233,7 +212,7 @@ class SmootherPool:
                     out[i] = RuntimeError(f"smoother worker {w} is gone")
                 continue
             t0 = time.perf_counter()
-            wire = [_wire(tasks[i], self.cfg.linear_links) for i in idx]
+            wire = [_wire(tasks[i]) for i in idx]
             try:
                 self._send(w, (self._drops[w], wire))
                 self._drops[w] = []
@@ -333,17 +312,15 @@ class SmootherPool:
         self._local.close()
 
 
-def _wire(t: SmootherTask, linear_links: bool) -> tuple[Any, ...]:
-    """A task as a child receives it: the graph built here (its linear factors apart when the
-    configuration makes any, so a default graph is not scanned), the new values as plain lists."""
-    graph = build_graph(t.blocks, t.ranges, t.priors, t.oldest_step)
-    packed = pack_graph(graph) if linear_links else (graph, [])
+def _wire(t: SmootherTask) -> tuple[Any, ...]:
+    """A task as a child receives it: its graph's recipes, the new values as plain lists."""
+    recipes = to_wire(graph_recipes(t.blocks, t.ranges, t.priors, t.oldest_step))
     pos_keys = [b.pos_key for b in t.blocks]
     return (
         t.slot,
         t.create,
         t.vehicles,
-        packed,
+        recipes,
         pack_values(t.initial),
         t.timestamps,
         t.cov_keys,
