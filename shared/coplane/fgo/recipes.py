@@ -22,7 +22,8 @@ class Recipe:
     """`build(*args)`: one factor or a list of them (a vehicle epoch's pseudoranges).
 
     The window's links and ranges are recipes themselves (subclasses with their own fields), so a
-    city's window holds no extra object per factor.
+    city's window holds no extra object per factor. Its arguments must not change once it is
+    made: it may be built epochs later, or in another process, from what they hold then.
     """
 
     __slots__ = ("_factors", "args", "build")
