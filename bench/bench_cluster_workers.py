@@ -8,8 +8,8 @@ once (an in-process replay, as `bench_window_clusters.py` does); then the estima
 them with its cluster smoothers on N processes (`coplane.parallel.SmootherPool`) for each N, `--repeats` times in turn so that every N
 shares the host's drift. Wall time is `step` over every epoch (the pool's processes are started
 and ready before it); CPU is this process's plus the children's (counted once they exit), and
-shipping is what this process spent serialising the children's graphs and values and reading
-their results. Each row also says whether its positions and covariances equal the single
+shipping is what this process spent pickling the children's factor recipes and new values and
+reading their results. Each row also says whether its positions and covariances equal the single
 process's bit for bit. A second table splits the wall time of the runs on several processes
 (`SmootherPool.busy_s`, `wait_s`, `shipping_s`): what the server's process spent solving, waiting
 for its children and shipping, and the rest of its step.

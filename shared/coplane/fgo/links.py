@@ -137,15 +137,18 @@ def _estimated_velocity(
     canyon, few satellites) a confident extrapolation feeds its own error forward. On the dense
     city recorded without Doppler the frozen 3-D difference ran vehicles kilometres away
     (docs/tuning-no-doppler.md)."""
+    share = cfg.no_doppler_velocity_covariance
     c1, c0 = state.cov.get(last.pos_key), state.cov.get(prev.pos_key)
-    if mode == "estimates" and (cfg.no_doppler_velocity_covariance <= 0 or c1 is None or c0 is None):
+    loosen = share > 0 and c1 is not None and c0 is not None
+    if mode == "estimates" and not loosen:
         return v, 0.0, 0.0  # as for a Doppler outage: nothing to do
     u = up_vector(state.position(last.pos_key))
     if mode == "horizontal":
         v = v - float(v @ u) * u
-    if cfg.no_doppler_velocity_covariance <= 0 or c1 is None or c0 is None:
+    if not loosen:
         return v, 0.0, 0.0
-    cv = cfg.no_doppler_velocity_covariance * (c1 + c0) / (dt0 * dt0)
+    assert c1 is not None and c0 is not None  # for mypy: `loosen` says so
+    cv = share * (c1 + c0) / (dt0 * dt0)
     up = float(u @ cv @ u)
     var_h = max(0.0, 0.5 * (float(np.trace(cv)) - up))
     return v, var_h, up if mode == "estimates" else 0.0  # horizontal: nothing extrapolated up
