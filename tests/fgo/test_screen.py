@@ -264,3 +264,35 @@ def test_a_track_is_restarted_only_when_the_clean_fit_lies_far_outside_the_predi
     assert not diverged(dataclasses.replace(far, offset_m=np.array([40.0, 0.0, 0.0])), p_pred, cfg)
     with pytest.raises(ValueError, match="fde_restart_chi2"):
         FgoConfig(fde_restart_chi2=0.0)
+
+
+def test_a_far_snapshot_of_a_track_that_had_redundancy_is_not_believed() -> None:
+    """`FgoConfig.fde_snapshot_max_chi2` (opt-in): a deep canyon where 9 of 17 rows carry NLOS
+    delays of 20-60 m and the prediction is right (2 m sigma). The prediction is rejected, and
+    snapshot RAIM keeps a subset whose fit lies far from it (chi2 480). Beyond the limit a track
+    without a weak epoch is trusted instead: the prior-aided test keeps the clean rows. A track
+    with a weak epoch (`may_restart`: its prediction may be the wrong one) keeps the snapshot, and
+    restarts at its fit when it is beyond `fde_restart_chi2`."""
+    rng = np.random.default_rng(2)
+    prs = _epoch(17, 1.0, rng)
+    nlos = np.arange(17) % 2 == 0
+    prs = dataclasses.replace(prs, rho=prs.rho + np.where(nlos, rng.uniform(20.0, 60.0, 17), 0.0))
+    clean = {s for s, n in zip(prs.sats, nlos, strict=True) if not n}
+    cov = np.eye(3) * 4.0
+    base = FgoConfig(
+        fde_k=3.29, fde_snapshot_fallback=True, fde_reject_on_exclusions=True, fde_restart_chi2=400.0
+    )
+
+    snap, _, _ = screen(prs, RX, cov, 0.1, base, StepStats())
+    assert set(snap.sats) != clean  # by default the snapshot's rows, however far its fit
+
+    stats = StepStats()
+    cfg = dataclasses.replace(base, fde_snapshot_max_chi2=50.0)
+    kept, _, restart = screen(prs, RX, cov, 0.1, cfg, stats)
+    assert set(kept.sats) == clean
+    assert restart is None and stats.rejected["fde_snapshot_disbelieved"] == 1
+
+    kept, _, restart = screen(prs, RX, cov, 0.1, cfg, StepStats(), may_restart=True)
+    assert set(kept.sats) == set(snap.sats) and restart is not None
+    with pytest.raises(ValueError, match="fde_snapshot_max_chi2"):
+        FgoConfig(fde_snapshot_max_chi2=-1.0)

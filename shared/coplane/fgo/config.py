@@ -145,6 +145,17 @@ class FgoConfig:
     # rejection doubled the canyons' errors (docs/fgo.md, "A diverged track comes back"). None:
     # never restart.
     fde_restart_chi2: float | None = None
+    # ... and when the vehicle's window holds no epoch without redundancy (so that no error could
+    # hide from the tests and the restart does not apply), a rejected prediction keeps its
+    # snapshot only while the snapshot's fit lies within this squared Mahalanobis distance of the
+    # prediction (the restart's measure): a deep canyon's NLOS-consistent subset lands tens of
+    # metres from a prediction that is right (chi2 200-350 on a simulated city), and its rows then
+    # pulled a Doppler-linked track metres off. Beyond it the epoch is screened against the
+    # prediction alone, the iterated test run to its end (counted fde_snapshot_disbelieved).
+    # None: always the snapshot. Opt-in: 50 won the training seeds and lost the held-out ones,
+    # where stripping an epoch to 4 rows armed a restart at an NLOS fit (docs/fgo.md, "A right
+    # prediction against a far snapshot").
+    fde_snapshot_max_chi2: float | None = None
     # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).

@@ -57,6 +57,7 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         "coop_fde_k",
         "fde_max_sigma_scale",
         "fde_restart_chi2",
+        "fde_snapshot_max_chi2",
         "clock_drift_wander",
         "motion_accel_psd",
         "clock_accel_psd",

@@ -107,6 +107,8 @@ def prepare_vehicle(
     restarted = False
     age = state.step - state.track_start.get(v.vehicle_id, state.step) if hist else 0
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
+        # a window epoch without redundancy, whose errors no test could see: a diverged track may restart
+        weak = any(b.n_pseudoranges <= cfg.min_fix_pseudoranges for b in hist)
         prs, fde_w, restart_at = screen(
             prs,
             init,
@@ -115,8 +117,9 @@ def prepare_vehicle(
             cfg,
             stats,
             young=age < cfg.fde_warmup_epochs,
+            may_restart=weak,
         )
-        if restart_at is not None and any(b.n_pseudoranges <= cfg.min_fix_pseudoranges for b in hist):
+        if restart_at is not None and weak:
             stats.reject("track_restart")
             link, hist, init, restarted = None, None, restart_at, True  # no links to the diverged window
     dead_reckon = cfg.drop_undetermined_pseudoranges or (cfg.standstill_dead_reckoning and v.standstill)
@@ -236,12 +239,15 @@ def screen(
     cfg: FgoConfig,
     stats: StepStats,
     young: bool = False,
+    may_restart: bool = False,
 ) -> tuple[ValidPseudoranges, Vec | None, Vec | None]:
     """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position,
     their signed standardised residuals (`ScreenResult.w_signed`, None if the test did not pass)
     and, when the prediction is a diverged track's (`diverged`), where the epoch's own fit puts
     the vehicle; `young`: the track started less than `fde_warmup_epochs` ago (a looser prior,
-    see FgoConfig)."""
+    see FgoConfig); `may_restart`: the window holds an epoch without redundancy, so the
+    prediction may be the wrong one: its snapshot is kept however far it lies, and a diverged
+    track restarts (the caller's rule), as without `FgoConfig.fde_snapshot_max_chi2`."""
     assert cfg.fde_k is not None
     if young and last_cov is not None:
         last_cov = last_cov * (cfg.covariance_scale**2 if cfg.fde_warmup_prior == "reported" else 1e12)
@@ -264,6 +270,23 @@ def screen(
         two_sided=cfg.fde_long_two_sided,
         count_exclusions=cfg.fde_reject_on_exclusions,
     )
+    limit = cfg.fde_snapshot_max_chi2
+    if limit is not None and not may_restart:
+        d2 = snapshot_distance2(res, p_pred)
+        if d2 is not None and d2 > limit:
+            # the snapshot is an NLOS-consistent subset far from a track that had redundancy
+            # throughout: trust the prediction, run the prior-aided test to its end
+            stats.reject("fde_snapshot_disbelieved")
+            res = screen_pseudoranges(
+                prs,
+                predicted,
+                p_pred,
+                cfg.fde_k,
+                divergence_min=len(prs) + 1,
+                k_long=cfg.fde_k_long,
+                long_rows=long_rows,
+                two_sided=cfg.fde_long_two_sided,
+            )
     if res.prediction_rejected:
         stats.reject("fde_prediction_rejected")
     n_out = len(prs) - int(res.keep.sum())
@@ -282,12 +305,21 @@ def diverged(res: ScreenResult, p_pred: Mat, cfg: FgoConfig) -> bool:
     lies outside the prediction's region, with the fit's covariance scaled by its a-posteriori
     variance factor (never below 1), so that an NLOS-laden canyon fit, weak or inconsistent,
     does not pass for one."""
-    if cfg.fde_restart_chi2 is None or not res.prediction_rejected or res.offset_m is None:
+    if cfg.fde_restart_chi2 is None:
         return False
+    d2 = snapshot_distance2(res, p_pred)
+    return d2 is not None and d2 > cfg.fde_restart_chi2
+
+
+def snapshot_distance2(res: ScreenResult, p_pred: Mat) -> float | None:
+    """The squared Mahalanobis distance of a rejected prediction's snapshot fit from the
+    prediction, with both covariances (the fit's scaled by its a-posteriori variance factor,
+    never below 1); None when the prediction was not rejected or the snapshot has no fit."""
+    if not res.prediction_rejected or res.offset_m is None:
+        return None
     assert res.offset_cov is not None
     cov = res.offset_cov * max(res.variance_factor, 1.0) + p_pred
-    d2 = float(res.offset_m @ np.linalg.solve(cov, res.offset_m))
-    return d2 > cfg.fde_restart_chi2
+    return float(res.offset_m @ np.linalg.solve(cov, res.offset_m))
 
 
 def undetermined(preps: dict[str, Prepared], ranges: list[ValidRange]) -> list[str]:
