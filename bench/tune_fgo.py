@@ -6,7 +6,9 @@
 Defaults are chosen on these seeds and reported on others: the training set is
 `coplane.evaluate.benchmark.TRAINING` and must never be used for docs/results.md (which reports
 `HELD_OUT`). `--validation` runs on `VALIDATION` instead: the seeds that check a choice the
-training seeds won but could not settle (never reported either). `--standalone` runs every method
+training seeds won but could not settle (never reported either); `--exploration` on
+`EXPLORATION`, the simulator's other scenarios (a city, an open sky), where a candidate may be
+found (never reported either). `--standalone` runs every method
 without the recordings' base station; `--no-doppler` on the same drives recorded without Doppler. Each variant changes the method's current defaults
 (`ROBUST_FGO`, or the plane step's `PlaneConfig` for a `PLANE_VARIANTS` name); prints pooled
 (all vehicles, all recordings) H/V RMSE, the horizontal median, p99 and maximum, and the same
@@ -26,6 +28,7 @@ from pathlib import Path
 from fgo_variants import BASELINE_VARIANTS, PLANE_VARIANTS, SLOW_VARIANTS, VARIANTS
 
 from coplane.evaluate.benchmark import (
+    EXPLORATION,
     TRAINING,
     VALIDATION,
     Consistency,
@@ -104,10 +107,17 @@ def main() -> None:
         action="store_true",
         help="the same drives recorded without Doppler (a receiver or stream that gives none)",
     )
+    ap.add_argument(
+        "--exploration",
+        action="store_true",
+        help="the seeds of the other scenarios (city, open sky) instead of the training ones",
+    )
     args = ap.parse_args()
-    training = dict(VALIDATION if args.validation else TRAINING)
-    if args.seeds and args.validation:
-        ap.error("--seeds picks training seeds; --validation runs every validation seed")
+    if args.validation and args.exploration:
+        ap.error("--validation and --exploration are two seed sets: pick one")
+    training = dict(VALIDATION if args.validation else EXPLORATION if args.exploration else TRAINING)
+    if args.seeds and (args.validation or args.exploration):
+        ap.error("--seeds picks training seeds; --validation / --exploration run every seed of their set")
     if args.seeds:
         training = {}
         for item in args.seeds:
@@ -129,7 +139,7 @@ def main() -> None:
             ap.error(
                 f"--runs {':'.join(run)!r}: {what} (method:variant[+variant], see bench/fgo_variants.py)"
             )
-    kind = "validation" if args.validation else "training"
+    kind = "validation" if args.validation else "exploration" if args.exploration else "training"
     mode = ", without a base station (standalone)" if args.standalone else ""
     mode += ", recorded without Doppler" if args.no_doppler else ""
     lines = [

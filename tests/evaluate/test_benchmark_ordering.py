@@ -16,8 +16,10 @@ import pytest
 
 from coplane.evaluate.benchmark import (
     BASELINES,
+    EXPLORATION,
     HELD_OUT,
     HELD_OUT_DURATION_S,
+    HELD_OUT_OTHER,
     RETIRED,
     TRAINING,
     VALIDATION,
@@ -29,13 +31,13 @@ from coplane.evaluate.metrics import PooledStats
 
 pytestmark = pytest.mark.slow
 
-# pc / best EKF baseline, H and V RMSE, measured 2026-11-29 on the seeds reported since (901-905,
-# 1001-1005): urban-loop 0.47, 0.79; dense-urban 0.51, 0.76. H: the issue's 0.85. V: the issue's
-# 0.6 holds on neither scenario (it held on urban-loop's retired seeds 701-705, 0.58, not on their
-# successors: docs/planes.md, "How much a fleet plane can add"), so the limit is the measured value
-# plus a margin for another install's second decimal (docs/fgo.md, "Numerical sensitivity").
+# pc / best EKF baseline, H and V RMSE, measured 2026-11-30 on the seeds reported since (1501-1505,
+# 1601-1605): urban-loop 0.30, 0.39; dense-urban 0.58, 0.65. H: the issue's 0.85. V: the issue's
+# 0.6 where it holds (urban-loop here, as on the retired seeds 701-705 with 0.58, not on 901-905
+# with 0.79), else the measured value plus a margin for another install's second decimal (docs/fgo.md,
+# "Numerical sensitivity"; docs/planes.md, "How much a fleet plane can add", for why it varies).
 H_VS_BASELINE = {"urban-loop": 0.85, "dense-urban": 0.85}
-V_VS_BASELINE = {"urban-loop": 0.82, "dense-urban": 0.8}
+V_VS_BASELINE = {"urban-loop": 0.6, "dense-urban": 0.68}
 METHODS = ("non-cp", "mci", "pc", *BASELINES)
 
 
@@ -81,22 +83,22 @@ class Orderings:
 
     def test_pc_is_not_worse_than_mci(self, scenario_stats: tuple) -> None:
         """The planes add little on top of ranging here (docs/results.md): a tie within 3 % (measured
-        pc / mci H 0.99 urban-loop, 1.00 dense-urban, V 0.96 urban-loop, 0.99 dense-urban)."""
+        pc / mci H 0.99 urban-loop, 1.00 dense-urban, V 0.91 urban-loop, 0.98 dense-urban)."""
         _, stats = scenario_stats
         assert _all(stats, "pc").h_rmse_m <= 1.03 * _all(stats, "mci").h_rmse_m
         assert _all(stats, "pc").v_rmse_m <= 1.03 * _all(stats, "mci").v_rmse_m
 
     def test_graph_non_cp_is_no_worse_than_the_ekf(self, scenario_stats: tuple) -> None:
-        """The issue's limit (1.0). Measured non-cp / non-cp-ekf H, V: urban-loop 0.57, 0.84,
-        dense-urban 0.53, 0.66."""
+        """The issue's limit (1.0). Measured non-cp / non-cp-ekf H, V: urban-loop 0.47, 0.38,
+        dense-urban 0.65, 0.78."""
         _, stats = scenario_stats
         assert _all(stats, "non-cp").h_rmse_m <= _all(stats, "non-cp-ekf").h_rmse_m
         assert _all(stats, "non-cp").v_rmse_m <= _all(stats, "non-cp-ekf").v_rmse_m
 
     def test_reported_covariances_hold_the_errors(self, scenario_stats: tuple) -> None:
         """An honest 95 % region holds 95 % of the errors. One scale (4.5, chosen on the training seeds)
-        for every sky: measured 0.99-1.00 on urban-loop (conservative), 0.91-0.95 on dense-urban; the
-        EKF baselines hold 0.32-0.69."""
+        for every sky: measured 1.00 on urban-loop (conservative), 0.93-0.97 on dense-urban; the
+        EKF baselines hold 0.35-0.70."""
         _, stats = scenario_stats
         for m in ("non-cp", "mci", "pc"):
             c = stats[m][1]
@@ -113,3 +115,22 @@ class TestDenseUrban(Orderings):
 
 def test_every_held_out_scenario_is_checked() -> None:
     assert sorted(c.scenario for c in Orderings.__subclasses__()) == sorted(HELD_OUT)
+
+
+def test_no_seed_serves_two_purposes() -> None:
+    """A seed that tuned, vetoed or found something is never reported, and the reported sets
+    (HELD_OUT, HELD_OUT_OTHER) never decided anything: the seed sets of a scenario are disjoint."""
+    sets = {
+        "training": TRAINING,
+        "validation": VALIDATION,
+        "retired": RETIRED,
+        "exploration": EXPLORATION,
+        "held-out": HELD_OUT,
+        "held-out-other": HELD_OUT_OTHER,
+    }
+    seen: dict[tuple[str, int], str] = {}
+    for name, by_scenario in sets.items():
+        for scenario, seeds in by_scenario.items():
+            for seed in seeds:
+                assert (scenario, seed) not in seen, f"{scenario} {seed}: {seen[scenario, seed]} and {name}"
+                seen[scenario, seed] = name
