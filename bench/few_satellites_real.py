@@ -291,13 +291,7 @@ def moving_table() -> str:
 
 # The FDE's divergence rules (docs/fgo.md, "A diverged track comes back"): the defaults, without
 # the restart, and the rule before both (the prediction rejected only on the first test's failures).
-# (the far-snapshot rule was an opt-in when this table was last made, and a default since:
-# docs/fgo.md, "A right prediction against a far snapshot")
-RECOVERY_RULES = {
-    "fde-no-restart": "no restart",
-    "fde-first-test-only": "first test only",
-    "snapshot-chi2-50-dr": "far snapshot rule",
-}
+RECOVERY_RULES = {"fde-no-restart": "no restart", "fde-first-test-only": "first test only"}
 RECOVERY_VARIANTS: dict[str, Variant] = {
     "non-cp (defaults)": Variant(lambda: get_method("non-cp")),
     **{

@@ -41,7 +41,7 @@ def test_the_graph_does_not_run_away(stats: dict[str, PooledStats]) -> None:
     on the retired seeds 1001-1005 pc 52 m, non-cp 106 m, the EKFs 309-314 m)."""
     assert stats["pc"].h_max_m < 70.0
     assert stats["non-cp"].h_max_m < 140.0
-    assert stats["non-cp"].h_rmse_m < 0.85 * stats["non-cp-ekf"].h_rmse_m  # 10.4 against 13.8 m
+    assert stats["non-cp"].h_rmse_m < 0.85 * stats["non-cp-ekf"].h_rmse_m  # 10.5 against 13.8 m
 
 
 def test_pc_is_ahead_of_every_baseline(stats: dict[str, PooledStats]) -> None:
