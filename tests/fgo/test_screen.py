@@ -291,6 +291,7 @@ def test_a_far_snapshot_of_a_track_that_had_redundancy_is_not_believed() -> None
     kept, _, restart = screen(prs, RX, cov, 0.1, cfg, stats)
     assert set(kept.sats) == clean
     assert restart is None and stats.rejected["fde_snapshot_disbelieved"] == 1
+    assert stats.rejected["fde_prediction_rejected"] == 1  # the rejection is counted all the same
 
     kept, _, restart = screen(prs, RX, cov, 0.1, cfg, StepStats(), may_restart=True)
     assert set(kept.sats) == set(snap.sats) and restart is not None

@@ -13,6 +13,7 @@ cluster singular.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import statistics
 from dataclasses import dataclass
 
@@ -259,17 +260,19 @@ def screen(
         long_rows = weak_rows(
             prs, cfg.fde_long_below_elevation_deg, cfg.fde_long_below_cn0_dbhz, cfg.fde_long_below_best_cn0_db
         )
-    res = screen_pseudoranges(
+    test = functools.partial(
+        screen_pseudoranges,
         prs,
         predicted,
         p_pred,
         cfg.fde_k,
-        snapshot_fallback=cfg.fde_snapshot_fallback,
         k_long=cfg.fde_k_long,
         long_rows=long_rows,
         two_sided=cfg.fde_long_two_sided,
-        count_exclusions=cfg.fde_reject_on_exclusions,
     )
+    res = test(snapshot_fallback=cfg.fde_snapshot_fallback, count_exclusions=cfg.fde_reject_on_exclusions)
+    if res.prediction_rejected:
+        stats.reject("fde_prediction_rejected")
     limit = cfg.fde_snapshot_max_chi2
     if limit is not None and not may_restart:
         d2 = snapshot_distance2(res, p_pred)
@@ -277,18 +280,7 @@ def screen(
             # the snapshot is an NLOS-consistent subset far from a track that had redundancy
             # throughout: trust the prediction, run the prior-aided test to its end
             stats.reject("fde_snapshot_disbelieved")
-            res = screen_pseudoranges(
-                prs,
-                predicted,
-                p_pred,
-                cfg.fde_k,
-                divergence_min=len(prs) + 1,
-                k_long=cfg.fde_k_long,
-                long_rows=long_rows,
-                two_sided=cfg.fde_long_two_sided,
-            )
-    if res.prediction_rejected:
-        stats.reject("fde_prediction_rejected")
+            res = test(divergence_min=len(prs) + 1)
     n_out = len(prs) - int(res.keep.sum())
     if n_out:
         stats.reject("fde_pseudorange", n_out)
