@@ -131,6 +131,32 @@ def test_clock_offsets_per_system_do_not_count_as_faults() -> None:
     assert bool(res.keep.all())
 
 
+def test_a_fault_in_a_two_satellite_system_excludes_both_whatever_the_row_order() -> None:
+    """Two satellites of a system with its own clock: their w-tests are one test (equal |w|), so
+    the data cannot say which holds the fault. Both go, and the kept set does not depend on
+    rounding or row order (one of them was picked by rounding before; docs/fgo.md)."""
+    rng = np.random.default_rng(7)
+    base = _epoch(8, 1.0, rng, {6: 30.0})
+    systems = ["C"] * 6 + ["G"] * 2
+    kept = []
+    for order in (np.arange(8), np.arange(8)[::-1], rng.permutation(8)):
+        prs = ValidPseudoranges(
+            [base.sats[i] for i in order],
+            [systems[i] for i in order],
+            base.sat_pos[order],
+            base.rho[order],
+            base.sat_clock[order],
+            base.sigma[order],
+            base.elevation[order],
+            base.cn0[order],
+        )
+        res = screen_pseudoranges(prs, RX, np.eye(3) * 4.0, 3.29)
+        kept.append({prs.sats[i] for i in np.flatnonzero(res.keep)})
+        assert len(res.excluded_w) == 2
+        assert res.excluded_w[0] == pytest.approx(res.excluded_w[1], rel=1e-9)
+    assert kept[0] == kept[1] == kept[2] == set(base.sats[:6])
+
+
 def test_a_young_track_is_screened_against_its_reported_covariance() -> None:
     """`fde_warmup_epochs` (off by default, docs/fgo.md): a track started 12 m off, with the
     graph's 2 m covariance, loses clean satellites to the w-test; its first epochs are
