@@ -2,7 +2,8 @@
 is NLOS, and where the track goes (docs/fgo.md, "A right prediction against a far snapshot").
 
     .venv/bin/python bench/far_snapshot_trace.py [--scenario city] [--seed 1202] [--vehicle u3]
-        [--start 150] [--end 162] [--limit 50] [--block far_snapshot_trace] [--out docs/fgo.md]
+        [--start 150] [--end 162] [--limit 50] [--dead-reckon] [--block far_snapshot_trace]
+        [--out docs/fgo.md]
 
 The recording is `coplane simulate` (4 vehicles, 200 s): by default the city of an exploration
 seed (`coplane.evaluate.benchmark.EXPLORATION`, never reported), where the rule was found; the
@@ -37,13 +38,17 @@ from coplane.recording.reader import Recording
 MARK = "far_snapshot_trace"
 
 
-def trace(rec: Recording, vid: str, limit: float | None) -> dict[float, dict[str, object]]:
+def trace(
+    rec: Recording, vid: str, limit: float | None, dead_reckon: bool = False
+) -> dict[float, dict[str, object]]:
     """Per second since the vehicle's first truth epoch: the node message's own fix and Doppler,
     the FDE's verdict, the snapshot fit's squared Mahalanobis distance from the prediction (where
-    the prediction was rejected) and the horizontal error; `limit` is `fde_snapshot_max_chi2`."""
+    the prediction was rejected) and the horizontal error; `limit` is `fde_snapshot_max_chi2`,
+    `dead_reckon` `fde_snapshot_dead_reckon`."""
     spec = get_method("non-cp")
     assert spec.fgo is not None
-    spec = dataclasses.replace(spec, fgo=dataclasses.replace(spec.fgo, fde_snapshot_max_chi2=limit))
+    fgo = dataclasses.replace(spec.fgo, fde_snapshot_max_chi2=limit, fde_snapshot_dead_reckon=dead_reckon)
+    spec = dataclasses.replace(spec, fgo=fgo)
     truth = {t: np.asarray(p) for t, p in rec.truth_at(vid).items()}
     t0 = min(truth)
     rows: dict[float, dict[str, object]] = {}
@@ -55,7 +60,9 @@ def trace(rec: Recording, vid: str, limit: float | None) -> dict[float, dict[str
         kept, w, restart = screen(prs, predicted, last_cov, link_sigma, cfg, stats, young, may_restart)
         new = {k for k, n in stats.rejected.items() if n != before.get(k, 0)}
         verdict = f"{len(kept)} of {len(prs)} kept"
-        if restart is not None and may_restart:
+        if "fde_dead_reckoned" in new:
+            verdict = "rejected, snapshot disbelieved, dead-reckoned: " + verdict
+        elif restart is not None and may_restart:
             verdict = "rejected, track restarts: " + verdict
         elif "fde_snapshot_disbelieved" in new:
             verdict = "rejected, snapshot disbelieved: " + verdict
@@ -97,13 +104,16 @@ def main() -> None:
     ap.add_argument("--start", type=float, default=150.0)
     ap.add_argument("--end", type=float, default=162.0)
     ap.add_argument("--limit", type=float, default=50.0, help="fde_snapshot_max_chi2 of the second run")
+    ap.add_argument(
+        "--dead-reckon", action="store_true", help="the second run also with fde_snapshot_dead_reckon"
+    )
     ap.add_argument("--block", default=MARK, help="the docs block to write")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         rec = make_recordings(args.scenario, [args.seed], Path(tmp), 4, 200.0)[0]
         old = trace(rec, args.vehicle, None)
-        new = trace(rec, args.vehicle, args.limit)
+        new = trace(rec, args.vehicle, args.limit, args.dead_reckon)
     rows = [
         "| s | node fix / Doppler | FDE, snapshot always believed | snapshot chi2 | H error (m) | FDE with the limit | H error (m) |",
         "|---|---|---|---|---|---|---|",
@@ -122,7 +132,8 @@ def main() -> None:
         command.strip(),
         f"`coplane simulate --scenario {args.scenario} --seed {args.seed}` (4 vehicles, 200 s), `non-cp` on "
         f"{args.vehicle} alone, with the recording's base; s from the vehicle's first epoch; the limit "
-        f"is fde_snapshot_max_chi2 = {args.limit:g}.",
+        f"is fde_snapshot_max_chi2 = {args.limit:g}"
+        + (", with fde_snapshot_dead_reckon." if args.dead_reckon else "."),
         rows,
     )
 

@@ -291,7 +291,13 @@ def moving_table() -> str:
 
 # The FDE's divergence rules (docs/fgo.md, "A diverged track comes back"): the defaults, without
 # the restart, and the rule before both (the prediction rejected only on the first test's failures).
-RECOVERY_RULES = {"fde-no-restart": "no restart", "fde-first-test-only": "first test only"}
+# The far-snapshot rule (docs/fgo.md, "A right prediction against a far snapshot") is a default
+# since 2026-11-30; the last row is the defaults without it.
+RECOVERY_RULES = {
+    "fde-no-restart": "no restart",
+    "fde-first-test-only": "first test only",
+    "no-far-snapshot-rule": "no far-snapshot rule",
+}
 RECOVERY_VARIANTS: dict[str, Variant] = {
     "non-cp (defaults)": Variant(lambda: get_method("non-cp")),
     **{

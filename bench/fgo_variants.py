@@ -53,12 +53,17 @@ VARIANTS: dict[str, dict[str, object]] = {
     "fde-no-restart": {"fde_restart_chi2": None},
     "fde-first-test-only": {"fde_reject_on_exclusions": False, "fde_restart_chi2": None},
     # a rejected prediction's snapshot believed only within this chi2 of the prediction
-    # (FgoConfig.fde_snapshot_max_chi2; found on a city drive, vetoed by the held-out seeds,
-    # docs/fgo.md "A right prediction against a far snapshot")
+    # (FgoConfig.fde_snapshot_max_chi2; found on a city drive; alone it was vetoed by the held-out
+    # seeds, with fde_snapshot_dead_reckon it is a default: docs/fgo.md "A right prediction
+    # against a far snapshot")
     "snapshot-chi2-25": {"fde_snapshot_max_chi2": 25.0},
     "snapshot-chi2-50": {"fde_snapshot_max_chi2": 50.0},
     "snapshot-chi2-100": {"fde_snapshot_max_chi2": 100.0},
     "snapshot-chi2-200": {"fde_snapshot_max_chi2": 200.0},
+    # ... and an epoch the prediction cannot vouch for dead-reckoned (fde_snapshot_dead_reckon)
+    "snapshot-chi2-50-dr": {"fde_snapshot_max_chi2": 50.0, "fde_snapshot_dead_reckon": True},
+    # the defaults without both (the snapshot always believed, as before 2026-11-30)
+    "no-far-snapshot-rule": {"fde_snapshot_max_chi2": None, "fde_snapshot_dead_reckon": False},
     "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     # a receiver's honest clock and motion where Doppler is missing (docs/fgo.md, "Constant
     # velocity and drift without Doppler"): the systems' clocks tied, one receiver clock and an

@@ -93,8 +93,9 @@ def _held_out(
             f"sky, on seeds that chose nothing ({_seeds(HELD_OUT_OTHER)}, picked on 2026-11-30 before "
             "any run on them): 4 vehicles, DGNSS base, UWB, as above. Every default was chosen on the "
             f"urban loops and the dense city. Seeds of these scenarios ({_seeds(EXPLORATION)}, never "
-            "reported) found a candidate, `fde_snapshot_max_chi2`, which the held-out seeds then vetoed "
-            '(docs/fgo.md, "A right prediction against a far snapshot"). The ratios are issue 12\'s, '
+            "reported) found a candidate, `fde_snapshot_max_chi2`: its first form was vetoed by the held-out "
+            "seeds of then, its second, with `fde_snapshot_dead_reckon`, is a default, chosen on the training "
+            'seeds (docs/fgo.md, "A right prediction against a far snapshot"). The ratios are issue 12\'s, '
             "asked there of the urban loops and the dense city only.\n",
         )
     elif not doppler:
@@ -117,7 +118,7 @@ def _held_out(
             "(`bench/tune_fgo.py --validation`; the reported seeds until 2026-11-27). They are "
             f"reported here on seeds that chose and vetoed nothing (picked on 2026-11-30 before any run on them), {_seeds(HELD_OUT)}: 4 vehicles, {duration_s:.0f} s each, DGNSS "
             f"base, UWB. The seeds reported before them ({_seeds(RETIRED)}) each vetoed a candidate default, "
-            "the innovation gate of 2026-11-29 and `fde_snapshot_max_chi2` of 2026-11-30 (docs/fgo.md), and were retired. Errors are pooled over every vehicle of every seed of a scenario, overall and per "
+            "the innovation gate of 2026-11-29 and the first form of `fde_snapshot_max_chi2` of 2026-11-30 (docs/fgo.md), and were retired. Errors are pooled over every vehicle of every seed of a scenario, overall and per "
             "environment of the truth; the ratios are the orderings issue 12 asks for "
             "(`coplane.evaluate.benchmark.acceptance`).\n",
         )

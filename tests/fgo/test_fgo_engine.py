@@ -868,7 +868,8 @@ def test_a_diverged_track_restarts_only_after_epochs_without_redundancy() -> Non
     pseudorange says the vehicle stands 150 m from its track. After epochs with only 4 satellites
     in the window the track starts anew there (counted `track_restart`); after full-sky epochs the
     prediction is rejected but the track keeps its links, as in the simulator's canyons, where such
-    a clean-looking fit was the wrong one."""
+    a clean-looking fit was the wrong one: the epoch is dead-reckoned (`fde_snapshot_dead_reckon`),
+    and only after three such epochs, the prediction having coasted, does the track start anew."""
     offset = np.array([150.0, 0.0, 0.0])
     cfg = get_method("non-cp").fgo
     assert cfg is not None and cfg.fde_restart_chi2 is not None
@@ -881,3 +882,8 @@ def test_a_diverged_track_restarts_only_after_epochs_without_redundancy() -> Non
         assert (sols[20].rejected.get("track_restart", 0) == 1) == restarts
         err = np.linalg.norm(sols[20].estimates["v01"].position_m - fleet.truth[20]["v01"] - offset_ecef)
         assert (err < 10.0) == restarts, err
+        if not weak:
+            assert [sols[k].rejected.get("fde_dead_reckoned", 0) for k in range(20, 24)] == [1, 1, 1, 0]
+            assert sols[23].rejected.get("track_restart", 0) == 1
+            err = np.linalg.norm(sols[23].estimates["v01"].position_m - fleet.truth[23]["v01"] - offset_ecef)
+            assert err < 10.0, err

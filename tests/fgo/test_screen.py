@@ -9,7 +9,7 @@ import pytest
 
 from coplane.estimation.validate import ValidPseudoranges
 from coplane.fgo.config import FgoConfig
-from coplane.fgo.prepare import diverged, screen
+from coplane.fgo.prepare import diverged, lacks_redundancy, screen
 from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import StepStats
 from coplane.geo import enu_rotation, geodetic_to_ecef
@@ -293,7 +293,7 @@ def test_a_track_is_restarted_only_when_the_clean_fit_lies_far_outside_the_predi
 
 
 def test_a_far_snapshot_of_a_track_that_had_redundancy_is_not_believed() -> None:
-    """`FgoConfig.fde_snapshot_max_chi2` (opt-in): a deep canyon where 9 of 17 rows carry NLOS
+    """`FgoConfig.fde_snapshot_max_chi2` (50 in ROBUST_FGO): a deep canyon where 9 of 17 rows carry NLOS
     delays of 20-60 m and the prediction is right (2 m sigma). The prediction is rejected, and
     snapshot RAIM keeps a subset whose fit lies far from it (chi2 480). Beyond the limit a track
     without a weak epoch is trusted instead: the prior-aided test keeps the clean rows. A track
@@ -323,3 +323,48 @@ def test_a_far_snapshot_of_a_track_that_had_redundancy_is_not_believed() -> None
     assert set(kept.sats) == set(snap.sats) and restart is not None
     with pytest.raises(ValueError, match="fde_snapshot_max_chi2"):
         FgoConfig(fde_snapshot_max_chi2=-1.0)
+
+
+def test_an_epoch_the_prediction_cannot_vouch_for_is_dead_reckoned() -> None:
+    """`FgoConfig.fde_snapshot_dead_reckon` (on in ROBUST_FGO): as above, but with delays for which the
+    prior-aided test, its clock free, strips the epoch to the 4 rows that agree with a clock the
+    NLOS majority pulled. Those 4 rows once made the window "without redundancy" and armed a
+    restart at an NLOS fit (docs/fgo.md); with the option the epoch keeps no pseudorange."""
+    rng = np.random.default_rng(0)
+    prs = _epoch(17, 1.0, rng)
+    nlos = np.arange(17) % 2 == 0
+    prs = dataclasses.replace(prs, rho=prs.rho + np.where(nlos, rng.uniform(20.0, 60.0, 17), 0.0))
+    cov = np.eye(3) * 4.0
+    cfg = FgoConfig(
+        fde_k=3.29,
+        fde_snapshot_fallback=True,
+        fde_reject_on_exclusions=True,
+        fde_restart_chi2=400.0,
+        fde_snapshot_max_chi2=50.0,
+    )
+    stripped, _, _ = screen(prs, RX, cov, 0.1, cfg, StepStats())
+    assert len(stripped) == cfg.min_fix_pseudoranges
+
+    stats = StepStats()
+    kept, w, restart = screen(
+        prs, RX, cov, 0.1, dataclasses.replace(cfg, fde_snapshot_dead_reckon=True), stats
+    )
+    assert len(kept) == 0 and restart is None and (w is None or len(w) == 0)
+    assert stats.rejected["fde_dead_reckoned"] == 1 and stats.rejected["fde_snapshot_disbelieved"] == 1
+
+
+def test_only_unchecked_epochs_make_a_window_lack_redundancy() -> None:
+    """`prepare.lacks_redundancy`, the restart's second condition: an epoch with at most 4
+    pseudoranges counts; one the FDE dead-reckoned on purpose (`fde_dropped`) does not, unless
+    three of the window's epochs were dead-reckoned."""
+
+    @dataclasses.dataclass
+    class Block:
+        n_pseudoranges: int
+        fde_dropped: bool = False
+
+    assert not lacks_redundancy([Block(12), Block(9)], 4)
+    assert lacks_redundancy([Block(12), Block(4)], 4)
+    assert lacks_redundancy([Block(12), Block(0)], 4)  # an underpass
+    assert not lacks_redundancy([Block(12), Block(0, True), Block(0, True)], 4)
+    assert lacks_redundancy([Block(0, True), Block(0, True), Block(0, True)], 4)

@@ -47,13 +47,13 @@ VALIDATION: dict[str, tuple[int, ...]] = {
 # Seeds that vetoed a candidate default in a regeneration of docs/results.md, so that they are no
 # longer fresh and are neither reported nor tuned on again (docs/fgo.md): 701-705 / 801-805,
 # reported 2026-11-27 to 2026-11-29, vetoed the innovation gate; 901-905 / 1001-1005, reported
-# 2026-11-29 to 2026-11-30, vetoed `fde_snapshot_max_chi2` (a 50 m tail on urban-loop 903).
+# 2026-11-29 to 2026-11-30, vetoed `fde_snapshot_max_chi2` alone (a 50 m tail on urban-loop 903).
 RETIRED: dict[str, tuple[int, ...]] = {
     "urban-loop": (701, 702, 703, 704, 705, 901, 902, 903, 904, 905),
     "dense-urban": (801, 802, 803, 804, 805, 1001, 1002, 1003, 1004, 1005),
 }
 # Seeds of the simulator's other scenarios, looked at on 2026-11-30 for what the two above do not
-# have (a city's streets, an open sky): they found a candidate (`FgoConfig.fde_snapshot_max_chi2`,
+# have (a city's streets, an open sky): they found a default (`FgoConfig.fde_snapshot_max_chi2`,
 # docs/fgo.md) and so are no longer fresh; never reported as held-out results.
 EXPLORATION: dict[str, tuple[int, ...]] = {
     "city": (1201, 1202, 1203, 1204, 1205),

@@ -95,4 +95,5 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         clock_ref=p.clock_ref,
         bias_keys=bias_keys,
         common_cov=p.common_cov,
+        fde_dropped=p.fde_dropped,
     )

@@ -152,10 +152,20 @@ class FgoConfig:
     # metres from a prediction that is right (chi2 200-350 on a simulated city), and its rows then
     # pulled a Doppler-linked track metres off. Beyond it the epoch is screened against the
     # prediction alone, the iterated test run to its end (counted fde_snapshot_disbelieved).
-    # None: always the snapshot. Opt-in: 50 won the training seeds and lost the held-out ones,
+    # None: always the snapshot (the bare FgoConfig's); the methods run 50 with
+    # fde_snapshot_dead_reckon (`methods.registry.ROBUST_FGO`). Alone it lost the held-out seeds,
     # where stripping an epoch to 4 rows armed a restart at an NLOS fit (docs/fgo.md, "A right
     # prediction against a far snapshot").
     fde_snapshot_max_chi2: float | None = None
+    # ... and where that prior-aided test then cannot keep a clear majority with redundancy (it
+    # keeps at most min_fix_pseudoranges rows, or excludes more than half of the epoch), the epoch
+    # has no pseudorange the prediction vouches for: it is dead-reckoned on its links (counted
+    # fde_dead_reckoned) and does not count as an epoch without redundancy for the restart, unless
+    # three of the window's epochs were dead-reckoned so (the prediction has coasted and may be the
+    # wrong one). Without it such an epoch kept its 4 rows, which armed a restart at an NLOS fit
+    # (docs/fgo.md, "A right prediction against a far snapshot"). Off in the bare FgoConfig, on
+    # in ROBUST_FGO.
+    fde_snapshot_dead_reckon: bool = False
     # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import statistics
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ from coplane.fgo.links import (
 )
 from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
+from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
 from coplane.typing import Mat, Vec
@@ -66,6 +68,7 @@ class Prepared:
     # only; None: not asked for (FgoConfig.covariance_common_scale 0) or not determined
     common_cov: Mat | None = None
     kernel: bool = True  # its pseudoranges take the robust kernel (`FgoConfig.robust_warmup_epochs`)
+    fde_dropped: bool = False  # every pseudorange dropped by FgoConfig.fde_snapshot_dead_reckon
 
 
 def prepare_vehicle(
@@ -105,11 +108,11 @@ def prepare_vehicle(
     if hist and cfg.gate_k is not None and len(prs):
         prs = gate(prs, init, cfg.gate_k, cfg.gate_prediction_sigma_m, stats)
     fde_w: Vec | None = None
-    restarted = False
+    restarted = fde_dropped = False
     age = state.step - state.track_start.get(v.vehicle_id, state.step) if hist else 0
     if hist and link is not None and cfg.fde_k is not None and len(prs) > 4:
-        # a window epoch without redundancy, whose errors no test could see: a diverged track may restart
-        weak = any(b.n_pseudoranges <= cfg.min_fix_pseudoranges for b in hist)
+        weak = lacks_redundancy(hist, cfg.min_fix_pseudoranges)
+        n_before = len(prs)
         prs, fde_w, restart_at = screen(
             prs,
             init,
@@ -120,6 +123,7 @@ def prepare_vehicle(
             young=age < cfg.fde_warmup_epochs,
             may_restart=weak,
         )
+        fde_dropped = cfg.fde_snapshot_dead_reckon and n_before > 0 and len(prs) == 0
         if restart_at is not None and weak:
             stats.reject("track_restart")
             link, hist, init, restarted = None, None, restart_at, True  # no links to the diverged window
@@ -194,7 +198,20 @@ def prepare_vehicle(
         common_cov,
         # a track's first epochs (new, restarted: no history left) go without the kernel
         kernel=cfg.robust_warmup_epochs == 0 or (bool(hist) and age >= cfg.robust_warmup_epochs),
+        fde_dropped=fde_dropped,
     )
+
+
+def lacks_redundancy(hist: Iterable[StateBlock], min_fix: int) -> bool:
+    """Whether a vehicle's window holds an epoch without redundancy (at most `min_fix`
+    pseudoranges), whose errors no test could see, so that its prediction may be the wrong one
+    and a diverged track may restart. An epoch the FDE dead-reckoned on purpose
+    (`FgoConfig.fde_snapshot_dead_reckon`) let no unchecked error in and does not count, unless
+    three did: the prediction has then coasted long enough to be the wrong one."""
+    blocks = list(hist)
+    if sum(b.fde_dropped for b in blocks) >= 3:
+        return True
+    return any(b.n_pseudoranges <= min_fix and not b.fde_dropped for b in blocks)
 
 
 def determining_count(plane: PlaneObs | None, cfg: FgoConfig) -> int:
@@ -281,6 +298,12 @@ def screen(
             # throughout: trust the prediction, run the prior-aided test to its end
             stats.reject("fde_snapshot_disbelieved")
             res = test(divergence_min=len(prs) + 1)
+            kept = int(res.keep.sum())
+            if cfg.fde_snapshot_dead_reckon and (
+                kept <= cfg.min_fix_pseudoranges or len(prs) - kept > 0.5 * len(prs)
+            ):
+                stats.reject("fde_dead_reckoned")
+                res = dataclasses.replace(res, keep=np.zeros(len(prs), dtype=bool))
     n_out = len(prs) - int(res.keep.sum())
     if n_out:
         stats.reject("fde_pseudorange", n_out)

@@ -85,6 +85,7 @@ class StateBlock:
     clock_ref: str | None = None
     bias_keys: dict[str, int] = field(default_factory=dict)
     common_cov: Mat | None = None  # Prepared.common_cov: added to the reported covariance only
+    fde_dropped: bool = False  # Prepared.fde_dropped: its pseudoranges all dropped, by rule
     _graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property
