@@ -219,6 +219,18 @@ def test_fault_without_exclusions_allowed_is_not_ok() -> None:
     assert np.all(np.isnan(res.velocity_mps)) and math.isnan(res.drift_mps)
 
 
+def test_a_fault_with_one_redundant_doppler_is_not_pinned_on_a_satellite() -> None:
+    """Five satellites, four unknowns: every residual is the same test, so no satellite can be
+    told faulty; the velocity fails with that reason instead of dropping one picked by rounding."""
+    sky = SKY[:5]
+    res = solve_doppler_velocity(
+        _epoch(sky, offsets={sky[0][0]: 40.0}), RX, DopplerOptions(few_satellites=False)
+    )
+    assert not res.ok
+    assert res.reason.startswith("Doppler residual test failed and no satellite can be told faulty")
+    assert res.excluded == ()
+
+
 def test_too_few_satellites_is_not_ok_with_reason() -> None:
     """Paper mode: four satellites (four unknowns, no redundancy) give not-ok and say how many."""
     res = solve_doppler_velocity(_epoch(SKY[:4]), RX, DopplerOptions(few_satellites=False))

@@ -30,11 +30,8 @@ import numpy as np
 
 from coplane.estimation.validate import ValidPseudoranges
 from coplane.gnss.constants import C
-from coplane.typing import AnyArray, Mat, Vec
-
-# |correlation| of two rows' w-tests above 1 - this: they are the same test. Rounding leaves
-# ~1e-12 on an exact 1; geometry alone does not come this close.
-INSEPARABLE_TOL = 1e-6
+from coplane.gnss.lsq import inseparable
+from coplane.typing import Mat, Vec
 
 
 @dataclass(frozen=True)
@@ -188,20 +185,6 @@ def screen_pseudoranges(
         if count_exclusions and n >= divergence_min and len(excluded) > divergence_fraction * n:
             return rejected()
     return ScreenResult(keep, tuple(excluded), False)
-
-
-def inseparable(h: Mat, var: Vec, q_x: AnyArray, q_v: Vec, ok: np.ndarray, worst: int) -> np.ndarray:
-    """The rows whose w-test is perfectly correlated with row `worst`'s (worst included): the
-    data cannot tell which of them holds the fault, so they are excluded together. A system
-    with two satellites and a clock of its own is the common case: its clock takes their mean,
-    their post-fit residuals are proportional and their |w| equal, so picking the larger would
-    let rounding choose, and a Doppler read back as float32 (UBX) moved a track 0.1 m that way
-    (docs/fgo.md, "Fault detection and exclusion")."""
-    row = -(h[worst] @ q_x @ h.T)
-    row[worst] += var[worst]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = np.abs(row) / np.sqrt(q_v[worst] * q_v)
-    return np.flatnonzero(ok & (corr > 1.0 - INSEPARABLE_TOL))
 
 
 def weak_rows(

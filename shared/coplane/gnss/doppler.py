@@ -26,7 +26,7 @@ from coplane.errors import require_finite_positive
 from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
 from coplane.gnss.geometry import sky_view
-from coplane.gnss.lsq import chi2_threshold, w_tests, weighted_solve
+from coplane.gnss.lsq import chi2_threshold, weighted_solve, worst_rows
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.standstill import DopplerNoise, StandstillOptions, standstill_test
 from coplane.gnss.weighting import doppler_sigma_mps
@@ -246,9 +246,18 @@ def solve_doppler_velocity(
                 f"Doppler residual test failed after {len(excluded)} exclusions",
                 excluded=tuple(excluded),
             )
-        worst = int(np.argmax(np.abs(w_tests(a, v, sig)[:n])))  # satellites only, never a pseudo row
-        excluded.append(sats[worst].sat)
-        keep = np.arange(n) != worst
+        # the worst satellite (never a pseudo row), with any whose test is the same one: with one
+        # redundant row that is every satellite, and which one is faulty cannot be told
+        group = worst_rows(a, v, sig, rows=n)
+        if len(group) == n:
+            return DopplerVelocity(
+                epoch.time,
+                False,
+                f"Doppler residual test failed and no satellite can be told faulty (chi2 {chi:.1f}, dof {dof})",
+                excluded=tuple(excluded),
+            )
+        excluded.extend(sats[j].sat for j in group)
+        keep = ~np.isin(np.arange(n), group)
         sats = [m for k, m in enumerate(sats) if keep[k]]
         a_sat, y_sat, sig_sat = a_sat[keep], y_sat[keep], sig_sat[keep]
     q = np.linalg.inv(a.T @ (a / sig[:, None] ** 2))

@@ -30,7 +30,7 @@ import numpy as np
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gnss.constants import C
 from coplane.gnss.geometry import broadcast_delays, sagnac_ranges, sky_view
-from coplane.gnss.lsq import chi2_threshold, w_tests, weighted_solve
+from coplane.gnss.lsq import chi2_threshold, weighted_solve, worst_rows
 from coplane.gnss.measurements import PreparedEpoch, SatMeasurement
 from coplane.gnss.sat_models import FitAtmosphere, SatModels
 from coplane.gnss.weighting import pseudorange_sigma_m, rtklib_variance_m2, standalone_pseudorange_sigma_m
@@ -337,13 +337,14 @@ def solve_spp(
                 f"chi-square test failed: {chi:.1f} > {threshold:.1f} (dof {dof}, excluded {len(excluded)})",
                 excluded=tuple(excluded),
             )
-        worst = fit.sats[int(np.argmax(np.abs(w_tests(fit.a, fit.v, fit.sigma))))]
-        excluded.append(worst.sat)
-        i = sats.index(worst)
-        sats = sats[:i] + sats[i + 1 :]
-        idx = idx[:i] + idx[i + 1 :]
-        y = np.delete(y, i)
-        atmos = atmos.without(i)
+        # the worst satellite, with any whose test is the same one (a system's two satellites)
+        for m in [fit.sats[j] for j in worst_rows(fit.a, fit.v, fit.sigma)]:
+            i = sats.index(m)
+            excluded.append(m.sat)
+            sats = sats[:i] + sats[i + 1 :]
+            idx = idx[:i] + idx[i + 1 :]
+            y = np.delete(y, i)
+            atmos = atmos.without(i)
         x0 = fit.x[:3]
     p = fit.x[:3]
     w = 1.0 / fit.sigma**2
