@@ -24,13 +24,18 @@ def _residuals(a: np.ndarray, y: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return y - a @ weighted_solve(a, y, 1.0 / sigma)
 
 
+def _faulted(a: np.ndarray, row: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-sigma noise, with 40 sigma on `row`: the post-fit residuals and the sigmas."""
+    sigma = np.full(len(a), 1.0)
+    y = rng.normal(0.0, 1.0, len(a))
+    y[row] += 40.0
+    return _residuals(a, y, sigma), sigma
+
+
 def test_one_fault_among_many_takes_one_row() -> None:
     rng = np.random.default_rng(1)
     a = _design(10, 0, rng)
-    sigma = np.full(10, 1.0)
-    y = rng.normal(0.0, 1.0, 10)
-    y[3] += 40.0
-    assert worst_rows(a, _residuals(a, y, sigma), sigma).tolist() == [3]
+    assert worst_rows(a, *_faulted(a, 3, rng)).tolist() == [3]
 
 
 def test_a_fault_in_a_two_satellite_system_takes_both_in_any_order() -> None:
@@ -49,9 +54,7 @@ def test_with_one_redundant_row_every_row_is_the_same_test() -> None:
     """Five satellites, four unknowns: a fault can be detected, never located."""
     rng = np.random.default_rng(3)
     a = _design(5, 0, rng)
-    sigma = np.full(5, 1.0)
-    y = rng.normal(0.0, 1.0, 5)
-    y[0] += 40.0
-    assert worst_rows(a, _residuals(a, y, sigma), sigma).tolist() == [0, 1, 2, 3, 4]
+    v, sigma = _faulted(a, 0, rng)
+    assert worst_rows(a, v, sigma).tolist() == [0, 1, 2, 3, 4]
     # rows past `rows` (a Doppler solve's pseudo rows) are never taken
-    assert worst_rows(a, _residuals(a, y, sigma), sigma, rows=3).tolist() == [0, 1, 2]
+    assert worst_rows(a, v, sigma, rows=3).tolist() == [0, 1, 2]
