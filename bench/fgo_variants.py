@@ -64,6 +64,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     "snapshot-chi2-50-dr": {"fde_snapshot_max_chi2": 50.0, "fde_snapshot_dead_reckon": True},
     # the defaults without both (the snapshot always believed, as before 2026-11-30)
     "no-far-snapshot-rule": {"fde_snapshot_max_chi2": None, "fde_snapshot_dead_reckon": False},
+    # the prior-aided test's clocks held to their prediction, as the EKF's gate holds its clock
+    # (FgoConfig.fde_clock_prior; docs/fgo.md, "A right prediction against a far snapshot")
+    "fde-clock-prior": {"fde_clock_prior": True},
     "carry-drift-wander": {"clock_drift_carry": True, "clock_drift_wander": 0.2},
     # a receiver's honest clock and motion where Doppler is missing (docs/fgo.md, "Constant
     # velocity and drift without Doppler"): the systems' clocks tied, one receiver clock and an

@@ -353,6 +353,31 @@ def test_an_epoch_the_prediction_cannot_vouch_for_is_dead_reckoned() -> None:
     assert stats.rejected["fde_dead_reckoned"] == 1 and stats.rejected["fde_snapshot_disbelieved"] == 1
 
 
+def test_a_held_clock_keeps_the_clean_rows_of_an_nlos_majority() -> None:
+    """`FgoConfig.fde_clock_prior` (opt-in): the epoch above, whose NLOS majority pulls a free
+    clock to its side so that only 4 rows survive, keeps its clean rows when the clock is held to
+    its prediction (the free clock kept 2 NLOS rows among its 4; the held one keeps only clean
+    ones); a prediction off by a clock jump is ignored and the clock stays free."""
+    rng = np.random.default_rng(0)
+    prs = _epoch(17, 1.0, rng)
+    nlos = np.arange(17) % 2 == 0
+    prs = dataclasses.replace(prs, rho=prs.rho + np.where(nlos, rng.uniform(20.0, 60.0, 17), 0.0))
+    cov = np.eye(3) * 4.0
+    free = screen_pseudoranges(prs, RX, cov, 3.29, divergence_min=18)
+    assert int(free.keep.sum()) == 4
+    held = screen_pseudoranges(prs, RX, cov, 3.29, divergence_min=18, clock_prior={"G": (CLOCK_M, 2.0)})
+    assert not (held.keep & nlos).any() and int(held.keep.sum()) >= 5  # measured: 5 of the 8 clean
+    jumped = {"G": (CLOCK_M + 3e5, 2.0)}  # a 1 ms clock step
+    assert bool(
+        np.array_equal(
+            screen_pseudoranges(
+                prs, RX, cov, 3.29, divergence_min=18, clock_prior=jumped, clock_jump_m=1000.0
+            ).keep,
+            free.keep,
+        )
+    )
+
+
 def test_only_unchecked_epochs_make_a_window_lack_redundancy() -> None:
     """`prepare.lacks_redundancy`, the restart's second condition: an epoch with at most 4
     pseudoranges counts; one the FDE dead-reckoned on purpose (`fde_dropped`) does not, unless

@@ -166,6 +166,14 @@ class FgoConfig:
     # (docs/fgo.md, "A right prediction against a far snapshot"). Off in the bare FgoConfig, on
     # in ROBUST_FGO.
     fde_snapshot_dead_reckon: bool = False
+    # The prior-aided test's receiver clocks held to their prediction (the last window clock
+    # stepped by the drift, `links.predicted_clocks`; sigma from the clock link, floored at
+    # fde_prior_floor_m), as the EKF's gate holds its clock state, instead of free: an epoch
+    # whose majority is NLOS can then no longer pull the clock to its side and strip the clean
+    # rows. A system whose median residual lies beyond clock_jump_m or 5 sigma of the
+    # prediction (a receiver clock jump) stays free. Opt-in, tried on the training seeds
+    # (docs/fgo.md, "A right prediction against a far snapshot").
+    fde_clock_prior: bool = False
     # ... and the kept pseudoranges' sigmas are scaled by sqrt(a-posteriori variance factor),
     # clipped to [1, fde_max_sigma_scale]: in a canyon the C/N0-elevation model under-states the
     # multipath the residuals show, in open sky the factor stays near 1 (None: no scaling).

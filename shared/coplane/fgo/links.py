@@ -17,6 +17,7 @@ import numpy as np
 
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.config_checks import NoDopplerVelocity
+from coplane.fgo.factors import clock_step_sigma_m
 from coplane.fgo.state import GraphState
 from coplane.fgo.window import StateBlock
 from coplane.geo import up_vector
@@ -249,3 +250,24 @@ def inter_system_biases(
         sigma = max(cfg.clock_isb_sigma_m * math.sqrt(max(t - prev.time, 0.0)), BIAS_SIGMA_FLOOR_M)
         links.append(BiasLink(s, state.clock(k), k, prev.step, sigma))
     return links
+
+
+def predicted_clocks(
+    vid: str, hist: deque[StateBlock], drift: float | None, t: GpsTime, state: GraphState, cfg: FgoConfig
+) -> dict[str, tuple[float, float]]:
+    """Each system's receiver clock (m) predicted from the vehicle's latest window state, stepped
+    by the clock drift (`clock_drift`), and its 1-sigma: the step's, with the latest clock's own
+    uncertainty taken as `fde_prior_floor_m` (the window's clock marginals are not kept), plus
+    the inter-system offset's walk for a system held by an offset (`clock_isb_sigma_m`). For the
+    prior-aided FDE (`FgoConfig.fde_clock_prior`); the graph's own clock links are built apart."""
+    last = hist[-1]
+    dt = t - last.time
+    mean, drift_sigma = clock_drift(vid, drift, last.clock_drift_mps, t, state, cfg)
+    sigma = math.hypot(clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma), cfg.fde_prior_floor_m)
+    out = {s: (C * state.clock(k) + mean * dt, sigma) for s, k in last.clock_keys.items()}
+    if last.clock_ref is not None and last.clock_ref in out:
+        ref_m, ref_sigma = out[last.clock_ref]
+        walk = (cfg.clock_isb_sigma_m or 0.0) * math.sqrt(max(dt, 0.0))
+        for s, k in last.bias_keys.items():  # bias = c (dt_ref - dt_s)
+            out[s] = (ref_m - state.clock(k), math.hypot(ref_sigma, walk))
+    return out

@@ -34,6 +34,7 @@ from coplane.fgo.links import (
     constant_drift,
     displacement,
     inter_system_biases,
+    predicted_clocks,
 )
 from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
@@ -122,6 +123,9 @@ def prepare_vehicle(
             stats,
             young=age < cfg.fde_warmup_epochs,
             may_restart=weak,
+            clock_prior=predicted_clocks(v.vehicle_id, hist, v.drift, t, state, cfg)
+            if cfg.fde_clock_prior
+            else None,
         )
         fde_dropped = cfg.fde_snapshot_dead_reckon and n_before > 0 and len(prs) == 0
         if restart_at is not None and weak:
@@ -258,6 +262,7 @@ def screen(
     stats: StepStats,
     young: bool = False,
     may_restart: bool = False,
+    clock_prior: dict[str, tuple[float, float]] | None = None,
 ) -> tuple[ValidPseudoranges, Vec | None, Vec | None]:
     """The pseudoranges that pass the prior-aided FDE (`screen.py`) at the predicted position,
     their signed standardised residuals (`ScreenResult.w_signed`, None if the test did not pass)
@@ -265,7 +270,8 @@ def screen(
     the vehicle; `young`: the track started less than `fde_warmup_epochs` ago (a looser prior,
     see FgoConfig); `may_restart`: the window holds an epoch without redundancy, so the
     prediction may be the wrong one: its snapshot is kept however far it lies, and a diverged
-    track restarts (the caller's rule), as without `FgoConfig.fde_snapshot_max_chi2`."""
+    track restarts (the caller's rule), as without `FgoConfig.fde_snapshot_max_chi2`;
+    `clock_prior`: the receiver clocks' prediction (`links.predicted_clocks`), or None: free."""
     assert cfg.fde_k is not None
     if young and last_cov is not None:
         last_cov = last_cov * (cfg.covariance_scale**2 if cfg.fde_warmup_prior == "reported" else 1e12)
@@ -286,6 +292,8 @@ def screen(
         k_long=cfg.fde_k_long,
         long_rows=long_rows,
         two_sided=cfg.fde_long_two_sided,
+        clock_prior=clock_prior,
+        clock_jump_m=cfg.clock_jump_m,
     )
     res = test(snapshot_fallback=cfg.fde_snapshot_fallback, count_exclusions=cfg.fde_reject_on_exclusions)
     if res.prediction_rejected:

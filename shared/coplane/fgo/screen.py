@@ -84,6 +84,8 @@ def screen_pseudoranges(
     long_rows: np.ndarray | None = None,
     two_sided: bool = False,
     count_exclusions: bool = False,
+    clock_prior: dict[str, tuple[float, float]] | None = None,
+    clock_jump_m: float = float("inf"),
 ) -> ScreenResult:
     """Iterated w-test exclusion of the pseudoranges against the predicted position and its covariance.
 
@@ -99,6 +101,10 @@ def screen_pseudoranges(
     (snapshot RAIM: the epoch's own redundancy) instead of keeping every pseudorange; an over-
     confident prediction in a canyon must not let the NLOS ranges it failed to explain through.
 
+    `clock_prior`: system -> (predicted receiver clock, its sigma), metres: the clock is held to
+    it instead of free (`FgoConfig.fde_clock_prior`); beyond `clock_jump_m` (and 5 sigma) from the
+    system's median residual it is ignored. Snapshot RAIM never uses it.
+
     `count_exclusions`: the prediction is also rejected when the iterated test, one exclusion
     after another, has excluded more than `divergence_fraction` of a well-observed epoch. A
     prediction far off but held with a tight covariance passes the first test with most rows:
@@ -113,12 +119,20 @@ def screen_pseudoranges(
     resid = prs.rho + C * prs.sat_clock - dist
     var = prs.sigma**2
     # clocks start from the per-system median residual so that the linear model is centred
-    # (statistics.median: np.median's value, without its overhead on a dozen numbers)
-    for j in range(n_sys):
-        in_sys = sys_idx == j
-        resid[in_sys] -= statistics.median(resid[in_sys].tolist())
+    # (statistics.median: np.median's value, without its overhead on a dozen numbers), or from
+    # their prediction, which then holds them (`clock_prior`), unless the median lies so far from
+    # it that the receiver's clock jumped
     prior_info = np.zeros((3 + n_sys, 3 + n_sys))
     prior_info[:3, :3] = np.linalg.inv(p_pred)
+    systems = sorted(set(prs.systems))
+    for j in range(n_sys):
+        in_sys = sys_idx == j
+        centre = statistics.median(resid[in_sys].tolist())
+        held = (clock_prior or {}).get(systems[j])
+        if held is not None and abs(centre - held[0]) <= max(clock_jump_m, 5.0 * held[1]):
+            centre = held[0]
+            prior_info[3 + j, 3 + j] = 1.0 / held[1] ** 2
+        resid[in_sys] -= centre
     excluded: list[float] = []
     n_fail_first: int | None = None
 
