@@ -167,8 +167,8 @@ class FgoConfig:
     # in ROBUST_FGO.
     fde_snapshot_dead_reckon: bool = False
     # The prior-aided test's receiver clocks held to their prediction (the last window clock
-    # stepped by the drift, `links.predicted_clocks`; sigma from the clock link, floored at
-    # fde_prior_floor_m), as the EKF's gate holds its clock state, instead of free: an epoch
+    # stepped by the drift, `links.predicted_clocks`; sigma the clock link's combined with
+    # fde_prior_floor_m for the last clock's own), as the EKF's gate holds its clock, instead of free: an epoch
     # whose majority is NLOS can then no longer pull the clock to its side and strip the clean
     # rows. A system whose median residual lies beyond clock_jump_m or 5 sigma of the
     # prediction (a receiver clock jump) stays free. Opt-in, tried on the training seeds

@@ -252,6 +252,24 @@ def inter_system_biases(
     return links
 
 
+def drift_step(
+    vid: str,
+    prev: StateBlock,
+    system: str,
+    drift: float | None,
+    t: GpsTime,
+    state: GraphState,
+    cfg: FgoConfig,
+) -> ClockLink:
+    """The receiver clock's step from `prev`'s clock of `system` to time `t` by the clock drift
+    (`clock_drift`), with its sigma: the graph's clock link, and the FDE's clock prediction."""
+    dt = t - prev.time
+    mean, drift_sigma = clock_drift(vid, drift, prev.clock_drift_mps, t, state, cfg)
+    return ClockLink(
+        prev.clock_keys[system], prev.step, mean * dt, clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
+    )
+
+
 def predicted_clocks(
     vid: str, hist: deque[StateBlock], drift: float | None, t: GpsTime, state: GraphState, cfg: FgoConfig
 ) -> dict[str, tuple[float, float]]:
@@ -261,13 +279,13 @@ def predicted_clocks(
     the inter-system offset's walk for a system held by an offset (`clock_isb_sigma_m`). For the
     prior-aided FDE (`FgoConfig.fde_clock_prior`); the graph's own clock links are built apart."""
     last = hist[-1]
-    dt = t - last.time
-    mean, drift_sigma = clock_drift(vid, drift, last.clock_drift_mps, t, state, cfg)
-    sigma = math.hypot(clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma), cfg.fde_prior_floor_m)
-    out = {s: (C * state.clock(k) + mean * dt, sigma) for s, k in last.clock_keys.items()}
+    out = {}
+    for s, k in last.clock_keys.items():
+        step = drift_step(vid, last, s, drift, t, state, cfg)
+        out[s] = (C * state.clock(k) + step.step_m, math.hypot(step.sigma_m, cfg.fde_prior_floor_m))
     if last.clock_ref is not None and last.clock_ref in out:
         ref_m, ref_sigma = out[last.clock_ref]
-        walk = (cfg.clock_isb_sigma_m or 0.0) * math.sqrt(max(dt, 0.0))
+        walk = (cfg.clock_isb_sigma_m or 0.0) * math.sqrt(max(t - last.time, 0.0))
         for s, k in last.bias_keys.items():  # bias = c (dt_ref - dt_s)
             out[s] = (ref_m - state.clock(k), math.hypot(ref_sigma, walk))
     return out

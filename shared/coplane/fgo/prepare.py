@@ -29,14 +29,14 @@ from coplane.fgo.links import (
     BiasLink,
     ClockLink,
     MotionLink,
-    clock_drift,
     clock_reference,
     constant_drift,
     displacement,
+    drift_step,
     inter_system_biases,
     predicted_clocks,
 )
-from coplane.fgo.screen import ScreenResult, screen_pseudoranges, weak_rows
+from coplane.fgo.screen import ScreenResult, clock_jumped, screen_pseudoranges, weak_rows
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
@@ -156,14 +156,11 @@ def prepare_vehicle(
         ck = prev.clock_keys[s]
         cl = constant_drift(hist, prev, s, dt, state, cfg) if v.drift is None and three_state else None
         if cl is None:
-            mean, drift_sigma = clock_drift(v.vehicle_id, v.drift, prev.clock_drift_mps, t, state, cfg)
-            cl = ClockLink(
-                ck, prev.step, mean * dt, F.clock_step_sigma_m(dt, drift_sigma, cfg.clock_rw_sigma)
-            )
+            cl = drift_step(v.vehicle_id, prev, s, v.drift, t, state, cfg)
         predicted_m = C * state.clock(ck) + cl.step_m
         if s not in clock_init:  # the reference system has no satellite now: its clock goes on
             clock_init[s] = predicted_m / C
-        elif abs(C * clock_init[s] - predicted_m) > max(cfg.clock_jump_m, 5.0 * cl.sigma_m):
+        elif clock_jumped(C * clock_init[s], predicted_m, cl.sigma_m, cfg.clock_jump_m):
             stats.reject("clock_link")  # a receiver clock jump (e.g. 1 ms steering): restart
             continue
         clock_links[s] = cl

@@ -124,12 +124,12 @@ def screen_pseudoranges(
     # it that the receiver's clock jumped
     prior_info = np.zeros((3 + n_sys, 3 + n_sys))
     prior_info[:3, :3] = np.linalg.inv(p_pred)
-    systems = sorted(set(prs.systems))
+    systems = sorted(set(prs.systems)) if clock_prior else []
     for j in range(n_sys):
         in_sys = sys_idx == j
         centre = statistics.median(resid[in_sys].tolist())
-        held = (clock_prior or {}).get(systems[j])
-        if held is not None and abs(centre - held[0]) <= max(clock_jump_m, 5.0 * held[1]):
+        held = clock_prior.get(systems[j]) if clock_prior else None
+        if held is not None and not clock_jumped(centre, held[0], held[1], clock_jump_m):
             centre = held[0]
             prior_info[3 + j, 3 + j] = 1.0 / held[1] ** 2
         resid[in_sys] -= centre
@@ -199,6 +199,13 @@ def screen_pseudoranges(
         if count_exclusions and n >= divergence_min and len(excluded) > divergence_fraction * n:
             return rejected()
     return ScreenResult(keep, tuple(excluded), False)
+
+
+def clock_jumped(measured_m: float, predicted_m: float, sigma_m: float, jump_m: float) -> bool:
+    """Whether a receiver clock lies so far from its prediction (beyond `jump_m` and 5 sigma)
+    that it jumped (a receiver steering its clock by 1 ms): the prediction must then be dropped,
+    not tested against."""
+    return abs(measured_m - predicted_m) > max(jump_m, 5.0 * sigma_m)
 
 
 def weak_rows(
