@@ -10,7 +10,9 @@ them with its defaults and with each variant of `bench/tune_fgo.py` (one change 
 `--repeats` times in turn, so the variants share the host's drift. Cost: the median CPU per
 vehicle-epoch over the repeats and its ratio to the default's median of the same run; accuracy:
 horizontal and vertical RMSE against the simulator's truth (the same in every repeat: the
-estimator is deterministic). Cities are the scale the variants are for; `tune_fgo.py` judges
+estimator is deterministic); and how many smoothers were rebuilt from the window (a cluster merged,
+split or took a vehicle with earlier states) with their share of the CPU. Cities are the scale the
+variants are for; `tune_fgo.py` judges
 them on the 4-vehicle training scenarios.
 """
 
@@ -30,7 +32,8 @@ MARK = "bench_fusion_variants"
 
 
 def compare(rec_dir: Path, variants: list[str], repeats: int) -> dict[str, dict[str, float]]:
-    """Per variant ("default" first): median CPU ms per vehicle-epoch, H and V RMSE."""
+    """Per variant ("default" first): median CPU ms per vehicle-epoch, H and V RMSE, the smoothers
+    rebuilt from the window and their share of the CPU (of the median run)."""
     import bench_window_clusters as recorder
     from fgo_variants import VARIANTS
 
@@ -40,10 +43,17 @@ def compare(rec_dir: Path, variants: list[str], repeats: int) -> dict[str, dict[
     for _ in range(repeats):
         for name, cfg in configs.items():
             runs[name].append(recorder.replay(rec_dir, cfg, inputs, cfg.window_cluster_max))
-    return {
-        name: {"ms": statistics.median(r["ms"] for r in rs), "h": rs[0]["h"], "v": rs[0]["v"]}
-        for name, rs in runs.items()
-    }
+    out = {}
+    for name, rs in runs.items():
+        mid = sorted(rs, key=lambda r: r["ms"])[len(rs) // 2]
+        out[name] = {
+            "ms": statistics.median(r["ms"] for r in rs),
+            "h": rs[0]["h"],
+            "v": rs[0]["v"],
+            "rebuilds": rs[0]["rebuilds"],
+            "rebuild_share": mid["rebuild_share"],
+        }
+    return out
 
 
 def main() -> int:
@@ -65,8 +75,8 @@ def main() -> int:
     variants = [v for v in args.variants.split(",") if v]
     rows = [
         f"| city seed | role | variant | fusion CPU ms / vehicle-epoch (median of {args.repeats}) | vs default "
-        "| H RMSE (m) | V RMSE (m) |",
-        "|---|---|---|---|---|---|---|",
+        "| H RMSE (m) | V RMSE (m) | smoothers rebuilt | their share of the CPU |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory(prefix="coplane-variants-") as tmp:
         for seed in seeds:
@@ -77,7 +87,8 @@ def main() -> int:
             base = res["default"]["ms"]
             for name, r in res.items():
                 rows.append(
-                    f"| {seed} | {role} | {name} | {r['ms']:.2f} | {r['ms'] / base:.2f} | {r['h']:.3f} | {r['v']:.3f} |"
+                    f"| {seed} | {role} | {name} | {r['ms']:.2f} | {r['ms'] / base:.2f} | {r['h']:.3f} | {r['v']:.3f} "
+                    f"| {r['rebuilds']:.0f} | {100 * r['rebuild_share']:.0f} % |"
                 )
             print("\n".join(rows[-len(res) :]), flush=True)
     head = (

@@ -247,6 +247,8 @@ VARIANTS: dict[str, dict[str, object]] = {
     "isam2-cycle-2": {"isam2_cycle_updates": 2},
     "isam2-cycle-3": {"isam2_cycle_updates": 3},
     "isam2-cycle-8": {"isam2_cycle_updates": 8},
+    # a split cluster's largest part goes on with its smoother instead of every part being rebuilt
+    "keep-on-split": {"isam2_keep_on_split": True},
 }
 # GNC needs a batch solve: compare with paper-window (the same window with Huber + FDE). About ten
 # times slower than LM, so not in the default runs (docs/tuning-gnc.md, made with --seeds).

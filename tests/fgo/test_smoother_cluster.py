@@ -248,3 +248,107 @@ def test_between_cycles_isam2_re_eliminates_only_part_of_its_tree(monkeypatch: p
             assert reeliminated >= held
         else:
             assert reeliminated < held
+
+
+def _crossing_pairs() -> tuple[Any, list[Any]]:
+    """Two pairs 300 m apart whose roads cross at epochs 13-17 (ranges between all four): their
+    clusters merge, then split again once the cross ranges leave the window."""
+    fleet = make_fleet(4, 24, seed=15, group_size=2, group_spacing=300.0, max_range=100.0)
+    return fleet, list(fleet.epochs)
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_a_split_cluster_is_rebuilt_or_keeps_its_smoother_for_its_largest_part(
+    monkeypatch: pytest.MonkeyPatch, keep: bool
+) -> None:
+    """On a split both parts are built from the window (the default), or with
+    `isam2_keep_on_split` the first of the equal parts goes on with the merged cluster's smoother
+    and only the other is built. Either way the positions stay as good as one graph that is never
+    split."""
+    from coplane.fgo.engine import FusionEstimator
+
+    fleet, epochs = _crossing_pairs()
+    base = dataclasses.replace(get_method("pc", solver="isam2-fixed-lag").fgo, range_warmup_epochs=0)
+    cfg = dataclasses.replace(base, isam2_keep_on_split=keep)
+    built: list[list[tuple[str, ...]]] = []  # per epoch: the vehicles of each smoother built
+    run_one = smoother.LocalSmoothers.run_one
+
+    def counted(self: smoother.LocalSmoothers, task: smoother.SmootherTask) -> Any:
+        if task.create:
+            built[-1].append(tuple(task.vehicles))
+        return run_one(self, task)
+
+    monkeypatch.setattr(smoother.LocalSmoothers, "run_one", counted)
+    est = FusionEstimator(cfg)
+    sols = []
+    for e in epochs:
+        built.append([])
+        sols.append(est.step(e))
+    clusters = [s.n_clusters for s in sols]
+    split = next(k for k in range(1, len(clusters)) if clusters[k - 1] == 1 and clusters[k] == 2)
+    assert built[split] == ([("v03", "v04")] if keep else [("v01", "v02"), ("v03", "v04")])
+    assert all(not b for b in built[split + 1 :])  # both parts then go on with their smoothers
+    joint = run(fleet, dataclasses.replace(base, split_clusters=False), epochs)  # never rebuilt
+    err = {
+        name: [
+            float(np.linalg.norm(e.position_m - fleet.truth[k][v]))
+            for k, s in enumerate(sols_)
+            for v, e in s.estimates.items()
+        ]
+        for name, sols_ in (("split", sols), ("joint", joint))
+    }
+    rms = {name: math.sqrt(float(np.mean(np.square(e)))) for name, e in err.items()}
+    assert len(err["split"]) == len(err["joint"]) == 4 * len(epochs)
+    assert rms["split"] < 1.15 * rms["joint"]
+
+
+def test_a_kept_smoother_that_fails_on_the_split_is_rebuilt(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With `isam2_keep_on_split`, the part that keeps the smoother has its update fail on the
+    split epoch, where the other part sends nothing (it stays in the window without a new state):
+    the failed smoother is dropped for every vehicle it held, so the keeper is rebuilt in the same
+    epoch, the other part in the next, and no task goes to a smoother that is gone."""
+    from coplane.fgo.engine import FusionEstimator
+
+    fleet, epochs = _crossing_pairs()
+    cfg = dataclasses.replace(
+        get_method("pc", solver="isam2-fixed-lag").fgo, range_warmup_epochs=0, isam2_keep_on_split=True
+    )
+    clusters = [s.n_clusters for s in run(fleet, cfg, epochs)]
+    split = next(k for k in range(1, len(clusters)) if clusters[k - 1] == 1 and clusters[k] == 2)
+    quiet = {"v03", "v04"}
+    e = epochs[split]
+    epochs[split] = dataclasses.replace(
+        e,
+        vehicles={v: x for v, x in e.vehicles.items() if v not in quiet},
+        ranges=tuple(r for r in e.ranges if not {r.a, r.b} & quiet),
+    )
+    update = smoother.SmootherCluster.update
+    step = [0]
+    failed: list[set[str]] = []
+
+    def failing(
+        self: smoother.SmootherCluster, blocks: Any, ranges: Any, priors: Any, *a: Any, **kw: Any
+    ) -> Any:
+        if step[0] == split and not priors:
+            failed.append(set(self.vehicles))
+            raise RuntimeError("injected failure")
+        return update(self, blocks, ranges, priors, *a, **kw)
+
+    monkeypatch.setattr(smoother.SmootherCluster, "update", failing)
+    built: list[tuple[int, tuple[str, ...]]] = []
+    run_one = smoother.LocalSmoothers.run_one
+
+    def counted(self: smoother.LocalSmoothers, task: smoother.SmootherTask) -> Any:
+        if task.create:
+            built.append((step[0], tuple(task.vehicles)))
+        return run_one(self, task)
+
+    monkeypatch.setattr(smoother.LocalSmoothers, "run_one", counted)
+    est = FusionEstimator(cfg)
+    for k, ep in enumerate(epochs):
+        step[0] = k
+        sol = est.step(ep)
+        assert sorted(sol.estimates) == (["v01", "v02"] if k == split else ["v01", "v02", "v03", "v04"])
+        assert not sol.skipped
+    assert failed == [{"v01", "v02", "v03", "v04"}]  # the merged cluster's smoother, kept by v01-v02
+    assert [b for b in built if b[0] >= split] == [(split, ("v01", "v02")), (split + 1, ("v03", "v04"))]

@@ -318,6 +318,12 @@ class FgoConfig:
     # the same accuracy there, on the training seeds and on the real sets (docs/tuning-isam2.md,
     # docs/performance-scale.md "iSAM2 variants on cities").
     isam2_cycle_updates: int = 5
+    # When a cluster splits, its largest part goes on with its smoother and only the others are
+    # rebuilt from the window (`slots.keepers`); off: every part is rebuilt. Opt-in: on the
+    # 1000-vehicle training city it saved 3 % of the fusion CPU and lost 4 % of the horizontal
+    # accuracy, since a rebuilt smoother converges afresh where a kept one goes on with its
+    # linearisation (docs/performance-scale.md, "Smoothers kept on a split").
+    isam2_keep_on_split: bool = False
 
     def __post_init__(self) -> None:
         check_fgo_config(self)

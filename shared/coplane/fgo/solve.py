@@ -3,15 +3,16 @@
 A cluster is a set of vehicles linked by ranges within the window (`Window.partition`). With
 `lm-window` it is solved from scratch each epoch with loose anchor priors on the oldest states;
 with a fixed-lag smoother (`isam2-fixed-lag`, `batch-fixed-lag`) each cluster keeps a smoother
-that is fed only the new epoch, and is rebuilt from the window when the cluster merges, splits or
-an update fails. A GTSAM failure is retried once with strong priors on every state; if that fails
-too, the cluster's new epoch is dropped (`ClusterFailure`), never the estimator.
+that is fed only the new epoch, and is rebuilt from the window when the cluster merges, splits
+(`FgoConfig.isam2_keep_on_split`: all but its largest part) or an update fails
+(`coplane.fgo.slots`). A GTSAM failure is retried once with strong priors on
+every state; if that fails too, the cluster's new epoch is dropped (`ClusterFailure`), never the
+estimator.
 """
 
 from __future__ import annotations
 
 from collections.abc import Generator, Sequence
-from dataclasses import dataclass
 from typing import Protocol
 
 import gtsam
@@ -21,6 +22,7 @@ from coplane.fgo import factors as F
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.gnc import solve_gnc_window
 from coplane.fgo.recipes import Recipe
+from coplane.fgo.slots import Slot, keepers
 from coplane.fgo.smoother import LocalSmoothers, SmootherTask
 from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import ClusterResult, ClusterView, StateBlock, StepRecord, solve_lm_window
@@ -46,15 +48,6 @@ class Smoothers(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass
-class _Slot:
-    """A fixed-lag smoother (held by `smoothers` under `id`) that owns some vehicles' window states."""
-
-    id: int
-    vehicles: set[str]
-    dirty: bool = False  # split: its remaining vehicles must be rebuilt before they are solved again
-
-
 Outcome = ClusterResult | ClusterFailure
 Attempts = Generator[SmootherTask, ClusterResult | Exception, ClusterResult]
 
@@ -71,7 +64,7 @@ class ClusterSolver:
         self.cfg = cfg
         self.state = state
         self.smoothers: Smoothers = smoothers if smoothers is not None else LocalSmoothers(cfg)
-        self._slots: list[_Slot] = []
+        self._slots: list[Slot] = []
         self._next_slot = 0
 
     def forget(self, in_window: set[str]) -> None:
@@ -93,7 +86,8 @@ class ClusterSolver:
             for i, view in enumerate(views):
                 outcomes[i] = self._solve_lm(view, rec, stats)
         else:
-            attempts = {i: self._attempts(view, rec, stats) for i, view in enumerate(views)}
+            keeps = keepers(self.cfg, self._slots, views, self.state.window.by_vehicle, self.state.step)
+            attempts = {i: self._attempts(view, rec, stats, keeps.get(i)) for i, view in enumerate(views)}
             tasks = {i: next(gen) for i, gen in attempts.items()}
             while tasks:
                 order = sorted(tasks)
@@ -198,52 +192,51 @@ class ClusterSolver:
         stats.anchors += len(anchors)
         return res
 
-    def _attempts(self, view: ClusterView, rec: StepRecord, stats: StepStats) -> Attempts:
+    def _attempts(self, view: ClusterView, rec: StepRecord, stats: StepStats, keep: Slot | None) -> Attempts:
         """Feed the cluster's smoother the new epoch, or (re)build one from the window.
 
-        A smoother can take the new epoch when it already owns exactly this cluster's vehicles
-        (plus vehicles seen for the first time). A merge of clusters, a split, a vehicle whose
-        earlier states belong to no smoother, or a failed update rebuild it from the window with
-        the same anchor priors as lm-window, since what was marginalised cannot be moved between
-        smoothers. Yields each attempt's task and receives its result.
+        A cluster that keeps a smoother (`slots.keepers`) feeds it the new epoch. Any other (a
+        merge, a split's other parts, a vehicle whose earlier states belong to no smoother), or a
+        failed update, rebuilds it from the window with the same anchor priors as lm-window, since
+        what was marginalised cannot be moved between smoothers. Yields each attempt's task and
+        receives its result.
         """
         cfg = self.cfg
         k = self.state.step
         by_vehicle = self.state.window.by_vehicle
         members = set(view.vehicles)
-        slots = [s for s in self._slots if s.vehicles & members]
         cov_keys = self._cov_keys(view, rec)
         oldest = k - cfg.window_epochs + 1
         keys = [key for b in view.blocks for key in b.keys]
-        if len(slots) == 1 and not slots[0].dirty and slots[0].vehicles <= members:
-            slot = slots[0]
-            if all(v in slot.vehicles or by_vehicle[v][0].step == k for v in view.vehicles):
-                blocks = [rec.blocks[v] for v in view.vehicles if v in rec.blocks]
-                ranges = [r for r in rec.ranges if r.a in members]
-                stamps = {key: float(k) for b in blocks for key in b.keys}
-                fresh = any(len(by_vehicle[b.vehicle_id]) == 1 for b in blocks)  # from SPP
-                initial = self._initial(blocks)
-                res = yield SmootherTask(
-                    slot.id,
-                    False,
-                    view.vehicles,
-                    blocks,
-                    ranges,
-                    [],
-                    initial,
-                    stamps,
-                    cov_keys,
-                    oldest,
-                    keys,
-                    fresh,
-                )
-                if not isinstance(res, Exception):
-                    slot.vehicles |= members
-                    return res
-                # rebuild below; the smoother's state is unknown after a failed update
+        if keep is not None:
+            blocks = [rec.blocks[v] for v in view.vehicles if v in rec.blocks]
+            ranges = [r for r in rec.ranges if r.a in members]
+            stamps = {key: float(k) for b in blocks for key in b.keys}
+            fresh = any(len(by_vehicle[b.vehicle_id]) == 1 for b in blocks)  # from SPP
+            initial = self._initial(blocks)
+            res = yield SmootherTask(
+                keep.id,
+                False,
+                view.vehicles,
+                blocks,
+                ranges,
+                [],
+                initial,
+                stamps,
+                cov_keys,
+                oldest,
+                keys,
+                fresh,
+            )
+            if not isinstance(res, Exception):
+                keep.vehicles = set(members)  # a split's other parts were rebuilt
+                return res
+            keep.vehicles.clear()  # its smoother was dropped with the failed update: rebuild
+        slots = [s for s in self._slots if s.vehicles & members]
         for s in slots:
             s.vehicles -= members
-            s.dirty = True  # what remains of it was split off: rebuild before solving it again
+            if not self.cfg.isam2_keep_on_split:
+                s.dirty = True  # what remains of it was split off: rebuild before solving it again
         self._slots = [s for s in self._slots if s.vehicles]
         anchors = self._anchors(view.vehicles)
         stamps = {key: float(b.step) for b in view.blocks for key in b.keys}
@@ -271,7 +264,7 @@ class ClusterSolver:
             if isinstance(res, Exception):
                 last = res
                 continue
-            self._slots.append(_Slot(sid, set(members)))
+            self._slots.append(Slot(sid, set(members)))
             stats.anchors += len(anchors)
             return res
         assert last is not None
