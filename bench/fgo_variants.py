@@ -247,6 +247,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "isam2-cycle-2": {"isam2_cycle_updates": 2},
     "isam2-cycle-3": {"isam2_cycle_updates": 3},
     "isam2-cycle-8": {"isam2_cycle_updates": 8},
+    # the plane factor's sigma times this (FgoConfig.plane_sigma_scale, default 1)
+    "plane-weight-0.7": {"plane_sigma_scale": 0.7},
+    "plane-weight-0.5": {"plane_sigma_scale": 0.5},
+    "plane-weight-1.4": {"plane_sigma_scale": 1.4},
     # a split cluster's largest part goes on with its smoother instead of every part being rebuilt
     "keep-on-split": {"isam2_keep_on_split": True},
 }

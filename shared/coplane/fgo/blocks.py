@@ -8,6 +8,8 @@ factors are kept as `Recipe`s, built by the process that solves the block's clus
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from coplane.fgo import factors as F
@@ -56,7 +58,10 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         counts["pseudorange"] = len(prs)
     link_kernel = (cfg.robust, cfg.robust_tuning) if cfg.robust_planes_links else (None, None)
     if p.plane is not None:
-        own.append(Recipe(F.plane_factor, pk, p.plane, *link_kernel))
+        plane = p.plane
+        if cfg.plane_sigma_scale != 1.0:
+            plane = dataclasses.replace(plane, sigma_m=plane.sigma_m * cfg.plane_sigma_scale)
+        own.append(Recipe(F.plane_factor, pk, plane, *link_kernel))
         counts["plane"] = 1
     ln = p.link
     if ln is not None and ln.accel is not None:

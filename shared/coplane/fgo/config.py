@@ -41,6 +41,11 @@ class FgoConfig:
     use_ranging: bool = True
     use_planes: bool = True
     use_velocity: bool = True
+    # The plane factor's sigma is the node's (the fit's own uncertainty at the vehicle,
+    # `PlaneConfig.sigma_model`) times this: below 1 the graph weighs a plane more than its
+    # uncertainty says. Studied on the training seeds and not adopted: 1 is at the optimum there,
+    # 0.5 loses height accuracy (docs/planes.md, "How much a fleet plane can add").
+    plane_sigma_scale: float = 1.0
     # Paper sigma_V (m/s): the velocity between factor has sigma_V * dt per axis (eqs. 35-37).
     sigma_v: float = 0.6
     # UWB ranging sigma (m) when a RangeObs carries no positive sigma (paper: 0.3 m, UWB datasheet).

@@ -67,6 +67,7 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         cfg,
         (
             "sigma_v",
+            "plane_sigma_scale",
             "range_sigma",
             "range_warmup_max_m",
             "height_link_grade",
