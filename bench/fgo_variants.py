@@ -238,6 +238,9 @@ VARIANTS: dict[str, dict[str, object]] = {
     "isam2-full-check": {"isam2_partial_relinearization_check": False},  # the default until 2026-11-26
     # a new or rebuilt smoother's convergence loop: at most 3 more updates instead of 10
     "isam2-converge-3": {"isam2_converge_iterations": 3},
+    # ... or until no position moves by more than this (m; default 1 mm)
+    "isam2-converged-0.005": {"isam2_converged_m": 0.005},
+    "isam2-converged-0.01": {"isam2_converged_m": 0.01},
     # iSAM2 relinearises a state once its estimate moved this far (m) from its linearisation point
     "isam2-relin-0.01": {"isam2_relinearize_threshold": 0.01},  # the default until 2026-11-29
     "isam2-relin-0.02": {"isam2_relinearize_threshold": 0.02},
