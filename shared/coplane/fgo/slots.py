@@ -38,8 +38,8 @@ def keepers(
     """The clusters (indices into `views`) that go on with a smoother, and with which.
 
     A cluster can keep a slot when each of its vehicles is the slot's or seen for the first time
-    (its first window state, in `by_vehicle`, is at `step`): a merge, or a vehicle whose earlier states
-    are in another smoother or none, is rebuilt. When the slot owns vehicles beyond the cluster
+    (its first window state, in `by_vehicle`, is at `step`): a merge, or a vehicle whose earlier
+    states are in another smoother or none, is rebuilt. When the slot owns vehicles beyond the cluster
     (it split), every part is rebuilt (the default), or with `isam2_keep_on_split` the part with
     the most of them keeps it, the first such cluster on a tie. The kept smoother still holds the
     departed vehicles' states, tied to its own by the ranges once measured, until they leave its
