@@ -54,10 +54,10 @@ class ScreenResult:
     offset_cov: np.ndarray | None = None
 
 
-def design_matrix(prs: ValidPseudoranges, position: Vec) -> tuple[Mat, Vec, np.ndarray, int]:
+def design_matrix(prs: ValidPseudoranges, position: Vec) -> tuple[Mat, Vec, np.ndarray, list[str]]:
     """The rows' single-epoch linearisation at `position`: H = [-u_i, e_system(i)] (unknowns: the
     position, then one clock per system, systems sorted), the ranges |s_i - p|, each row's system
-    index and the number of systems. The FDE's test and the common errors' covariance
+    index and the systems. The FDE's test and the common errors' covariance
     (`common_error`) share it."""
     los = prs.sat_pos - position
     dist = np.linalg.norm(los, axis=1)
@@ -67,7 +67,7 @@ def design_matrix(prs: ValidPseudoranges, position: Vec) -> tuple[Mat, Vec, np.n
     h = np.zeros((len(prs), 3 + len(systems)))
     h[:, :3] = -u
     h[np.arange(len(prs)), 3 + sys_idx] = 1.0
-    return h, dist, sys_idx, len(systems)
+    return h, dist, sys_idx, systems
 
 
 def screen_pseudoranges(
@@ -115,7 +115,8 @@ def screen_pseudoranges(
     keep = np.ones(n, dtype=bool)
     if n == 0:
         return ScreenResult(keep, (), False)
-    h_full, dist, sys_idx, n_sys = design_matrix(prs, predicted)
+    h_full, dist, sys_idx, systems = design_matrix(prs, predicted)
+    n_sys = len(systems)
     resid = prs.rho + C * prs.sat_clock - dist
     var = prs.sigma**2
     # clocks start from the per-system median residual so that the linear model is centred
@@ -124,7 +125,6 @@ def screen_pseudoranges(
     # it that the receiver's clock jumped
     prior_info = np.zeros((3 + n_sys, 3 + n_sys))
     prior_info[:3, :3] = np.linalg.inv(p_pred)
-    systems = sorted(set(prs.systems)) if clock_prior else []
     for j in range(n_sys):
         in_sys = sys_idx == j
         centre = statistics.median(resid[in_sys].tolist())
