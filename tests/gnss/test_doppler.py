@@ -19,6 +19,7 @@ import math
 import numpy as np
 import pytest
 
+import coplane.gnss.doppler as doppler
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gnss.constants import OMEGA_E_GPS, WAVELENGTH, C
 from coplane.gnss.doppler import DopplerOptions, DriftPrior, solve_doppler_velocity
@@ -215,8 +216,21 @@ def test_fault_without_exclusions_allowed_is_not_ok() -> None:
     """With no exclusion allowed, a corrupted Doppler fails the residual test with a reason."""
     res = solve_doppler_velocity(_epoch(offsets={"G07": 40.0}), RX, DopplerOptions(max_exclusions=0))
     assert not res.ok
-    assert res.reason == "Doppler residual test failed after 0 exclusions"
+    assert res.reason == "Doppler residual test failed after 0 exclusions (cannot exclude 1 more)"
     assert np.all(np.isnan(res.velocity_mps)) and math.isnan(res.drift_mps)
+
+
+def test_a_group_exclusion_keeps_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fault several satellites share goes with all of them (`lsq.worst_rows`), never past
+    `max_exclusions`: a pair with one exclusion left fails instead. The pair is forced here."""
+    real_worst = doppler.worst_rows
+    monkeypatch.setattr(
+        doppler, "worst_rows", lambda a, v, s, rows: np.union1d(real_worst(a, v, s, rows), [0])
+    )
+    res = solve_doppler_velocity(_epoch(offsets={"G07": 40.0}), RX, DopplerOptions(max_exclusions=1))
+    assert not res.ok and res.excluded == ()
+    assert res.reason == "Doppler residual test failed after 0 exclusions (cannot exclude 2 more)"
+    assert len(solve_doppler_velocity(_epoch(offsets={"G07": 40.0}), RX).excluded) == 2
 
 
 def test_a_fault_with_one_redundant_doppler_is_not_pinned_on_a_satellite() -> None:

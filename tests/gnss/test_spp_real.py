@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from support import rtklib_ref as ref
 
+import coplane.gnss.spp as spp
 from coplane.evaluate.metrics import accuracy
 from coplane.evaluate.spp_run import run_spp
 from coplane.gnss.epoch_solver import EpochSolverOptions, base_corrections, solve_epoch
@@ -212,6 +213,36 @@ def test_spp_reports_no_solution_with_reason(real_data: Path) -> None:
     assert fresh.ok and not fresh.excluded and fresh.used == faulty.used
     assert np.linalg.norm(fresh.position - faulty.position) < 1e-3
     assert fresh.sigmas_m == pytest.approx(faulty.sigmas_m, rel=1e-6)
+
+
+def test_group_exclusion_keeps_the_limit_and_the_redundancy(
+    real_data: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A fault whose w-test several satellites share is excluded with all of them
+    (`lsq.worst_rows`). Such a group must not take RAIM past `max_exclusions`, nor leave a fit
+    without the redundancy to test it: that fit would be accepted untested. The group is forced
+    here (the worst row and the next one), as the real sets never make one (bench/raim_ties.py)."""
+    d = real_data / "matrtklib_nagoya_static_20240624"
+    problems = Problems()
+    nav = read_nav_files([d / "base.nav"], problems)
+    _, epochs = read_obs(d / "rover.obs", problems)
+    good = solve_spp(prepare_epoch(epochs[0], nav), nav)
+    used = [s for s in epochs[0].sats if s.sat in good.used]
+    gps = [s for s in used if s.sat.startswith("G")][:6]  # 6 rows, 4 unknowns: dof 2
+    gps[0] = replace(gps[0], pseudorange_m=gps[0].pseudorange_m + 150.0)
+    ep = replace(epochs[0], sats=tuple(gps))
+    real_worst = spp.worst_rows
+    monkeypatch.setattr(spp, "worst_rows", lambda a, v, s: np.array([0, 1]))
+    sol = solve_spp(prepare_epoch(ep, nav), nav)
+    assert not sol.ok and "cannot exclude 2 more" in (sol.reason or "") and sol.excluded == ()
+    # with redundancy to spare, the pair goes, unless the limit forbids it
+    used[0] = replace(used[0], pseudorange_m=used[0].pseudorange_m + 150.0)
+    ep = replace(epochs[0], sats=tuple(used))
+    monkeypatch.setattr(spp, "worst_rows", lambda a, v, s: np.union1d(real_worst(a, v, s), [len(v) - 1]))
+    pair = solve_spp(prepare_epoch(ep, nav), nav)
+    assert pair.ok and len(pair.excluded) == 2 and used[0].sat in pair.excluded
+    limited = solve_spp(prepare_epoch(ep, nav), nav, SppOptions(max_exclusions=1))
+    assert not limited.ok and "cannot exclude 2 more" in (limited.reason or "")
 
 
 def test_doppler_velocity_survives_a_failed_spp(real_data: Path) -> None:

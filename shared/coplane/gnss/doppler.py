@@ -239,13 +239,6 @@ def solve_doppler_velocity(
         chi = float(np.sum((v / sig) ** 2))
         if chi <= chi2_threshold(opt.false_alarm_probability, dof):
             break
-        if len(excluded) >= opt.max_exclusions:
-            return DopplerVelocity(
-                epoch.time,
-                False,
-                f"Doppler residual test failed after {len(excluded)} exclusions",
-                excluded=tuple(excluded),
-            )
         # the worst satellite (never a pseudo row), with any whose test is the same one: with one
         # redundant row that is every satellite, and which one is faulty cannot be told
         group = worst_rows(a, v, sig, rows=n)
@@ -254,6 +247,14 @@ def solve_doppler_velocity(
                 epoch.time,
                 False,
                 f"Doppler residual test failed and no satellite can be told faulty (chi2 {chi:.1f}, dof {dof})",
+                excluded=tuple(excluded),
+            )
+        if len(excluded) + len(group) > opt.max_exclusions:
+            return DopplerVelocity(
+                epoch.time,
+                False,
+                f"Doppler residual test failed after {len(excluded)} exclusions"
+                f" (cannot exclude {len(group)} more)",
                 excluded=tuple(excluded),
             )
         excluded.extend(sats[j].sat for j in group)

@@ -281,6 +281,14 @@ def _dops(a: Vec, p: Vec) -> Dops:
     )
 
 
+def _dof_without(fit: _Fit, group: list[SatMeasurement]) -> int:
+    """The redundancy left once `group` is excluded: its rows go, and so does the clock of a
+    system that loses its last satellite."""
+    gone = {id(m) for m in group}
+    left = [m for m in fit.sats if id(m) not in gone]
+    return len(left) - 3 - len({m.system for m in left})
+
+
 def solve_spp(
     epoch: PreparedEpoch,
     nav: NavData,
@@ -330,15 +338,18 @@ def solve_spp(
         passed = dof <= 0 or chi <= threshold
         if passed or opt.raim == "off":
             break
-        if opt.raim == "detect" or len(excluded) >= opt.max_exclusions or dof < 2:
+        # the worst satellite, with any whose test is the same one (a system's two satellites),
+        # excluded only if the fit after it can still be tested and the limit is kept
+        group = [fit.sats[j] for j in worst_rows(fit.a, fit.v, fit.sigma)] if opt.raim == "fde" else []
+        if not group or len(excluded) + len(group) > opt.max_exclusions or _dof_without(fit, group) < 1:
             return SppSolution(
                 epoch.time,
                 False,
-                f"chi-square test failed: {chi:.1f} > {threshold:.1f} (dof {dof}, excluded {len(excluded)})",
+                f"chi-square test failed: {chi:.1f} > {threshold:.1f} (dof {dof}, excluded {len(excluded)}"
+                + (f", cannot exclude {len(group)} more)" if group else ")"),
                 excluded=tuple(excluded),
             )
-        # the worst satellite, with any whose test is the same one (a system's two satellites)
-        for m in [fit.sats[j] for j in worst_rows(fit.a, fit.v, fit.sigma)]:
+        for m in group:
             i = sats.index(m)
             excluded.append(m.sat)
             sats = sats[:i] + sats[i + 1 :]
