@@ -2,6 +2,10 @@
 FROM python:3.11-slim
 WORKDIR /app
 ENV PIP_NO_CACHE_DIR=1 PYTHONUNBUFFERED=1
+# jemalloc for every service: GTSAM's many small allocations cost the fusion server about a quarter
+# more CPU on glibc's malloc (coplane/allocator.py, docs/performance-scale.md "Memory allocator")
+RUN apt-get update && apt-get install -y --no-install-recommends libjemalloc2 && rm -rf /var/lib/apt/lists/*
+ENV LD_PRELOAD=libjemalloc.so.2
 COPY pyproject.toml README.md ./
 COPY shared shared
 COPY services services

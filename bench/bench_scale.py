@@ -34,6 +34,8 @@ from pathlib import Path
 import numpy as np
 from docblock import write_block  # bench/ is the script's directory, first on sys.path
 
+from coplane.allocator import allocator_env, allocator_library
+
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 TICK = os.sysconf("SC_CLK_TCK")
@@ -67,7 +69,8 @@ def run_one(
     rec: Path, servers: int, region_size: float, logs: Path, pace: str = "lockstep", sample_s: float = 0.0
 ) -> dict:
     """One configuration; `sample_s` > 0 also samples every server's RSS that often (`rss_series`)."""
-    env = {**os.environ, "COPLANE_BUS_INSECURE": "1", "OPENBLAS_CORETYPE": "Haswell"}
+    # the processes as `coplane fleet` starts them: on jemalloc where installed (coplane.allocator)
+    env = {**os.environ, **allocator_env(), "COPLANE_BUS_INSECURE": "1", "OPENBLAS_CORETYPE": "Haswell"}
     port = _free_port()
     ep = f"tcp/127.0.0.1:{port}"
     procs: list[subprocess.Popen[bytes]] = []
@@ -231,7 +234,8 @@ def memory_table(r: dict, args: argparse.Namespace) -> str:
         return "too few samples: run longer or sample more often"
     lines = [
         f"machine: {platform.machine()}, {os.cpu_count()} CPUs; city {args.vehicles} vehicles x "
-        f"{args.duration:.0f} s, one server, method pc, {args.pace}; {r['solved']} vehicle-epochs solved in "
+        f"{args.duration:.0f} s, one server, method pc, {args.pace}, allocator {allocator_library() or 'system'}; "
+        f"{r['solved']} vehicle-epochs solved in "
         f"{r['wall_s']} s, server peak RSS {r['server_peak_rss_mb'][0]} MB",
         "",
         "| wall s | share of the run | server RSS MB |",
@@ -305,7 +309,7 @@ def main() -> int:
     lines = [
         f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
         f"city {args.vehicles} vehicles x {args.duration:.0f} s (seed {args.seed}, simulated in {sim_s:.0f} s), "
-        f"regions {args.region_size:.0f} m, method pc, {args.pace}",
+        f"regions {args.region_size:.0f} m, method pc, {args.pace}; allocator {allocator_library() or 'system'}",
         "",
         "| fusion servers | wall s | solved vehicle-epochs/s | vs 1 server | fusion CPU ms per vehicle-epoch (all servers) "
         "| server CPU s (each) | server peak RSS MB (each) | loadgen front end ms / vehicle-epoch | loadgen ingest ms / "

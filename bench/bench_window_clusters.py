@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import platform
 import subprocess
 import sys
@@ -68,7 +69,7 @@ def record_inputs(rec_dir: Path) -> tuple[Any, list[Any]]:
     return configs[0], inputs
 
 
-def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str, float]:
+def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str, Any]:
     """The estimator alone over `inputs` with window_cluster_max = cap: cost and errors."""
     import coplane.fgo.smoother as smoother
     from coplane.fgo.engine import FusionEstimator
@@ -93,13 +94,15 @@ def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str,
 
     smoother.SmootherCluster.update = counted  # type: ignore[method-assign]
     cpu, n, dropped, h, v = 0.0, 0, 0, [], []
+    digest = hashlib.sha256()
     for epoch in inputs:
         c0 = time.process_time()
         sol = est.step(epoch)
         cpu += time.process_time() - c0
         n += len(epoch.vehicles)
         dropped += sol.rejected.get("range_cluster_bound", 0)
-        for vid, e in sol.estimates.items():
+        for vid, e in sorted(sol.estimates.items()):
+            digest.update(vid.encode() + np.asarray(e.position_m, dtype=float).tobytes())
             tr = truth[vid].get(sol.time)
             if tr is None:
                 continue
@@ -119,6 +122,7 @@ def replay(rec_dir: Path, config: Any, inputs: list[Any], cap: int) -> dict[str,
         "rebuild_share": rebuild_cpu[0] / cpu,
         "rebuilt_median": float(np.median(rebuilt)) if rebuilt else 0.0,
         "rebuilt_max": max(rebuilt, default=0),
+        "digest": digest.hexdigest(),  # every position, bit for bit: same run, same numbers?
     }
 
 
