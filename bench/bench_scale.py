@@ -34,7 +34,16 @@ from pathlib import Path
 import numpy as np
 from docblock import write_block  # bench/ is the script's directory, first on sys.path
 
-from coplane.allocator import allocator_env, allocator_library
+try:
+    from coplane.allocator import allocator_env, allocator_library
+except ImportError:  # bench_scale_ab.py runs this harness on commits from before coplane.allocator
+
+    def allocator_env() -> dict[str, str]:
+        return {}  # those commits' services ran on the system's malloc
+
+    def allocator_library() -> str | None:
+        return None
+
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
