@@ -88,7 +88,9 @@ def main() -> int:
     ap.add_argument("--block", default=MARK, help="the docs block to write (one per fleet size)")
     args = ap.parse_args()
     import bench_window_clusters as recorder
-    from docblock import machine, publish
+    from docblock import machine, on_service_allocator, publish
+
+    malloc = on_service_allocator()  # the services' allocator: their CPU figures
 
     counts = [int(w) for w in args.workers.split(",")]
     with tempfile.TemporaryDirectory(prefix="coplane-workers-") as tmp:
@@ -140,7 +142,7 @@ def main() -> int:
                 f"{med['waiting']:.2f} | {med['shipping']:.2f} | {rest:.2f} |"
             )
     head = (
-        f"machine: {machine()}; "
+        f"machine: {machine()}, malloc {malloc}; "
         f"city of {args.vehicles} vehicles x {args.duration:.0f} s (seed {args.seed}), method pc, the "
         f"estimator alone on recorded inputs, {len(inputs)} epochs, median of {args.repeats} runs"
     )

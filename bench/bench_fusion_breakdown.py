@@ -55,8 +55,9 @@ def timed(owner: Any, name: str, part: Callable[..., str], cpu: dict[str, float]
         setattr(owner, name, original)
 
 
-def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, float], int]:
-    """CPU seconds per part of the estimator over `inputs[warmup:]`, and the vehicle-epochs."""
+def breakdown(inputs: list[Any], config: Any, warmup: int) -> tuple[dict[str, float], int, dict[str, float]]:
+    """CPU seconds per part of the estimator over `inputs[warmup:]`, the vehicle-epochs, and the
+    smoother tasks' counts and CPU (`task_rows`)."""
     import gtsam
 
     import coplane.fgo.engine as engine
@@ -142,7 +143,9 @@ def main() -> int:
     ap.add_argument("--block", default=MARK, help="the docs block to write (one per city size)")
     args = ap.parse_args()
     import bench_window_clusters as recorder  # the same recorded inputs as the window-bound table
-    from docblock import machine, publish
+    from docblock import machine, on_service_allocator, publish
+
+    malloc = on_service_allocator()  # the services' allocator: their CPU figures
 
     with tempfile.TemporaryDirectory(prefix="coplane-breakdown-") as tmp:
         rec = Path(tmp) / "city"
@@ -157,7 +160,7 @@ def main() -> int:
     rows.append(f"| **whole step** | **{1e3 * total / n:.2f}** | 100 % |")
     rows += ["", *task_rows(tasks, n, len(inputs) - args.warmup)]
     head = (
-        f"machine: {machine(cpus=False)}; city of {args.vehicles} vehicles x "
+        f"machine: {machine(cpus=False)}, malloc {malloc}; city of {args.vehicles} vehicles x "
         f"{args.duration:.0f} s (seed {args.seed}), method pc, the estimator alone on recorded inputs, "
         f"epochs after the first {args.warmup}: {n} vehicle-epochs"
     )

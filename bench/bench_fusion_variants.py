@@ -68,7 +68,9 @@ def main() -> int:
     ap.add_argument("--block", default=MARK, help="the docs block to write (a page may hold several)")
     args = ap.parse_args()
     import bench_window_clusters as recorder
-    from docblock import write_block
+    from docblock import on_service_allocator, write_block
+
+    malloc = on_service_allocator()  # the services' allocator: their CPU figures
 
     seeds = [int(s) for s in args.seeds.split(",")]
     training = {int(s) for s in args.training.split(",")}
@@ -92,7 +94,7 @@ def main() -> int:
                 )
             print("\n".join(rows[-len(res) :]), flush=True)
     head = (
-        f"machine: {platform.machine()}, Python {platform.python_version()}; cities of {args.vehicles} vehicles x "
+        f"machine: {platform.machine()}, Python {platform.python_version()}, malloc {malloc}; cities of {args.vehicles} vehicles x "
         f"{args.duration:.0f} s, method pc, the estimator alone on recorded inputs, each variant one change to "
         "the defaults (`bench/tune_fgo.py`)"
     )

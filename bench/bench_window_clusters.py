@@ -135,6 +135,9 @@ def main() -> int:
     ap.add_argument("--caps", default="0,16,32,48")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
+    from docblock import on_service_allocator
+
+    malloc = on_service_allocator()  # the services' allocator: their CPU figures
     seeds = [int(s) for s in args.seeds.split(",")]
     training = {int(s) for s in args.training.split(",")}
     caps = [int(c) for c in args.caps.split(",")]
@@ -162,7 +165,7 @@ def main() -> int:
                 )
                 print(rows[-1], flush=True)
     head = (
-        f"machine: {platform.machine()}, 2 CPUs, Python {platform.python_version()}; cities of "
+        f"machine: {platform.machine()}, 2 CPUs, Python {platform.python_version()}, malloc {malloc}; cities of "
         f"{args.vehicles} vehicles x {args.duration:.0f} s, method pc, the estimator alone on recorded inputs"
     )
     table = head + "\n\n" + "\n".join(rows)

@@ -8,8 +8,25 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 import time
 from pathlib import Path
+
+_REEXEC = "COPLANE_BENCH_ON_SERVICE_ALLOCATOR"
+
+
+def on_service_allocator() -> str:
+    """Run this benchmark on the allocator coplane's services run on (`coplane.allocator`:
+    jemalloc where installed), so that its CPU figures are theirs. A process cannot change its
+    allocator, so the script runs itself again, once, with it preloaded. Returns the allocator
+    this process runs on, for the table's header."""
+    from coplane.allocator import allocator_env, loaded_allocator
+
+    env = allocator_env()
+    if env and os.environ.get(_REEXEC) != "1":
+        sys.stdout.flush()
+        os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, **env, _REEXEC: "1"})
+    return loaded_allocator()
 
 
 def machine(cpus: bool = True) -> str:
