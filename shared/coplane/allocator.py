@@ -3,9 +3,11 @@
 GTSAM's iSAM2 allocates and frees many small objects on every update (factors, noise models,
 linearised factors, Bayes-tree cliques), and smoothers are dropped and rebuilt as clusters change.
 glibc's malloc serves that pattern measurably slower than jemalloc: the fusion estimator alone ran
-a 1000-vehicle city on 0.81 times glibc's CPU with jemalloc, with bit-identical positions (docs/performance-scale.md, "Memory allocator"; `bench/bench_allocator.py`). A running
-process cannot change its allocator, so the library is preloaded (`LD_PRELOAD`) into the
-processes coplane starts (`coplane.fleet.launcher`); the Docker image preloads it for its own.
+a 1000-vehicle city on 0.81 times glibc's CPU with jemalloc, with bit-identical positions
+(docs/performance-scale.md, "Memory allocator"; `bench/bench_allocator.py`). A running process
+cannot change its allocator, so the library is preloaded (`LD_PRELOAD`) into the processes
+coplane starts (`coplane.fleet.launcher`, and the cluster processes a server spawns inherit it);
+the Docker image preloads it for its own.
 
 `COPLANE_ALLOCATOR`: "auto" (the default: jemalloc if the dynamic linker finds it, else the
 system's malloc), "system" (leave malloc alone), or the path of an allocator library to preload.
