@@ -24,6 +24,8 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
+from coplane.errors import ConfigError
+
 ENV = "COPLANE_ALLOCATOR"
 
 
@@ -41,7 +43,7 @@ def allocator_library(environ: Mapping[str, str] = os.environ) -> str | None:
     if raw in ("", "auto"):
         return _find_jemalloc()
     if not Path(raw).is_file():
-        raise ValueError(f"environment variable {ENV}: {raw!r} is not 'auto', 'system' or a library file")
+        raise ConfigError(f"environment variable {ENV}: {raw!r} is not 'auto', 'system' or a library file")
     return raw
 
 

@@ -14,6 +14,7 @@ import pytest
 import coplane.allocator as allocator
 import coplane.fleet.launcher as launcher
 from coplane.allocator import allocator_env, allocator_library, loaded_allocator
+from coplane.errors import ConfigError
 
 
 def test_auto_is_jemalloc_when_found(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -39,7 +40,8 @@ def test_system_and_explicit_library(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("bad", ["jemalloc", "/nonexistent/libjemalloc.so.2", "System"])
 def test_a_bad_setting_names_the_variable(bad: str) -> None:
-    with pytest.raises(ValueError, match="COPLANE_ALLOCATOR"):
+    """A user's error (ConfigError: `coplane fleet` prints it and exits 2, no traceback)."""
+    with pytest.raises(ConfigError, match="COPLANE_ALLOCATOR"):
         allocator_library({"COPLANE_ALLOCATOR": bad})
 
 

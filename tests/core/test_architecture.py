@@ -23,8 +23,8 @@ LAYERS: dict[str, int] = {
     "ids": 0,
     "components": 0,  # union-find for clusters of ranged vehicles
     "blas_threads": 0,  # one BLAS thread per process, applied by coplane/__init__.py
-    "allocator": 0,  # jemalloc for the processes coplane starts (fleet/launcher.py)
     "gtime": 1,
+    "allocator": 1,  # jemalloc for the processes coplane starts (fleet/launcher.py); errors only
     "geo": 1,
     # data and models
     "recording": 2,
