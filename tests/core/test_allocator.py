@@ -84,3 +84,27 @@ def test_the_image_preloads_it() -> None:
     """docker-compose's services run on the image's jemalloc, as `coplane fleet`'s do."""
     dockerfile = (Path(__file__).resolve().parents[2] / "Dockerfile").read_text()
     assert "libjemalloc2" in dockerfile and "ENV LD_PRELOAD=libjemalloc.so.2" in dockerfile
+
+
+POOL = """
+import dataclasses, multiprocessing as mp
+from coplane.fgo.config import FgoConfig
+from coplane.parallel import smoothers_for
+pool = smoothers_for(dataclasses.replace(FgoConfig(), solver="isam2-fixed-lag"), 2)
+kids = mp.active_children()
+print(" ".join("jemalloc" in open(f"/proc/{k.pid}/maps").read() and "jemalloc" or "other" for k in kids))
+pool.close()
+"""
+
+
+def test_a_servers_cluster_processes_inherit_it() -> None:
+    """A fusion server's cluster processes (`--cluster_workers`) are spawned with its environment,
+    so they run on its allocator too (docs/scale.md)."""
+    env = allocator_env({})
+    if not env:
+        pytest.skip("no jemalloc on this machine (Debian: libjemalloc2)")
+    out = subprocess.run(
+        [sys.executable, "-c", POOL], env={**os.environ, **env}, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["jemalloc"], out.stdout

@@ -7,6 +7,7 @@ Every service alone exits 130 on SIGINT and 143 on SIGTERM.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -17,6 +18,7 @@ from pathlib import Path
 import pytest
 from support.e2e_fleet import signal_and_time, start_serving_fleet
 
+from coplane.allocator import allocator_env
 from coplane.fleet import free_port, wait_for_port
 from coplane.sim.generate import simulate
 
@@ -49,11 +51,12 @@ def test_fleet_serve_stops_everything(
 
 def test_every_service_exits_128_plus_the_signal(recording: Path, tmp_path: Path) -> None:
     """Router, fusion server, agent and API, each signalled mid-run (the agent in realtime, so it
-    is still replaying)."""
+    is still replaying). They start on the allocator the launcher gives them, and the fusion server
+    logs the one it found itself on."""
     port, api_port = free_port(), free_port()
     connect = f'["tcp/127.0.0.1:{port}"]'
     rec = str(recording)
-    common = {"COPLANE_BUS_INSECURE": "1"}
+    common = {"COPLANE_BUS_INSECURE": "1", **allocator_env()}
     cmds = {
         "router": ["coplane.bus.router", "--listen", f"tcp/127.0.0.1:{port}"],
         "fusion": [
@@ -106,6 +109,9 @@ def test_every_service_exits_128_plus_the_signal(recording: Path, tmp_path: Path
             codes[name] = procs[name].wait(LIMIT_S)
             assert time.monotonic() - t0 < LIMIT_S
         assert codes == {n: 128 + s for n, s in plan.items()}, codes
+        lines = [json.loads(x) for x in (logs / "fusion.log").read_text().splitlines() if x.startswith("{")]
+        found = [x.get("allocator") for x in lines if x.get("msg") == "memory allocator"]
+        assert found == ["jemalloc" if allocator_env() else "system"], found
     finally:
         for p in procs.values():
             if p.poll() is None:
