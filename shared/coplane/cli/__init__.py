@@ -28,6 +28,7 @@ from coplane.cli.eval import eval_
 from coplane.cli.fleet import fleet
 from coplane.cli.loadgen import loadgen
 from coplane.cli.map import map_app
+from coplane.cli.recording import recording_app
 from coplane.cli.render import err_console
 from coplane.cli.simulate import simulate_command
 from coplane.cli.spp import spp
@@ -103,3 +104,4 @@ app.command()(compose)
 app.command()(convert)
 app.add_typer(certs_app)
 app.add_typer(map_app)
+app.add_typer(recording_app)

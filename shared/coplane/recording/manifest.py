@@ -78,7 +78,10 @@ def _root_and_toml(root: Path) -> tuple[Path, Path]:
     root = Path(root)
     toml_path = root if root.name == MANIFEST_NAME or root.suffix == ".toml" else root / MANIFEST_NAME
     if not toml_path.is_file():
-        raise RecordingError(f"{toml_path}: no {MANIFEST_NAME} (not a fleet recording)")
+        raise RecordingError(
+            f"{toml_path}: no {MANIFEST_NAME} (not a fleet recording; for a folder of RINEX files, "
+            f"`coplane recording init {root}` writes one)"
+        )
     return toml_path.parent.resolve(), toml_path
 
 

@@ -1,0 +1,166 @@
+"""`coplane recording init`: a fleet recording (fleet.toml) for a folder of RINEX files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from coplane.cli.render import console, err_console
+from coplane.errors import ConfigError
+
+recording_app = typer.Typer(
+    name="recording",
+    help="Fleet recordings: describe a folder of RINEX files as one (fleet.toml).",
+    no_args_is_help=True,
+)
+
+
+def _pairs(values: list[str] | None, option: str) -> dict[str, str]:
+    """`ID=VALUE` options as {id: value}; ConfigError naming the option otherwise."""
+    out: dict[str, str] = {}
+    for v in values or []:
+        ident, sep, value = v.partition("=")
+        if not sep or not ident or not value:
+            raise ConfigError(f"{option} {v!r}: expected ID=VALUE")
+        if ident in out:
+            raise ConfigError(f"{option}: {ident!r} given twice")
+        out[ident] = value
+    return out
+
+
+def _truth(value: str) -> Path | tuple[float, float, float]:
+    """A `--truth` value: three numbers are a surveyed point (ECEF or lat,lon,h), else a file."""
+    from coplane.recording.plan import parse_position
+
+    if value.count(",") == 2 and value.strip() != "header":
+        try:
+            point = parse_position(value)
+        except ConfigError:
+            return Path(value)
+        assert point != "header"
+        return point
+    return Path(value)
+
+
+@recording_app.command("init")
+def init(
+    directory: Annotated[
+        Path, typer.Argument(help="The folder holding the RINEX files (searched recursively).")
+    ],
+    base: Annotated[
+        Path | None, typer.Option(help="The reference station's observation file (enables DGNSS).")
+    ] = None,
+    base_position: Annotated[
+        str | None,
+        typer.Option(
+            help="The base antenna: ECEF 'x,y,z' (m), 'lat,lon,h' (deg, deg, ellipsoidal m), or 'header' "
+            "for its RINEX header's APPROX POSITION XYZ (often metres off)."
+        ),
+    ] = None,
+    vehicle: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="ID=FILE (repeatable): only these files are vehicles, with these ids; default: "
+            "every other observation file, named by its MARKER NAME or file name."
+        ),
+    ] = None,
+    antenna_height: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="Every vehicle's antenna height above the road (m), for the plane methods."
+        ),
+    ] = 1.5,
+    interval: Annotated[
+        float | None, typer.Option(help="Epoch spacing (s); default: the files' own.")
+    ] = None,
+    name: Annotated[str | None, typer.Option(help="The recording's name; default: the folder's.")] = None,
+    uwb: Annotated[
+        Path | None, typer.Option(help="Inter-vehicle ranges (uwb.csv, docs/recording-format.md).")
+    ] = None,
+    truth: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="ID=FILE (repeatable): a vehicle's reference trajectory CSV; ID=x,y,z or ID=lat,lon,h: "
+            "the surveyed point a static receiver stood on (written as truth/ID.csv)."
+        ),
+    ] = None,
+    dry_run: Annotated[bool, typer.Option(help="Print fleet.toml instead of writing it.")] = False,
+    force: Annotated[bool, typer.Option(help="Replace an existing fleet.toml.")] = False,
+) -> None:
+    """Describe the RINEX files of DIRECTORY as a fleet recording: writes DIRECTORY/fleet.toml.
+
+    Every observation file becomes a vehicle but the --base; every GPS and BeiDou navigation file
+    is merged. Each observation file is read once, and what was found is printed, so the choice
+    can be checked before `coplane spp` or `coplane eval` run on it.
+    """
+    import tomli_w
+
+    from coplane.recording.manifest import MANIFEST_NAME, manifest_dict
+    from coplane.recording.plan import nav_coverage_note, parse_position, plan_recording, write_plan
+    from coplane.recording.reader import open_recording
+
+    target = directory / MANIFEST_NAME
+    if target.exists() and not (force or dry_run):
+        raise ConfigError(f"{target} exists; --force replaces it")
+    plan = plan_recording(
+        directory,
+        base=base,
+        base_position=parse_position(base_position) if base_position is not None else None,
+        vehicles={k: Path(v) for k, v in _pairs(vehicle, "--vehicle").items()},
+        antenna_height_m=antenna_height,
+        interval_s=interval,
+        name=name,
+        uwb=uwb,
+        truth={k: _truth(v) for k, v in _pairs(truth, "--truth").items()},
+    )
+    root = plan.manifest.root
+    table = Table(title=f"RINEX observation files in {root}")
+    for col in (
+        "role",
+        "file",
+        "RINEX",
+        "epochs",
+        "span s",
+        "interval s",
+        "G / C per epoch",
+        "Doppler %",
+        "problems",
+    ):
+        table.add_column(col, justify="left" if col in ("role", "file") else "right")
+    for path, s in plan.summaries.items():
+        span = (s.last - s.first) if s.first is not None and s.last is not None else 0.0
+        per = " / ".join(f"{s.satellites_per_epoch.get(k, 0.0):.1f}" for k in ("G", "C"))
+        table.add_row(
+            plan.roles.get(path, "-"),
+            str(path.relative_to(root)),
+            f"{s.header.version:.2f}",
+            str(s.epochs),
+            f"{span:.0f}",
+            "-" if s.interval_s is None else f"{s.interval_s:g}",
+            per,
+            f"{100 * s.doppler_share:.0f}",
+            str(s.problems),
+        )
+    console.print(table)
+    console.print("navigation: " + ", ".join(str(p.relative_to(root)) for p in plan.manifest.nav_files))
+    for line in plan.skipped:
+        console.print(f"not used: {line}")
+    if dry_run:
+        for note in plan.notes:
+            err_console.print(f"note: {note}")
+        typer.echo(tomli_w.dumps(manifest_dict(plan.manifest)))
+        return
+    path = write_plan(plan, force)
+    rec = open_recording(path)
+    toes = [e.toe for ephs in rec.nav.ephemerides.values() for e in ephs]
+    coverage = nav_coverage_note(plan, toes)
+    for note in [*plan.notes, *([coverage] if coverage else [])]:
+        err_console.print(f"note: {note}")
+    console.print(
+        f"wrote {path} ({len(plan.manifest.vehicles)} vehicle(s), "
+        f"{'a base' if plan.manifest.base else 'no base'}, interval {plan.manifest.interval_s:g} s); "
+        f"next: coplane spp {directory} --out out/spp.pos, coplane eval {directory} --out out/eval"
+    )

@@ -1,0 +1,166 @@
+"""The files of a drive's folder: which are RINEX observation or navigation files or receiver
+logs, and what each observation file holds (epochs, interval, satellites, Doppler).
+
+`coplane recording init` (`recording.plan`) describes a folder of them as a fleet recording; this
+module only looks. Written here because no RINEX library reads a folder of several receivers'
+files as one session; the parsing is coplane's own readers', as for every recording.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+import statistics
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from coplane.gtime import GpsTime
+from coplane.ids import is_vehicle_id
+from coplane.recording.model import ObsEpoch, ObsHeader
+from coplane.recording.problems import Problems, RecordingError
+from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
+from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
+from coplane.recording.sfrbx import read_sfrbx_nav
+from coplane.recording.ubx import read_ubx
+
+MAX_FILES = 2000  # a directory tree larger than this is not a drive's folder: refuse, naming it
+
+LOG_SUFFIXES = (".ubx", ".rtcm3")  # receiver logs: observations and navigation in one file
+
+
+@dataclass(frozen=True)
+class ReceiverFile:
+    """What a file is: a RINEX observation or navigation file (its version and system, from its
+    first line), or a receiver log (`log`: a .ubx or .rtcm3 file, which may hold both)."""
+
+    path: Path
+    kind: Literal["obs", "nav", "log", "other"]
+    version: float
+    system: str  # the header's satellite system letter; RINEX 2 GPS navigation is "G"
+
+
+def sniff(path: Path) -> ReceiverFile | None:
+    """The kind of `path`: a receiver log by its extension, RINEX by its first line; None otherwise."""
+    if path.suffix.lower() in LOG_SUFFIXES:
+        return ReceiverFile(path, "log", 0.0, "")
+    try:
+        with path.open("r", encoding="latin-1") as f:
+            line = f.readline(200)
+    except OSError:
+        return None
+    if "RINEX VERSION / TYPE" not in line:
+        return None
+    try:
+        version = float(line[0:9])
+    except ValueError:
+        return None
+    kind_char, system = line[20:21], line[40:41].strip()
+    if kind_char == "O":
+        return ReceiverFile(path, "obs", version, system or "G")
+    if kind_char == "N":  # RINEX 3: system in column 41; RINEX 2 "N": GPS navigation
+        return ReceiverFile(path, "nav", version, (system or "G") if version >= 3.0 else "G")
+    if kind_char in ("G", "H", "L", "C") and version < 3.0:  # RINEX 2 GLONASS, SBAS, Galileo nav
+        return ReceiverFile(path, "nav", version, {"G": "R", "H": "S", "L": "E"}.get(kind_char, kind_char))
+    return ReceiverFile(path, "other", version, system)
+
+
+@dataclass
+class ObsSummary:
+    """One observation file read once: what the manifest and the user need to know about it."""
+
+    path: Path
+    header: ObsHeader
+    epochs: int = 0
+    first: GpsTime | None = None
+    last: GpsTime | None = None
+    interval_s: float | None = None  # the header's INTERVAL, else the median epoch spacing
+    satellites_per_epoch: dict[str, float] = field(default_factory=dict)  # system -> mean count
+    doppler_share: float = 0.0  # share of pseudoranges with a Doppler on the same signal
+    problems: int = 0
+    times: tuple[GpsTime, ...] = ()  # every epoch's receiver time tag
+
+
+def summarise_obs(path: Path) -> ObsSummary:
+    """Read `path` once with coplane's reader (GPS and BeiDou signals, as every method uses); a
+    receiver log by its extension, as a recording reads it."""
+    problems = Problems(keep=0)
+    header, epochs = _read_epochs(path, problems)
+    s = ObsSummary(path, header)
+    times: list[GpsTime] = []
+    sats: dict[str, int] = {sys: 0 for sys in DEFAULT_SYSTEMS}
+    ranges = dopplers = 0
+    for ep in epochs:
+        if ep.flag > 1:  # event records (antenna moved, header lines, splice) carry no epoch
+            continue
+        times.append(ep.time)
+        for o in ep.sats:
+            if math.isfinite(o.pseudorange_m):
+                sats[o.sat[0]] = sats.get(o.sat[0], 0) + 1
+                ranges += 1
+                dopplers += math.isfinite(o.doppler_hz)
+    s.epochs = len(times)
+    s.times = tuple(times)
+    s.problems = problems.total
+    if times:
+        s.first, s.last = times[0], times[-1]
+        s.satellites_per_epoch = {k: n / len(times) for k, n in sats.items() if n}
+    s.doppler_share = dopplers / ranges if ranges else 0.0
+    spacing = [b - a for a, b in itertools.pairwise(times) if b - a > 1e-3]
+    if header.interval_s is not None and header.interval_s > 0:
+        s.interval_s = header.interval_s
+    elif spacing:
+        s.interval_s = round(statistics.median(spacing), 3)
+    return s
+
+
+def _read_epochs(path: Path, problems: Problems) -> tuple[ObsHeader, Iterable[ObsEpoch]]:
+    suffix = path.suffix.lower()
+    if suffix == ".ubx":
+        return read_ubx(path, problems)
+    if suffix == ".rtcm3":
+        return read_rtcm3(path, problems)
+    return iter_obs(path, problems)
+
+
+def log_has_ephemerides(path: Path) -> bool:
+    """Whether a receiver log carries broadcast ephemerides (UBX RXM-SFRBX, RTCM 1019/1042)."""
+    problems = Problems(keep=0)
+    nav = read_sfrbx_nav(path, problems) if path.suffix.lower() == ".ubx" else read_rtcm3_nav(path, problems)
+    return bool(nav.ephemerides)
+
+
+def vehicle_ids(summaries: Sequence[ObsSummary]) -> list[str]:
+    """The vehicles' ids: their headers' MARKER NAMEs when every one is a valid id and no two are
+    the same (receivers often leave a default such as "SEPT"), else every file name's stem made
+    one ([A-Za-z0-9_-], at most 32 characters), numbered where two collide."""
+    markers = [s.header.marker_name.strip() for s in summaries]
+    if all(is_vehicle_id(m) for m in markers) and len(set(markers)) == len(markers):
+        return markers
+    out: list[str] = []
+    for s in summaries:
+        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", s.path.stem).strip("_")[:28] or "vehicle"
+        vid, n = stem, 2
+        while vid in out:
+            vid, n = f"{stem}_{n}", n + 1
+        out.append(vid)
+    return out
+
+
+def receiver_files(root: Path) -> list[ReceiverFile]:
+    """Every RINEX file and receiver log under `root` (sorted, hidden folders skipped)."""
+    if not root.is_dir():
+        raise RecordingError(f"{root}: not a directory")
+    paths = []
+    for p in sorted(root.rglob("*")):
+        if any(part.startswith(".") for part in p.relative_to(root).parts):
+            continue
+        if p.is_file():
+            paths.append(p)
+            if len(paths) > MAX_FILES:
+                raise RecordingError(
+                    f"{root}: more than {MAX_FILES} files below it; point at one drive's folder"
+                )
+    return [r for r in (sniff(p) for p in paths) if r is not None]

@@ -1,0 +1,328 @@
+"""A fleet recording for files a user already has: the manifest (fleet.toml) of a drive's folder.
+
+A test fleet logs RINEX (a receiver's own files, RTKLIB's `convbin`, a CORS download) or UBX / RTCM 3
+logs; coplane reads recordings described by a manifest (../spec/fleet-recording.md).
+`plan_recording` looks at the files of a folder (`recording.discover`), reads every observation
+file once and returns the manifest that describes them, with notes on everything it chose;
+`write_plan` writes it (`coplane recording init`). Nothing that changes results is guessed: which
+file is the base and where its antenna is are the user's to say (a RINEX header's APPROX POSITION
+XYZ is often the receiver's own fix, metres off, and DGNSS carries any base error into every
+vehicle).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from coplane.errors import ConfigError
+from coplane.geo import enu_to_ecef, geodetic_to_ecef
+from coplane.gtime import GpsTime
+from coplane.ids import is_vehicle_id
+from coplane.recording.discover import (
+    ObsSummary,
+    ReceiverFile,
+    log_has_ephemerides,
+    receiver_files,
+    summarise_obs,
+    vehicle_ids,
+)
+from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
+from coplane.recording.problems import RecordingError
+
+# the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
+NAV_SYSTEMS = ("G", "C", "M")
+EARTH_RADIUS_RANGE_M = (6.30e6, 6.42e6)  # |ECEF| of a point near the surface
+
+
+def parse_position(text: str) -> tuple[float, float, float] | Literal["header"]:
+    """A base antenna position: "header", ECEF "x,y,z" (m) or geodetic "lat,lon,h" (deg, deg, m
+    ellipsoidal), told apart by magnitude; ConfigError naming the forms otherwise."""
+    if text.strip() == "header":
+        return "header"
+    try:
+        vals = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) == 3 and all(math.isfinite(v) for v in vals):
+        norm = math.hypot(*vals)
+        if EARTH_RADIUS_RANGE_M[0] <= norm <= EARTH_RADIUS_RANGE_M[1]:
+            return (vals[0], vals[1], vals[2])
+        if abs(vals[0]) <= 90.0 and abs(vals[1]) <= 180.0 and abs(vals[2]) < 1e4:
+            xyz = geodetic_to_ecef(math.radians(vals[0]), math.radians(vals[1]), vals[2])
+            return (float(xyz[0]), float(xyz[1]), float(xyz[2]))
+    raise ConfigError(
+        f"--base-position {text!r}: expected 'header', ECEF 'x,y,z' in metres or 'lat,lon,h' "
+        "(degrees, degrees, ellipsoidal metres)"
+    )
+
+
+def header_antenna_position(h: ObsHeader, path: Path) -> tuple[float, float, float]:
+    """The antenna reference point from a header: APPROX POSITION XYZ (the marker) moved by
+    ANTENNA: DELTA H/E/N (up, east, north), as RINEX defines them."""
+    if h.approx_position_ecef_m is None:
+        raise ConfigError(f"{path}: its header has no APPROX POSITION XYZ; give --base-position x,y,z")
+    up, east, north = h.antenna_delta_hen_m
+    xyz = enu_to_ecef(np.array([east, north, up]), np.array(h.approx_position_ecef_m))
+    return (float(xyz[0]), float(xyz[1]), float(xyz[2]))
+
+
+@dataclass
+class RecordingPlan:
+    """The manifest `plan_recording` chose, every observation file it read, and why it chose so."""
+
+    manifest: Manifest
+    summaries: dict[Path, ObsSummary]
+    roles: dict[Path, str]  # observation file -> vehicle id, or "base"
+    skipped: list[str]  # files found and not used, each with the reason
+    notes: list[str]
+    # truth files to write: vehicles given a surveyed point instead of a trajectory (`--truth ID=x,y,z`)
+    static_truth: dict[str, list[TruthPoint]] = field(default_factory=dict)
+
+
+def inside(root: Path, path: Path, what: str) -> Path:
+    """`path` (as given, else relative to `root`) resolved, and inside `root` as the format requires."""
+    candidates = [path] if path.is_absolute() else [root / path, path]
+    found = next((c.resolve() for c in candidates if c.is_file()), None)
+    if found is None:
+        raise ConfigError(f"{what} {path}: no such file (in {root} or the current directory)")
+    if not found.is_relative_to(root.resolve()):
+        raise ConfigError(
+            f"{what} {found}: outside {root}; a recording's files must be inside its directory (move or copy it there)"
+        )
+    return found
+
+
+def plan_recording(
+    root: Path,
+    *,
+    base: Path | None = None,
+    base_position: tuple[float, float, float] | Literal["header"] | None = None,
+    vehicles: Mapping[str, Path] | None = None,
+    antenna_height_m: float = 1.5,
+    interval_s: float | None = None,
+    name: str | None = None,
+    uwb: Path | None = None,
+    truth: Mapping[str, Path | tuple[float, float, float]] | None = None,
+) -> RecordingPlan:
+    """The manifest of the files under `root`: every observation file (RINEX, or a .ubx / .rtcm3
+    log with observations) is a vehicle (or only `vehicles`, id -> file) but `base`; every GPS /
+    BeiDou navigation file (RINEX, or a log with ephemerides) is merged; `truth/<id>.csv` and
+    `uwb.csv` are taken where the format puts them. `truth`:
+    a vehicle's reference trajectory file, or the ECEF point where it stood (a static test)."""
+    root = root.resolve()
+    found = receiver_files(root)
+    notes: list[str] = []
+    skipped: list[str] = []
+    nav, logs = _navigation(root, found, skipped)
+    base_path = inside(root, base, "--base") if base is not None else None
+    if (base_path is None) != (base_position is None):
+        raise ConfigError(
+            "--base needs --base-position (its surveyed antenna position, or 'header')"
+            if base_path is not None
+            else "--base-position without --base: which file is the base station?"
+        )
+    if vehicles:
+        chosen = {vid: inside(root, p, f"--vehicle {vid}") for vid, p in vehicles.items()}
+        bad = [vid for vid in chosen if not is_vehicle_id(vid)]
+        if bad:
+            raise ConfigError(f"--vehicle: invalid id {bad[0]!r} (allowed: [A-Za-z0-9_-]{{1,32}})")
+        candidates = list(chosen.values())
+    else:
+        chosen = {}
+        candidates = [r.path.resolve() for r in found if r.kind == "obs"] + logs
+    if base_path is not None and base_path not in candidates:
+        candidates.append(base_path)
+    # a log is a vehicle only when it holds observations (one may hold navigation only); a file
+    # the user named must be one
+    named = set(chosen.values()) | {base_path}
+    summaries = _summaries(candidates, {p for p in logs if p not in named})
+    skipped += [f"{p.relative_to(root)}: a log with neither observations nor ephemerides"
+                for p in candidates if p not in summaries and p not in nav]  # fmt: skip
+    rovers = [p for p in summaries if p != base_path]
+    if not rovers:
+        raise RecordingError(f"{root}: no observation file (RINEX, UBX or RTCM 3) for a vehicle below it")
+    if not chosen:
+        chosen = dict(zip(vehicle_ids([summaries[p] for p in rovers]), rovers, strict=True))
+    roles = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
+    empty = [p for p, s in summaries.items() if s.epochs == 0]
+    if empty:
+        raise RecordingError(f"{empty[0]}: no epoch with GPS or BeiDou pseudoranges")
+    interval = (
+        interval_s if interval_s is not None else _fleet_interval([summaries[p] for p in chosen.values()])
+    )
+    if interval <= 0 or not math.isfinite(interval):
+        raise ConfigError(f"--interval {interval}: must be a positive number of seconds")
+    notes += _coverage_notes(summaries, chosen, base_path, interval)
+    base_spec = None
+    if base_path is not None and base_position is not None:
+        base_spec = BaseSpec(base_path, _base_position(base_position, summaries[base_path], notes))
+    truths, static = _truths(root, chosen, summaries, truth or {}, interval, notes)
+    if uwb is None and (root / "uwb.csv").is_file():
+        uwb = root / "uwb.csv"
+        notes.append("uwb.csv taken as the inter-vehicle ranges")
+    specs = tuple(VehicleSpec(vid, p, antenna_height_m, truths.get(vid)) for vid, p in chosen.items())
+    uwb_spec = UwbSpec(inside(root, uwb, "--uwb")) if uwb is not None else None
+    manifest = Manifest(root, name or root.name, interval, tuple(nav), specs, base_spec, uwb_spec)
+    return RecordingPlan(manifest, summaries, roles, skipped, notes, static)
+
+
+def _navigation(
+    root: Path, found: Sequence[ReceiverFile], skipped: list[str]
+) -> tuple[list[Path], list[Path]]:
+    """The navigation files to merge (GPS / BeiDou RINEX first, then the logs with ephemerides: a
+    satellite's first record wins) and every receiver log; the other files found go to `skipped`."""
+    logs = [r.path.resolve() for r in found if r.kind == "log"]
+    nav = [r.path for r in found if r.kind == "nav" and r.system in NAV_SYSTEMS]
+    nav += [p for p in logs if log_has_ephemerides(p)]
+    for r in found:
+        if r.kind == "nav" and r.system not in NAV_SYSTEMS:
+            skipped.append(f"{r.path.relative_to(root)}: {r.system} navigation (coplane uses GPS and BeiDou)")
+        elif r.kind == "other":
+            skipped.append(f"{r.path.relative_to(root)}: RINEX of another type")
+    if not nav:
+        raise RecordingError(
+            f"{root}: no GPS or BeiDou navigation file (RINEX, or a UBX / RTCM 3 log with ephemerides) "
+            "below it; add one (e.g. the day's BRDC file, or the receiver's own navigation log)"
+        )
+    return nav, logs
+
+
+def _summaries(paths: Sequence[Path], optional: set[Path]) -> dict[Path, ObsSummary]:
+    """Each file read once; an `optional` one (a log nobody named) without observations is left out."""
+    out: dict[Path, ObsSummary] = {}
+    for p in paths:
+        try:
+            summary = summarise_obs(p)
+        except RecordingError:
+            if p not in optional:
+                raise
+            continue
+        if summary.epochs or p not in optional:
+            out[p] = summary
+    return out
+
+
+def _base_position(
+    given: tuple[float, float, float] | Literal["header"], base: ObsSummary, notes: list[str]
+) -> tuple[float, float, float]:
+    """The base antenna's ECEF position: as given, or its header's (said in `notes`)."""
+    if given != "header":
+        return given
+    notes.append(
+        f"base position from {base.path.name}'s header (APPROX POSITION XYZ + antenna delta): "
+        "DGNSS moves every vehicle by any error in it; give the surveyed one if it is known"
+    )
+    return header_antenna_position(base.header, base.path)
+
+
+def _truths(
+    root: Path,
+    vehicles: Mapping[str, Path],
+    summaries: Mapping[Path, ObsSummary],
+    given: Mapping[str, Path | tuple[float, float, float]],
+    interval: float,
+    notes: list[str],
+) -> tuple[dict[str, Path], dict[str, list[TruthPoint]]]:
+    """Each vehicle's truth file: given, a surveyed point (written as truth/<id>.csv, one row per
+    epoch it logged), or truth/<id>.csv where the format puts it."""
+    unknown = sorted(set(given) - set(vehicles))
+    if unknown:
+        raise ConfigError(f"--truth {unknown[0]}: no such vehicle (vehicles: {', '.join(vehicles)})")
+    files: dict[str, Path] = {}
+    static: dict[str, list[TruthPoint]] = {}
+    for vid, obs in vehicles.items():
+        value = given.get(vid)
+        default = root / "truth" / f"{vid}.csv"
+        if isinstance(value, Path):
+            files[vid] = inside(root, value, f"--truth {vid}")
+        elif value is not None:  # a surveyed point: the vehicle stood there at every epoch it logged
+            files[vid] = default
+            static[vid] = [TruthPoint(t.round_to(interval), value) for t in summaries[obs].times]
+        elif default.is_file():  # the format's own layout, e.g. a `coplane convert` or simulator folder
+            files[vid] = default
+            notes.append(f"{vid}: truth/{vid}.csv taken as its reference trajectory")
+    return files, static
+
+
+def _fleet_interval(vehicles: Sequence[ObsSummary]) -> float:
+    """The vehicles' common epoch spacing; receivers logging at different rates need --interval."""
+    rates = {s.path.name: s.interval_s for s in vehicles}
+    known = {round(v, 3) for v in rates.values() if v is not None}
+    if not known:
+        raise ConfigError("no observation file states or shows its epoch interval; give --interval")
+    if len(known) > 1:
+        listed = ", ".join(f"{n} {v} s" for n, v in rates.items())
+        raise ConfigError(f"the vehicles log at different intervals ({listed}); give --interval")
+    return known.pop()
+
+
+def _coverage_notes(
+    summaries: Mapping[Path, ObsSummary], vehicles: Mapping[str, Path], base: Path | None, interval: float
+) -> list[str]:
+    """What the user should know before running: a base at another rate or time, no Doppler."""
+    notes = []
+    for vid, p in vehicles.items():
+        s = summaries[p]
+        if s.doppler_share < 0.5:
+            notes.append(
+                f"{vid}: Doppler on {100 * s.doppler_share:.0f} % of its pseudoranges: velocities "
+                "come from the motion model where it is missing (docs/fgo.md)"
+            )
+    if base is not None:
+        b = summaries[base]
+        if b.interval_s is not None and abs(b.interval_s - interval) > 1e-3:
+            notes.append(
+                f"base logs every {b.interval_s:g} s, the vehicles every {interval:g} s: DGNSS corrections "
+                "exist only at the base's epochs"
+            )
+        firsts = [summaries[p].first for p in vehicles.values()]
+        lasts = [summaries[p].last for p in vehicles.values()]
+        if b.first is not None and b.last is not None and firsts and lasts:
+            start = min(t for t in firsts if t is not None)
+            end = max(t for t in lasts if t is not None)
+            if b.last < start or b.first > end:
+                notes.append("the base's observations do not overlap the vehicles' in time: no DGNSS")
+    return notes
+
+
+def nav_coverage_note(
+    plan: RecordingPlan, toes: Sequence[GpsTime], margin_s: float = 4 * 3600.0
+) -> str | None:
+    """Why nothing will be positioned when the ephemerides are for another time than the drive:
+    a broadcast ephemeris serves about two hours either side of its toe (GPS; BeiDou one)."""
+    if not toes:
+        return "the navigation files hold no GPS or BeiDou ephemeris: nothing can be positioned"
+    starts = [s.first for p, s in plan.summaries.items() if plan.roles.get(p) != "base" and s.first]
+    ends = [s.last for p, s in plan.summaries.items() if plan.roles.get(p) != "base" and s.last]
+    if not starts or not ends:
+        return None
+    lo, hi = min(toes), max(toes)
+    start, end = min(starts), max(ends)
+    if end - lo < -margin_s or start - hi > margin_s:
+        return (
+            f"the ephemerides (toe {lo} .. {hi}) are not for the drive ({start} .. {end}): "
+            "add the navigation file of the drive's day"
+        )
+    return None
+
+
+def write_plan(plan: RecordingPlan, force: bool = False) -> Path:
+    """Write the plan's static truth files and its fleet.toml; an existing file is replaced only
+    with `force` (ConfigError naming it otherwise). Returns the manifest's path."""
+    from coplane.recording.csvfiles import write_truth
+    from coplane.recording.manifest import MANIFEST_NAME, write_manifest
+
+    root = plan.manifest.root
+    targets = [root / "truth" / f"{vid}.csv" for vid in plan.static_truth] + [root / MANIFEST_NAME]
+    existing = [p for p in targets if p.exists()]
+    if existing and not force:
+        raise ConfigError(f"{existing[-1]} exists; --force replaces it")
+    for vid, points in plan.static_truth.items():
+        write_truth(root / "truth" / f"{vid}.csv", points)
+    return write_manifest(plan.manifest)
