@@ -4,7 +4,8 @@
 
 Prints a Markdown section and writes it to docs/results/sections/real-data.md, the section
 bench/make_results.py assembles into docs/results.md.
-Static receivers with a surveyed point are processed kinematically (the estimators are not told the
+Static receivers with a surveyed point (the GEONET pair, which has no fleet.toml, described at run
+time as `coplane recording init` does) are processed kinematically (the estimators are not told the
 antenna is static) and compared with RTKLIB on all epochs and on the epochs RTKLIB solves; the
 moving HK rover has no truth and gets divergence indicators, and errors against RTKLIB's RTK on the
 epochs where that gives a reference (`coplane.evaluate.rtk_reference`). tests/evaluate/
@@ -14,11 +15,15 @@ test_real_data_regression.py asserts the acceptance of issue 12 on the same numb
 from __future__ import annotations
 
 import argparse
+import atexit
 import datetime as dt
 import os
+import shutil
 import subprocess
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from coplane.evaluate.real_data import (
     notes,
@@ -32,7 +37,8 @@ from coplane.evaluate.real_data import (
 from coplane.evaluate.rtk_reference import rtk_reference
 from coplane.evaluate.rtklib_row import rtklib_unavailable
 from coplane.methods import MethodSpec, get_method
-from coplane.recording.reader import open_recording
+from coplane.recording.plan import plan_recording, write_plan
+from coplane.recording.reader import Recording, open_recording
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = Path(os.environ.get("COPLANE_REAL_DATA", REPO.parent / "shared" / "data" / "real"))
@@ -46,6 +52,21 @@ STATIC: list[tuple[str, str, list[bool | None]]] = [
         [None],
     ),
     ("matrtklib_nagoya_static_20240624", "static Septentrio mosaic-X5, open sky (Nagoya)", [True, False]),
+]
+# static sets that come without a fleet.toml: described at run time as `coplane recording init`
+# does (coplane.recording.plan), with the base and the point the options give
+PLANNED: list[tuple[str, str, dict[str, Any], list[bool | None]]] = [
+    (
+        "rtklib_geonet_0759_3040_20050402",
+        "static Trimble 5700 (GEONET 0759), GPS only, RINEX 2.10 every 30 s, no Doppler; base GEONET 3040, "
+        "3.3 km away, at RTKLIB's test coordinate; truth: RTKLIB's kinematic RTK of 0759 against it",
+        {
+            "base": Path("30400920.05o"),
+            "base_position": (-3978241.958, 3382840.234, 3649900.853),
+            "truth": {"0759": (-3976219.188, 3382371.604, 3652511.141)},
+        },
+        [True, False],
+    ),
 ]
 MOVING: list[tuple[str, str, list[bool | None]]] = [
     (
@@ -66,6 +87,16 @@ def _commit() -> str:
         return "unknown"
 
 
+def planned_recording(folder: str, options: dict[str, Any]) -> Recording:
+    """A copy of a set without a fleet.toml, described as `coplane recording init` would (the copy
+    keeps ../shared read-only): the files under a temporary folder, removed at exit."""
+    work = Path(tempfile.mkdtemp(prefix="coplane-real-"))
+    atexit.register(shutil.rmtree, work, ignore_errors=True)
+    shutil.copytree(REAL / folder, work / folder)
+    write_plan(plan_recording(work / folder, **options))
+    return open_recording(work / folder)
+
+
 def _mode(dgnss: bool) -> str:
     return "DGNSS (the recording's base)" if dgnss else "standalone"
 
@@ -80,8 +111,11 @@ def set_sections(
     """One titled table per real set and mode: errors at the surveyed point for the static sets,
     divergence indicators for the moving drive. bench/tune_real_data.py reuses it for variants."""
     parts: list[str] = []
-    for folder, what, modes in STATIC:
-        rec = open_recording(REAL / folder)
+    static = [(folder, what, open_recording(REAL / folder), modes) for folder, what, modes in STATIC]
+    static += [
+        (folder, what, planned_recording(folder, opts), modes) for folder, what, opts, modes in PLANNED
+    ]
+    for folder, what, rec, modes in static:
         for dgnss in modes:
             sol = solve_receiver(
                 rec, methods, dgnss=dgnss, jobs=jobs, keep_going=True, resolve=resolve, rtklib=rtklib
