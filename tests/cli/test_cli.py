@@ -86,6 +86,16 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
     } <= pngs
 
 
+def test_eval_of_a_drive_without_truth_says_so(real_data: Path, tmp_path: Path) -> None:
+    """No empty accuracy table: which vehicle has no truth, and the way to one (the base's RTK)."""
+    rec = real_data / "hk_klt_20210610_f9p_rover_hksc_base"
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert "no truth in the recording for klt1" in r.output and "--truth rtk" in r.output
+    assert "H RMSE" not in r.output
+    assert (tmp_path / "solutions" / "non-cp" / "klt1.csv").exists()
+
+
 def test_eval_format_tum_and_map_methods_need_a_map(tmp_path: Path) -> None:
     """`--format tum` writes evo's files for every run and the truth; a map method without --map
     is refused with a message that says how to make a map."""
