@@ -11,6 +11,7 @@ the full tables.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +24,14 @@ from coplane.evaluate.real_data import solve_receiver, static_accuracy, static_t
 from coplane.evaluate.rtk_reference import (
     TRUTHS,
     RtkReference,
+    missing_truth_note,
     parse_truth,
     rtk_reference,
     save_truth,
     use_truth_files,
 )
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD
+from coplane.recording.plan import plan_recording, write_plan
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
 
@@ -151,3 +154,16 @@ def test_truth_files_hand_a_reference_over_and_bad_rows_are_counted(tmp_path: Pa
         use_truth_files(back, tmp_path / "nowhere")
     with pytest.raises(ValueError, match="truth_dir"):
         ApiSettings(recording=sim, truth="rtk", truth_dir=out)
+
+
+def test_a_recording_without_truth_is_said_to_have_none(real_data: Path, tmp_path: Path) -> None:
+    """What `coplane eval` and `coplane fleet` print instead of an empty accuracy table."""
+    klt = open_recording(real_data / "hk_klt_20210610_f9p_rover_hksc_base")
+    note = missing_truth_note(klt)
+    assert note.startswith("no truth in the recording for klt1:") and "--truth rtk" in note
+    assert missing_truth_note(open_recording(real_data / "matrtklib_nagoya_static_20240624")) == ""
+    # without a base there is no RTK to point at
+    geonet = tmp_path / "geonet"
+    shutil.copytree(real_data / "rtklib_geonet_0759_3040_20050402", geonet)
+    rover = open_recording(write_plan(plan_recording(geonet, vehicles={"r": Path("07590920.05o")})))
+    assert missing_truth_note(rover) == "no truth in the recording for r: no errors computed for it"

@@ -23,7 +23,7 @@ from coplane.evaluate.report import (
     write_solutions,
     write_tables,
 )
-from coplane.evaluate.rtk_reference import Truth, use_rtk_truth
+from coplane.evaluate.rtk_reference import Truth, missing_truth_note, use_rtk_truth
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.methods import get_method
@@ -75,18 +75,8 @@ def evaluate(
     if truth == "rtk":
         ev.notes["truth"] = use_rtk_truth(rec)
         log.info("%s", ev.notes["truth"])
-    else:
-        missing = [v.id for v in rec.manifest.vehicles if v.truth is None]
-        if missing:
-            hint = (
-                "; `--truth rtk` measures against RTKLIB's carrier-phase RTK to the base where it holds"
-                if rec.manifest.base is not None
-                else ""
-            )
-            ev.notes["truth"] = (
-                f"no truth in the recording for {', '.join(missing)}: no errors computed for "
-                f"{'it' if len(missing) == 1 else 'them'}, solutions written{hint}"
-            )
+    elif note := missing_truth_note(rec):
+        ev.notes["truth"] = note
     if fgo:  # in accuracy.json too: these are not the methods' defaults
         changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
         ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"

@@ -137,6 +137,21 @@ def use_rtk_truth(rec: Recording) -> str:
     return "errors against RTKLIB's RTK, not a surveyed truth: " + "; ".join(notes)
 
 
+def missing_truth_note(rec: Recording) -> str:
+    """The line that says which vehicles have no truth in the recording (no errors for them) and,
+    with a base, how to get one; "" when every vehicle has truth."""
+    missing = [v.id for v in rec.manifest.vehicles if v.truth is None]
+    if not missing:
+        return ""
+    hint = (
+        "; `--truth rtk` measures against RTKLIB's carrier-phase RTK to the base where it holds"
+        if rec.manifest.base is not None
+        else ""
+    )
+    them = "it" if len(missing) == 1 else "them"
+    return f"no truth in the recording for {', '.join(missing)}: no errors computed for {them}{hint}"
+
+
 def save_truth(rec: Recording, directory: Path) -> Path:
     """Every vehicle's truth as `<vehicle>.csv` (the recording format's truth files) in `directory`.
 

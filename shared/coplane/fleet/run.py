@@ -29,7 +29,7 @@ from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecu
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
-from coplane.evaluate.rtk_reference import Truth, parse_truth, save_truth, use_rtk_truth
+from coplane.evaluate.rtk_reference import Truth, missing_truth_note, parse_truth, save_truth, use_rtk_truth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
@@ -130,7 +130,7 @@ class FleetResult:
     input_problems: dict[str, int] = field(default_factory=dict)  # what the recording's reader found
     input_health: InputHealth | None = None  # records kept vs problems (`--strict`)
     nmea_ports: dict[str, int] = field(default_factory=dict)  # vehicle -> NMEA TCP port (--nmea-port)
-    truth_note: str = ""  # what the truth was, when not the recording's (`--truth rtk`)
+    truth_note: str = ""  # what the truth was (`--truth rtk`), or which vehicles have none
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -279,7 +279,7 @@ def run_fleet(
                 input_problems=dict(rec.problems.counts),
                 input_health=input_health(rec),
                 nmea_ports=dict(nmea.ports) if nmea is not None else {},
-                truth_note=truth_note,
+                truth_note=truth_note or missing_truth_note(rec),
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)
