@@ -21,12 +21,13 @@ from coplane.evaluate.evaluation import evaluate
 from coplane.recording.convert import convert_recording
 from coplane.recording.discover import sniff, summarise_obs, vehicle_ids
 from coplane.recording.manifest import load_manifest
-from coplane.recording.plan import nav_coverage_note, parse_position, plan_recording, write_plan
+from coplane.recording.plan import parse_position, plan_recording, write_plan
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import open_recording
-from coplane.sim.generate import simulate
+from coplane.sim.generate import bundled_default_path, simulate
 
 runner = CliRunner()
+DEFAULT_RECORDING_DIR = bundled_default_path()
 GEONET = "rtklib_geonet_0759_3040_20050402"
 # RTKLIB's test reference for 3040 (its makefile's base) and its kinematic RTK of 0759 against it
 BASE_3040 = "-3978241.958,3382840.234,3649900.853"
@@ -157,7 +158,7 @@ def test_bad_requests_name_what_is_wrong(real_data: Path, tmp_path: Path) -> Non
     assert r.exit_code == 2 and "expected ID=VALUE" in r.output
 
 
-def test_positions_ids_and_coverage(real_data: Path) -> None:
+def test_positions_and_ids(real_data: Path) -> None:
     assert parse_position("header") == "header"
     assert parse_position("-3978241.958, 3382840.234, 3649900.853") == (
         -3978241.958,
@@ -177,26 +178,25 @@ def test_positions_ids_and_coverage(real_data: Path) -> None:
     assert vehicle_ids([base, rover]) == ["base", "rover"]  # so the file names, for every vehicle
     geonet = summarise_obs(real_data / GEONET / "07590920.05o")
     assert vehicle_ids([geonet]) == ["0759"] and geonet.interval_s == 30.0 and geonet.doppler_share == 0.0
-    # GEONET's 2005 drive with ephemerides of 2021: said, not solved into nothing
-    plan = plan_recording(
-        real_data / GEONET, base=Path("30400920.05o"), base_position=parse_position(BASE_3040)
-    )
-    klt = open_recording(real_data / "hk_klt_20210610_f9p_rover_hksc_base")
-    later = [e.toe for ephs in klt.nav.ephemerides.values() for e in ephs]
-    note = nav_coverage_note(plan, later)
-    assert note is not None and "not for the drive" in note
-    own = [e.toe for ephs in open_recording_nav(real_data / GEONET) for e in ephs]
-    assert nav_coverage_note(plan, own) is None
-    assert nav_coverage_note(plan, []) is not None
 
 
-def open_recording_nav(folder: Path) -> list[list]:
-    """The GEONET folder's own ephemerides, read as a recording reads them."""
-    from coplane.recording.problems import Problems
-    from coplane.recording.rinex_nav import read_nav_files
-
-    nav = read_nav_files(sorted(folder.glob("*.05n")), Problems())
-    return list(nav.ephemerides.values())
+def test_show_and_the_wrong_days_ephemerides(real_data: Path, tmp_path: Path) -> None:
+    """`coplane recording show` on the bundled recording and the KLT drive; GEONET's 2005
+    observations with KLT's 2021 navigation file: init says nothing can be positioned, and why."""
+    r = runner.invoke(app, ["recording", "show", str(DEFAULT_RECORDING_DIR)])
+    assert r.exit_code == 0, r.output
+    assert "u1: antenna 1.674 m above the road; truth 600 rows, 100 % of its epochs" in r.output
+    assert "ranges: 3244 between 6 pair(s)" in r.output and "0 input problem(s)" in r.output
+    r = runner.invoke(app, ["recording", "show", str(real_data / "hk_klt_20210610_f9p_rover_hksc_base")])
+    assert r.exit_code == 0 and "klt1: antenna 1.8 m above the road; truth none" in r.output, r.output
+    assert "base: hksc1610.obs at 22.3" in r.output
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    shutil.copy(real_data / GEONET / "07590920.05o", mixed)
+    shutil.copy(real_data / "hk_klt_20210610_f9p_rover_hksc_base" / "hksc1610.nav", mixed)
+    r = runner.invoke(app, ["recording", "init", str(mixed)])
+    assert r.exit_code == 0, r.output
+    assert "nothing can be positioned" in r.output and "hksc1610.nav" in r.output
 
 
 @pytest.mark.parametrize("fmt", ["ubx", "rtcm3"])

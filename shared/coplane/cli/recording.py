@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
@@ -11,9 +12,25 @@ from rich.table import Table
 from coplane.cli.render import console, err_console
 from coplane.errors import ConfigError
 
+if TYPE_CHECKING:  # the command imports its library lazily, as every command does
+    from coplane.gtime import GpsTime
+    from coplane.recording.discover import ObsSummary
+
+COLUMNS = (
+    "role",
+    "file",
+    "format",
+    "epochs",
+    "span s",
+    "interval s",
+    "G / C per epoch",
+    "Doppler %",
+    "problems",
+)
+
 recording_app = typer.Typer(
     name="recording",
-    help="Fleet recordings: describe a folder of RINEX files as one (fleet.toml).",
+    help="Fleet recordings: describe a folder of receiver files as one (fleet.toml), show what one holds.",
     no_args_is_help=True,
 )
 
@@ -98,8 +115,9 @@ def init(
     """
     import tomli_w
 
+    from coplane.recording.health import nav_gap
     from coplane.recording.manifest import MANIFEST_NAME, manifest_dict
-    from coplane.recording.plan import nav_coverage_note, parse_position, plan_recording, write_plan
+    from coplane.recording.plan import parse_position, plan_recording, write_plan
     from coplane.recording.reader import open_recording
 
     target = directory / MANIFEST_NAME
@@ -117,34 +135,7 @@ def init(
         truth={k: _truth(v) for k, v in _pairs(truth, "--truth").items()},
     )
     root = plan.manifest.root
-    table = Table(title=f"RINEX observation files in {root}")
-    for col in (
-        "role",
-        "file",
-        "RINEX",
-        "epochs",
-        "span s",
-        "interval s",
-        "G / C per epoch",
-        "Doppler %",
-        "problems",
-    ):
-        table.add_column(col, justify="left" if col in ("role", "file") else "right")
-    for path, s in plan.summaries.items():
-        span = (s.last - s.first) if s.first is not None and s.last is not None else 0.0
-        per = " / ".join(f"{s.satellites_per_epoch.get(k, 0.0):.1f}" for k in ("G", "C"))
-        table.add_row(
-            plan.roles.get(path, "-"),
-            str(path.relative_to(root)),
-            f"{s.header.version:.2f}",
-            str(s.epochs),
-            f"{span:.0f}",
-            "-" if s.interval_s is None else f"{s.interval_s:g}",
-            per,
-            f"{100 * s.doppler_share:.0f}",
-            str(s.problems),
-        )
-    console.print(table)
+    print_receivers(f"observation files in {root}", root, plan.summaries, plan.roles)
     console.print("navigation: " + ", ".join(str(p.relative_to(root)) for p in plan.manifest.nav_files))
     for line in plan.skipped:
         console.print(f"not used: {line}")
@@ -154,13 +145,95 @@ def init(
         typer.echo(tomli_w.dumps(manifest_dict(plan.manifest)))
         return
     path = write_plan(plan, force)
-    rec = open_recording(path)
-    toes = [e.toe for ephs in rec.nav.ephemerides.values() for e in ephs]
-    coverage = nav_coverage_note(plan, toes)
-    for note in [*plan.notes, *([coverage] if coverage else [])]:
+    gap = nav_gap(open_recording(path))
+    for note in [*plan.notes, *([gap + ": nothing can be positioned"] if gap else [])]:
         err_console.print(f"note: {note}")
     console.print(
         f"wrote {path} ({len(plan.manifest.vehicles)} vehicle(s), "
         f"{'a base' if plan.manifest.base else 'no base'}, interval {plan.manifest.interval_s:g} s); "
-        f"next: coplane spp {directory} --out out/spp.pos, coplane eval {directory} --out out/eval"
+        f"next: coplane recording show {directory}, coplane spp {directory} --out out/spp.pos, "
+        f"coplane eval {directory} --out out/eval"
     )
+
+
+@recording_app.command("show")
+def show(
+    recording: Annotated[Path, typer.Argument(help="Fleet recording directory (with fleet.toml).")],
+) -> None:
+    """What a recording holds, before anything is solved: per receiver its epochs, interval,
+    satellites and Doppler; the ephemerides per system; truth and ranges; the input problems."""
+    import numpy as np
+
+    from coplane.geo import ecef_to_geodetic
+    from coplane.recording.discover import summarise_obs
+    from coplane.recording.health import input_health
+    from coplane.recording.plan import coverage_notes
+    from coplane.recording.reader import open_recording
+
+    rec = open_recording(recording)
+    m = rec.manifest
+    roles = {v.obs: v.id for v in m.vehicles} | ({m.base.obs: "base"} if m.base else {})
+    summaries = {p: summarise_obs(p) for p in roles}
+    print_receivers(f"{m.name} ({m.root})", m.root, summaries, roles)
+    systems: dict[str, list[GpsTime]] = {}
+    for sat, ephs in rec.nav.ephemerides.items():
+        systems.setdefault(sat[0], []).extend(e.toe for e in ephs)
+    nav = ", ".join(
+        f"{sys} {len({s for s in rec.nav.ephemerides if s[0] == sys})} satellites ({len(toes)} ephemerides, "
+        f"toe {min(toes)} .. {max(toes)})"
+        for sys, toes in sorted(systems.items())
+    )
+    console.print(f"navigation: {nav}; ionosphere: {', '.join(sorted(rec.nav.iono)) or 'none'}")
+    if m.base is not None:
+        lat, lon, h = ecef_to_geodetic(np.array(m.base.position_ecef_m))
+        console.print(
+            f"base: {m.base.obs.relative_to(m.root)} at {np.degrees(lat):.7f}, {np.degrees(lon):.7f}, {h:.3f} m"
+        )
+    for v in m.vehicles:
+        truth = rec.truth_at(v.id)
+        epochs = {rec.nominal(ep.time) for ep in rec.vehicle_epochs(v.id)}
+        covered = len(epochs & set(truth)) / len(epochs) if epochs else 0.0
+        console.print(
+            f"{v.id}: antenna {v.antenna_height_m:g} m above the road; truth "
+            + (f"{len(truth)} rows, {100 * covered:.0f} % of its epochs" if truth else "none")
+        )
+    ranges = rec.uwb()
+    if m.uwb is not None:
+        pairs = {r.pair for r in ranges}
+        console.print(f"ranges: {len(ranges)} between {len(pairs)} pair(s), sigma {m.uwb.sigma_m:g} m")
+    vehicles = {v.id: v.obs for v in m.vehicles}
+    notes = coverage_notes(summaries, vehicles, m.base.obs if m.base else None, m.interval_s)
+    health = input_health(rec)
+    if health.nav_gap:
+        notes.append(health.nav_gap + ": nothing can be positioned")
+    for note in notes:
+        err_console.print(f"note: {note}")
+    console.print(
+        f"{health.records} records kept, {health.problems} input problem(s)"
+        + (f": {dict(rec.problems.counts)}" if health.problems else "")
+    )
+
+
+def print_receivers(
+    title: str, root: Path, summaries: Mapping[Path, ObsSummary], roles: Mapping[Path, str]
+) -> None:
+    """One row per observation file: what it is for, what it holds."""
+    table = Table(title=title)
+    for col in COLUMNS:
+        table.add_column(col, justify="left" if col in ("role", "file", "format") else "right")
+    for path, s in summaries.items():
+        span = (s.last - s.first) if s.first is not None and s.last is not None else 0.0
+        per = " / ".join(f"{s.satellites_per_epoch.get(k, 0.0):.1f}" for k in ("G", "C"))
+        log = {".ubx": "UBX", ".rtcm3": "RTCM 3"}.get(path.suffix.lower())
+        table.add_row(
+            roles.get(path, "-"),
+            str(path.relative_to(root)),
+            log or f"RINEX {s.header.version:.2f}",
+            str(s.epochs),
+            f"{span:.0f}",
+            "-" if s.interval_s is None else f"{s.interval_s:g}",
+            per,
+            f"{100 * s.doppler_share:.0f}",
+            str(s.problems),
+        )
+    console.print(table)

@@ -22,7 +22,6 @@ import numpy as np
 
 from coplane.errors import ConfigError
 from coplane.geo import enu_to_ecef, geodetic_to_ecef
-from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
 from coplane.recording.discover import (
     ObsSummary,
@@ -158,7 +157,7 @@ def plan_recording(
     )
     if interval <= 0 or not math.isfinite(interval):
         raise ConfigError(f"--interval {interval}: must be a positive number of seconds")
-    notes += _coverage_notes(summaries, chosen, base_path, interval)
+    notes += coverage_notes(summaries, chosen, base_path, interval)
     base_spec = None
     if base_path is not None and base_position is not None:
         base_spec = BaseSpec(base_path, _base_position(base_position, summaries[base_path], notes))
@@ -262,7 +261,7 @@ def _fleet_interval(vehicles: Sequence[ObsSummary]) -> float:
     return known.pop()
 
 
-def _coverage_notes(
+def coverage_notes(
     summaries: Mapping[Path, ObsSummary], vehicles: Mapping[str, Path], base: Path | None, interval: float
 ) -> list[str]:
     """What the user should know before running: a base at another rate or time, no Doppler."""
@@ -289,27 +288,6 @@ def _coverage_notes(
             if b.last < start or b.first > end:
                 notes.append("the base's observations do not overlap the vehicles' in time: no DGNSS")
     return notes
-
-
-def nav_coverage_note(
-    plan: RecordingPlan, toes: Sequence[GpsTime], margin_s: float = 4 * 3600.0
-) -> str | None:
-    """Why nothing will be positioned when the ephemerides are for another time than the drive:
-    a broadcast ephemeris serves about two hours either side of its toe (GPS; BeiDou one)."""
-    if not toes:
-        return "the navigation files hold no GPS or BeiDou ephemeris: nothing can be positioned"
-    starts = [s.first for p, s in plan.summaries.items() if plan.roles.get(p) != "base" and s.first]
-    ends = [s.last for p, s in plan.summaries.items() if plan.roles.get(p) != "base" and s.last]
-    if not starts or not ends:
-        return None
-    lo, hi = min(toes), max(toes)
-    start, end = min(starts), max(ends)
-    if end - lo < -margin_s or start - hi > margin_s:
-        return (
-            f"the ephemerides (toe {lo} .. {hi}) are not for the drive ({start} .. {end}): "
-            "add the navigation file of the drive's day"
-        )
-    return None
 
 
 def write_plan(plan: RecordingPlan, force: bool = False) -> Path:
