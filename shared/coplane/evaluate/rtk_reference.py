@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 
 from coplane.errors import ConfigError
-from coplane.evaluate.rtklib_row import rtklib_options, rtklib_unavailable, run_postpos
+from coplane.evaluate.rtklib_row import postpos_files, rtklib_options, rtklib_unavailable, run_postpos
 from coplane.gtime import GpsTime
 from coplane.recording.csvfiles import read_truth, write_truth
 from coplane.recording.reader import Recording
@@ -84,10 +84,10 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
     import pyrtklib as rtk  # the optional dependency, once the inputs are known to be usable
 
     vid = vehicle or rec.manifest.vehicles[0].id
-    files = [str(rec.manifest.vehicle(vid).obs), str(rec.manifest.base.obs)]
-    files += [str(p) for p in rec.manifest.nav_files]
     runs: list[dict[GpsTime, tuple[Vec, int]]] = []
     with tempfile.TemporaryDirectory(prefix="coplane-rtk-") as tmp:
+        paths = [rec.manifest.vehicle(vid).obs, rec.manifest.base.obs, *rec.manifest.nav_files]
+        files = postpos_files(paths, Path(tmp))
         for soltype in (0, 1):  # forward, backward
             opt, sopt = rtklib_options(rec, True, 15.0)
             opt.mode = rtk.PMODE_KINEMA

@@ -28,6 +28,7 @@ import numpy as np
 
 from coplane.evaluate.runner import MethodRun, lockstep_schedule
 from coplane.gtime import GpsTime
+from coplane.recording.compressed import plain_file
 from coplane.recording.reader import Recording
 
 RTKLIB_METHOD = "rtklib"
@@ -148,6 +149,17 @@ def read_xyz_solution(path: Path) -> list[tuple[GpsTime, np.ndarray, np.ndarray,
     return out
 
 
+def postpos_files(paths: list[Path], directory: Path) -> list[str]:
+    """`paths` as postpos reads them: RTKLIB takes plain RINEX only (it would shell out to crx2rnx
+    and gzip), so each compressed one is decompressed into its own folder of `directory`."""
+    out = []
+    for i, p in enumerate(paths):
+        folder = directory / f"input-{i}"
+        folder.mkdir(parents=True, exist_ok=True)
+        out.append(str(plain_file(p, folder)))
+    return out
+
+
 def run_postpos(
     opt: Any, sopt: Any, files: list[str], out: Path
 ) -> tuple[int, list[tuple[GpsTime, np.ndarray, np.ndarray, int]]]:
@@ -185,11 +197,11 @@ def process_recording(
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="coplane-rtklib-") as tmp:
         for vid in ids:
-            files = [str(rec.manifest.vehicle(vid).obs)]
+            paths = [rec.manifest.vehicle(vid).obs]
             if use_dgnss:
                 assert rec.manifest.base is not None
-                files.append(str(rec.manifest.base.obs))  # postpos: rover, base, then navigation
-            files += [str(p) for p in rec.manifest.nav_files]
+                paths.append(rec.manifest.base.obs)  # postpos: rover, base, then navigation
+            files = postpos_files([*paths, *rec.manifest.nav_files], Path(tmp) / vid)
             t0 = time.perf_counter()
             ret, sols = run_postpos(opt, sopt, files, Path(tmp) / f"{vid}.pos")
             elapsed = time.perf_counter() - t0

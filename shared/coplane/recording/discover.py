@@ -19,6 +19,7 @@ from typing import Literal
 
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
+from coplane.recording.compressed import open_rinex_text, plain_name
 from coplane.recording.model import ObsEpoch, ObsHeader
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
@@ -43,14 +44,16 @@ class ReceiverFile:
 
 
 def sniff(path: Path) -> ReceiverFile | None:
-    """The kind of `path`: a receiver log by its extension, RINEX by its first line; None otherwise."""
+    """The kind of `path`: a receiver log by its extension, RINEX by its first line (decompressed first when its name says it is compressed); None otherwise."""
     if path.suffix.lower() in LOG_SUFFIXES:
         return ReceiverFile(path, "log", 0.0, "")
     try:
-        with path.open("r", encoding="latin-1") as f:
+        with open_rinex_text(path) as f:  # a compressed file is decompressed whole to see its first line
             line = f.readline(200)
     except OSError:
         return None
+    except RecordingError:  # named like a compressed file but not one
+        return ReceiverFile(path, "other", 0.0, "unreadable")
     if "RINEX VERSION / TYPE" not in line:
         return None
     try:
@@ -141,7 +144,8 @@ def vehicle_ids(summaries: Sequence[ObsSummary]) -> list[str]:
         return markers
     out: list[str] = []
     for s in summaries:
-        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", s.path.stem).strip("_")[:28] or "vehicle"
+        stem = Path(plain_name(s.path.name)).stem  # "rover.crx.gz": "rover"
+        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_")[:28] or "vehicle"
         vid, n = stem, 2
         while vid in out:
             vid, n = f"{stem}_{n}", n + 1

@@ -183,7 +183,8 @@ def _navigation(
         if r.kind == "nav" and r.system not in NAV_SYSTEMS:
             skipped.append(f"{r.path.relative_to(root)}: {r.system} navigation (coplane uses GPS and BeiDou)")
         elif r.kind == "other":
-            skipped.append(f"{r.path.relative_to(root)}: RINEX of another type")
+            why = "cannot be decompressed" if r.system == "unreadable" else "RINEX of another type"
+            skipped.append(f"{r.path.relative_to(root)}: {why}")
     if not nav:
         raise RecordingError(
             f"{root}: no GPS or BeiDou navigation file (RINEX, or a UBX / RTCM 3 log with ephemerides) "

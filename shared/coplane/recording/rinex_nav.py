@@ -23,6 +23,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from coplane.gtime import BDS_WEEK_OFFSET, SECONDS_PER_WEEK, GpsTime, bdt_to_gpst
+from coplane.recording.compressed import open_rinex_text
 from coplane.recording.model import Ephemeris, IonoCoefficients, NavData
 from coplane.recording.problems import Problems, RecordingError
 
@@ -269,7 +270,7 @@ def read_nav(path: str | Path, problems: Problems) -> NavData:
     """GPS and BeiDou ephemerides and ionosphere coefficients of one RINEX navigation file."""
     path = Path(path)
     try:
-        with path.open("r", encoding="latin-1", newline=None) as f:
+        with open_rinex_text(path) as f:  # compressed (.gz, .Z) or plain
             lines = [x.rstrip("\r\n") for x in f]
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read navigation file ({exc.strerror or exc})") from exc

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import TextIO
 
 from coplane.gtime import GpsTime
+from coplane.recording.compressed import open_rinex_text
 from coplane.recording.model import ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
 
@@ -726,7 +727,7 @@ class _FieldGetter:
 
 def _open(path: Path) -> TextIO:
     try:
-        return path.open("r", encoding="latin-1", newline=None)
+        return open_rinex_text(path)  # compressed (.gz, .Z, Compact RINEX) or plain
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read observation file ({exc.strerror or exc})") from exc
 

@@ -1,0 +1,110 @@
+"""Compressed RINEX (gzip, Unix compress, bzip2, Compact RINEX) read as the plain files are.
+
+The compressed copies are made here from the real sets with the `hatanaka` package (RNXCMP's
+rnx2crx and the archive formats), named as reference-station networks name them.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import hatanaka
+import pytest
+from typer.testing import CliRunner
+
+from coplane.cli import app
+from coplane.evaluate.evaluation import evaluate
+from coplane.recording.compressed import is_compressed, plain_file, plain_name
+from coplane.recording.discover import sniff
+from coplane.recording.problems import Problems, RecordingError
+from coplane.recording.reader import open_recording
+from coplane.recording.rinex_nav import read_nav
+from coplane.recording.rinex_obs import read_obs
+
+runner = CliRunner()
+GEONET = "rtklib_geonet_0759_3040_20050402"
+
+
+def test_names() -> None:
+    assert plain_name("hksc1370.21d.Z") == "hksc1370.21o"
+    assert plain_name("HKSC00HKG_R_20211370000_01D_30S_MO.crx.gz") == "HKSC00HKG_R_20211370000_01D_30S_MO.rnx"
+    assert plain_name("brdc1370.21n.gz") == "brdc1370.21n"
+    assert plain_name("rover.obs.bz2") == "rover.obs"
+    assert plain_name("rover.obs") == "rover.obs" and not is_compressed(Path("rover.obs"))
+
+
+@pytest.mark.parametrize(
+    ("folder", "name"),
+    [
+        ("urbannav_hk_tst_20200603_static_f9p", "2020_06_03_TST_03.obs"),  # RINEX 3.02, CRLF
+        (GEONET, "07590920.05o"),  # RINEX 2.10 with splice event records
+    ],
+)
+@pytest.mark.parametrize("compression", ["gz", "Z", "bz2", "crx"])
+def test_observations_read_as_the_plain_file(
+    real_data: Path, tmp_path: Path, folder: str, name: str, compression: str
+) -> None:
+    plain = real_data / folder / name
+    if compression == "crx":  # Compact RINEX alone
+        packed = hatanaka.rnx2crx(plain.read_bytes())
+        target = tmp_path / (name[:-4] + ".crx" if name.endswith(".obs") else name[:-1] + "d")
+    else:  # Compact RINEX, then archived: what a CORS publishes
+        packed = hatanaka.compress(plain.read_bytes(), compression=compression)
+        crx = name[:-4] + ".crx" if name.endswith(".obs") else name[:-1] + "d"
+        target = tmp_path / f"{crx}.{compression}"
+    target.write_bytes(packed)
+    assert is_compressed(target)
+    want_header, want = read_obs(plain, Problems())
+    got_header, got = read_obs(target, Problems())
+    assert got == want and got_header == want_header
+    assert sniff(target) is not None and sniff(target).kind == "obs"  # type: ignore[union-attr]
+
+
+def test_navigation_and_a_broken_archive(real_data: Path, tmp_path: Path) -> None:
+    plain = real_data / GEONET / "07590920.05n"
+    gz = tmp_path / "07590920.05n.gz"
+    gz.write_bytes(hatanaka.compress(plain.read_bytes(), compression="gz"))
+    assert read_nav(gz, Problems()) == read_nav(plain, Problems())
+    out = tmp_path / "out"
+    out.mkdir()
+    assert (
+        plain_file(gz, out) == out / "07590920.05n"
+        and (out / "07590920.05n").read_bytes() == plain.read_bytes()
+    )
+    assert plain_file(plain, out) == plain  # a plain file is used where it is
+    broken = tmp_path / "broken.05o.gz"
+    broken.write_bytes(gz.read_bytes()[:200])  # cut short, as an interrupted download leaves it
+    with pytest.raises(RecordingError, match=r"broken.05o.gz: cannot decompress"):
+        read_obs(broken, Problems())
+    (tmp_path / "text.obs.gz").write_text("not gzip at all\n")
+    with pytest.raises(RecordingError, match="cannot decompress"):
+        read_nav(tmp_path / "text.obs.gz", Problems())
+    assert sniff(tmp_path / "text.obs.gz") is not None and sniff(tmp_path / "text.obs.gz").kind == "other"  # type: ignore[union-attr]
+
+
+def test_a_compressed_folder_end_to_end(real_data: Path, tmp_path: Path) -> None:
+    """GEONET's four files as a network would serve them (.05d.Z observations, .05n.gz navigation):
+    recording init, then non-cp and RTKLIB's row (fed plain copies) as on the plain files."""
+    plain_dir, packed_dir = tmp_path / "plain", tmp_path / "packed"
+    shutil.copytree(real_data / GEONET, plain_dir)
+    packed_dir.mkdir()
+    for f in sorted(plain_dir.iterdir()):
+        obs = f.name.endswith("o")
+        packed = hatanaka.compress(f.read_bytes(), compression="Z" if obs else "gz")
+        (packed_dir / (f.name[:-1] + "d.Z" if obs else f.name + ".gz")).write_bytes(packed)
+    names = sorted(p.name for p in packed_dir.iterdir())
+    assert names == ["07590920.05d.Z", "07590920.05n.gz", "30400920.05d.Z", "30400920.05n.gz"]
+    results = {}
+    for folder, base in ((plain_dir, "30400920.05o"), (packed_dir, "30400920.05d.Z")):
+        r = runner.invoke(
+            app,
+            ["recording", "init", str(folder), "--base", base,
+             "--base-position=-3978241.958,3382840.234,3649900.853",
+             "--truth=0759=-3976219.188,3382371.604,3652511.141"],
+        )  # fmt: skip
+        assert r.exit_code == 0, r.output
+        ev = evaluate(open_recording(folder), ["non-cp", "rtklib"], [0.0], None)
+        results[folder.name] = {m: (st["0759"].h_rmse_m, st["0759"].v_rmse_m) for m, st in ev.stats.items()}
+    assert results["packed"] == results["plain"]
+    assert set(results["packed"]) == {"non-cp", "rtklib"}
