@@ -149,6 +149,12 @@ def test_bad_requests_name_what_is_wrong(real_data: Path, tmp_path: Path) -> Non
         plan_recording(rec, truth={"u9": (1.0, 2.0, 3.0)})
     with pytest.raises(ConfigError, match="invalid id"):
         plan_recording(rec, vehicles={"bad id": Path("07590920.05o")})
+    with pytest.raises(ConfigError, match="named twice"):
+        plan_recording(rec, vehicles={"a": Path("07590920.05o"), "b": Path("07590920.05o")})
+    with pytest.raises(ConfigError, match="or is the base"):
+        plan_recording(
+            rec, vehicles={"a": Path("30400920.05o")}, base=Path("30400920.05o"), base_position="header"
+        )
     # receivers at 30 s and 1 s in one folder: the fleet's interval is the user's to give
     shutil.copy(real_data / "urbannav_hk_tst_20200603_static_f9p" / "2020_06_03_TST_03.obs", rec)
     with pytest.raises(ConfigError, match=r"different intervals.*--interval"):

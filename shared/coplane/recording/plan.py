@@ -23,6 +23,7 @@ import numpy as np
 from coplane.errors import ConfigError
 from coplane.geo import enu_to_ecef, geodetic_to_ecef
 from coplane.ids import is_vehicle_id
+from coplane.recording.csvfiles import write_truth
 from coplane.recording.discover import (
     ObsSummary,
     ReceiverFile,
@@ -31,6 +32,7 @@ from coplane.recording.discover import (
     summarise_obs,
     vehicle_ids,
 )
+from coplane.recording.manifest import MANIFEST_NAME, write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
 from coplane.recording.problems import RecordingError
 
@@ -131,6 +133,12 @@ def plan_recording(
         bad = [vid for vid in chosen if not is_vehicle_id(vid)]
         if bad:
             raise ConfigError(f"--vehicle: invalid id {bad[0]!r} (allowed: [A-Za-z0-9_-]{{1,32}})")
+        files = list(chosen.values())
+        twice = next((p for p in files if files.count(p) > 1 or p == base_path), None)
+        if twice is not None:
+            raise ConfigError(
+                f"--vehicle: {twice.name} is named twice (or is the base): one file per receiver"
+            )
         candidates = list(chosen.values())
     else:
         chosen = {}
@@ -243,7 +251,8 @@ def _truths(
             files[vid] = inside(root, value, f"--truth {vid}")
         elif value is not None:  # a surveyed point: the vehicle stood there at every epoch it logged
             files[vid] = default
-            static[vid] = [TruthPoint(t.round_to(interval), value) for t in summaries[obs].times]
+            epochs = sorted({t.round_to(interval) for t in summaries[obs].times})
+            static[vid] = [TruthPoint(t, value) for t in epochs]
         elif default.is_file():  # the format's own layout, e.g. a `coplane convert` or simulator folder
             files[vid] = default
             notes.append(f"{vid}: truth/{vid}.csv taken as its reference trajectory")
@@ -294,9 +303,6 @@ def coverage_notes(
 def write_plan(plan: RecordingPlan, force: bool = False) -> Path:
     """Write the plan's static truth files and its fleet.toml; an existing file is replaced only
     with `force` (ConfigError naming it otherwise). Returns the manifest's path."""
-    from coplane.recording.csvfiles import write_truth
-    from coplane.recording.manifest import MANIFEST_NAME, write_manifest
-
     root = plan.manifest.root
     targets = [root / "truth" / f"{vid}.csv" for vid in plan.static_truth] + [root / MANIFEST_NAME]
     existing = [p for p in targets if p.exists()]
