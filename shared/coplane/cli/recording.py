@@ -1,4 +1,5 @@
-"""`coplane recording init`: a fleet recording (fleet.toml) for a folder of RINEX files."""
+"""`coplane recording init | show`: a fleet recording (fleet.toml) for a folder of receiver files
+(RINEX, compressed or not, UBX and RTCM 3 logs), and what a recording holds."""
 
 from __future__ import annotations
 
@@ -65,7 +66,7 @@ def _truth(value: str) -> Path | tuple[float, float, float]:
 @recording_app.command("init")
 def init(
     directory: Annotated[
-        Path, typer.Argument(help="The folder holding the RINEX files (searched recursively).")
+        Path, typer.Argument(help="The folder holding the receiver files (searched recursively).")
     ],
     base: Annotated[
         Path | None, typer.Option(help="The reference station's observation file (enables DGNSS).")
