@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,22 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
         header = csvs[0].read_text().splitlines()[0]
         assert header.startswith("gps_week,tow_s,x_m,y_m,z_m")
     assert (out / "solutions" / "non-cp@r50").exists() is False  # no ranging: no interruption runs
+    # per epoch, how good and why: local sigmas, satellites used and kept, ranges, the plane
+    rows = []
+    for vid in ("u1", "u2", "u3"):
+        with (out / "solutions" / "pc" / f"{vid}.csv").open() as fh:
+            rows += list(csv.DictReader(fh))
+    assert len(rows) == 90
+    for row in rows:
+        assert 0.0 < float(row["sigma_h_m"]) < 50.0 and 0.0 < float(row["sigma_v_m"]) < 50.0
+        assert 0 <= int(row["n_pseudoranges"]) <= int(row["n_satellites"]) and row["gnss_fix"] in ("0", "1")
+        assert int(row["n_ranges"]) >= 0
+        assert row["plane"] == "used" or row["plane"].startswith(("unavailable: ", "available"))
+        assert row["plane_source"] in ("fleet", "") and (
+            row["plane"] != "used" or row["plane_source"] == "fleet"
+        )
+    assert any(int(row["n_ranges"]) > 0 for row in rows)
+    assert any(row["plane"] == "used" for row in rows), {row["plane"] for row in rows}
     pngs = {p.name for p in out.glob("*.png")}
     assert {
         "cdf_h_u1.png",

@@ -13,7 +13,10 @@ import numpy as np
 
 from coplane.evaluate.metrics import AccuracyStats, PooledStats, accuracy, accuracy_by_environment
 from coplane.evaluate.runner import MethodRun
+from coplane.geo import ecef_to_geodetic, enu_rotation
+from coplane.gtime import GpsTime
 from coplane.recording.reader import Recording
+from coplane.typing import Vec
 
 SOLUTION_COLUMNS = [
     "gps_week",
@@ -27,6 +30,15 @@ SOLUTION_COLUMNS = [
     "cov_xy",
     "cov_yz",
     "cov_xz",
+    # how good and why, per epoch: the covariance as local sigmas, what the estimate rests on
+    "sigma_h_m",  # sqrt(var east + var north)
+    "sigma_v_m",
+    "n_satellites",  # used by the vehicle's SPP
+    "n_pseudoranges",  # of those, kept by the estimator (the rest its FDE excluded)
+    "n_ranges",
+    "gnss_fix",
+    "plane",  # used, or the plane's status when not used (available, unavailable: reason), or none
+    "plane_source",  # fleet, self or map
 ]
 
 
@@ -63,10 +75,48 @@ def write_solutions(run: MethodRun, out_dir: Path) -> list[Path]:
                         f"{p[1]:.4f}",
                         f"{p[2]:.4f}",
                         *(f"{x:.6g}" if x != "" else "" for x in cc),
+                        *_why(run, vid, t, p, c),
                     ]
                 )
         written.append(path)
     return written
+
+
+def _why(run: MethodRun, vid: str, t: GpsTime, p: Vec, cov: Vec | None) -> list[str]:
+    """The per-epoch columns after the covariance; blank where the method does not say (RTKLIB)."""
+    sigmas = ["", ""]
+    if cov is not None:
+        lat, lon, _ = ecef_to_geodetic(p)
+        r = enu_rotation(lat, lon)
+        enu = r @ cov @ r.T
+        sigmas = [
+            f"{math.sqrt(max(enu[0, 0] + enu[1, 1], 0.0)):.3f}",
+            f"{math.sqrt(max(enu[2, 2], 0.0)):.3f}",
+        ]
+
+    def count(table: dict[str, dict[GpsTime, int]]) -> str:
+        n = table.get(vid, {}).get(t)
+        return "" if n is None else str(n)
+
+    fix = run.gnss_fix.get(vid, {}).get(t)
+    used = run.plane_used.get(vid, {}).get(t)
+    plane = run.planes.get(vid, {}).get(t)
+    if used:
+        state = "used"
+    elif plane is None:
+        state = "" if used is None else "none"
+    else:
+        state = plane.status if plane.status != "unavailable" else f"unavailable: {plane.reason or '-'}"
+    source = plane.source or "" if plane is not None and plane.status != "unavailable" else ""
+    return [
+        *sigmas,
+        count(run.satellites),
+        count(run.pseudoranges_used),
+        count(run.ranges_used),
+        "" if fix is None else str(int(fix)),
+        state,
+        source,
+    ]
 
 
 TABLE_COLUMNS = ("H RMSE (m)", "V RMSE (m)", "CEP95 (m)", "Max HPE (m)", "Max VPE (m)", "Avail (%)")

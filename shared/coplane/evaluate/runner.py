@@ -45,6 +45,9 @@ class MethodRun:
     plane_used: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
     ranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     gnss_fix: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
+    # the satellites the vehicle's SPP used, and the pseudoranges the estimator kept of them
+    satellites: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
+    pseudoranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     solve_times_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     n_epochs: int = 0
@@ -186,3 +189,5 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
         run.plane_used[v.vehicle_id][t] = v.plane_used
         run.ranges_used[v.vehicle_id][t] = v.n_ranges
         run.gnss_fix[v.vehicle_id][t] = v.has_gnss_fix
+        run.satellites[v.vehicle_id][t] = v.n_satellites
+        run.pseudoranges_used[v.vehicle_id][t] = v.n_pseudoranges
