@@ -95,6 +95,7 @@ def test_write_then_load_round_trip(tmp_path: Path) -> None:
     assert back.interval_s == 0.5 and back.uwb == UwbSpec((rec / "uwb.csv").resolve(), 0.25, 300.0)
     assert [v.id for v in back.vehicles] == ["u1", "u_2-x"]
     assert write_manifest(back).read_text() == text  # deterministic
+    assert not list(rec.glob(".fleet.toml.*"))  # replaced whole, no temporary left behind
 
 
 def test_write_manifest_rejects_bad_ids_and_outside_paths(tmp_path: Path) -> None:

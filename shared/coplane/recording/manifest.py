@@ -9,6 +9,7 @@ names the key or path. Unknown keys are ignored (forward compatibility).
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -209,5 +210,9 @@ def write_manifest(manifest: Manifest) -> Path:
         raise RecordingError(f"duplicate vehicle ids in {ids}")
     text = tomli_w.dumps(manifest_dict(manifest))
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="utf-8", newline="\n")
+    # whole or not at all: a process killed while writing leaves the old manifest (or none), never
+    # half of one (`coplane recording init --force` replaces a user's file)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8", newline="\n")
+    os.replace(tmp, path)
     return path
