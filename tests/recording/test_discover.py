@@ -102,6 +102,7 @@ def test_geonet_pair_end_to_end_against_rtklib(real_data: Path, tmp_path: Path) 
     )  # fmt: skip
     assert r.exit_code == 0, r.output
     assert "Doppler on 0 %" in r.output and "wrote" in r.output
+    assert "antenna taken 1.5 m above the road" in r.output  # the default, said
     recording = open_recording(rec)
     assert [v.id for v in recording.manifest.vehicles] == ["0759"] and recording.manifest.interval_s == 30.0
     assert len(recording.truth_at("0759")) == 120
@@ -121,6 +122,7 @@ def test_dry_run_prints_the_manifest_and_writes_nothing(real_data: Path, tmp_pat
     r = runner.invoke(app, ["recording", "init", str(rec), "--dry-run", "--antenna-height", "1.2"])
     assert r.exit_code == 0, r.output
     assert 'format = "fleet-recording/1"' in r.output and "antenna_height_m = 1.2" in r.output
+    assert "antenna taken" not in r.output  # given, so nothing to say
     assert not (rec / "fleet.toml").exists()
 
 

@@ -86,11 +86,13 @@ def init(
         ),
     ] = None,
     antenna_height: Annotated[
-        float,
+        float | None,
         typer.Option(
-            min=0.0, help="Every vehicle's antenna height above the road (m), for the plane methods."
+            min=0.0,
+            help="Every vehicle's antenna height above the road (m), for the plane methods; "
+            "default 1.5 m, said when used.",
         ),
-    ] = 1.5,
+    ] = None,
     interval: Annotated[
         float | None, typer.Option(help="Epoch spacing (s); default: the files' own.")
     ] = None,

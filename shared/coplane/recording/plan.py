@@ -39,6 +39,7 @@ from coplane.recording.problems import RecordingError
 # the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
 NAV_SYSTEMS = ("G", "C", "M")
 EARTH_RADIUS_RANGE_M = (6.30e6, 6.42e6)  # |ECEF| of a point near the surface
+DEFAULT_ANTENNA_HEIGHT_M = 1.5  # a car's roof, when the user does not say
 
 
 def parse_position(text: str) -> tuple[float, float, float] | Literal["header"]:
@@ -105,7 +106,7 @@ def plan_recording(
     base: Path | None = None,
     base_position: tuple[float, float, float] | Literal["header"] | None = None,
     vehicles: Mapping[str, Path] | None = None,
-    antenna_height_m: float = 1.5,
+    antenna_height_m: float | None = None,
     interval_s: float | None = None,
     name: str | None = None,
     uwb: Path | None = None,
@@ -173,6 +174,12 @@ def plan_recording(
     if uwb is None and (root / "uwb.csv").is_file():
         uwb = root / "uwb.csv"
         notes.append("uwb.csv taken as the inter-vehicle ranges")
+    if antenna_height_m is None:
+        antenna_height_m = DEFAULT_ANTENNA_HEIGHT_M
+        notes.append(
+            f"every vehicle's antenna taken {antenna_height_m:g} m above the road (--antenna-height, or "
+            "antenna_height_m in fleet.toml per vehicle): the plane methods put the road that far below it"
+        )
     specs = tuple(VehicleSpec(vid, p, antenna_height_m, truths.get(vid)) for vid, p in chosen.items())
     uwb_spec = UwbSpec(inside(root, uwb, "--uwb")) if uwb is not None else None
     manifest = Manifest(root, name or root.name, interval, tuple(nav), specs, base_spec, uwb_spec)
