@@ -198,6 +198,7 @@ def test_show_and_the_wrong_days_ephemerides(real_data: Path, tmp_path: Path) ->
     r = runner.invoke(app, ["recording", "show", str(real_data / "hk_klt_20210610_f9p_rover_hksc_base")])
     assert r.exit_code == 0 and "klt1: antenna 1.8 m above the road; truth none" in r.output, r.output
     assert "base: hksc1610.obs at 22.3" in r.output
+    assert "klt1: 4.2 km from the base at its first SPP fix" in r.output  # DGNSS over 4 km
     mixed = tmp_path / "mixed"
     mixed.mkdir()
     shutil.copy(real_data / GEONET / "07590920.05o", mixed)

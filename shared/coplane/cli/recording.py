@@ -168,6 +168,7 @@ def show(
     import numpy as np
 
     from coplane.geo import ecef_to_geodetic
+    from coplane.gnss.epoch_solver import first_fix
     from coplane.recording.discover import summarise_obs
     from coplane.recording.health import input_health
     from coplane.recording.plan import coverage_notes
@@ -192,6 +193,14 @@ def show(
         console.print(
             f"base: {m.base.obs.relative_to(m.root)} at {np.degrees(lat):.7f}, {np.degrees(lon):.7f}, {h:.3f} m"
         )
+        for v in m.vehicles:  # DGNSS weakens with distance: the atmosphere decorrelates
+            fix = first_fix(rec.vehicle_epochs(v.id), rec.nav)
+            far = (
+                "-"
+                if fix is None
+                else f"{np.linalg.norm(fix - np.array(m.base.position_ecef_m)) / 1e3:.1f} km"
+            )
+            console.print(f"{v.id}: {far} from the base at its first SPP fix")
     for v in m.vehicles:
         truth = rec.truth_at(v.id)
         epochs = {rec.nominal(ep.time) for ep in rec.vehicle_epochs(v.id)}

@@ -6,6 +6,8 @@ per-vehicle step both call it, so there is one definition of "the SPP of a vehic
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -132,3 +134,13 @@ def next_drift_prior(prev: DriftPrior | None, res: EpochResult) -> DriftPrior | 
     if v is not None and v.ok and not v.few_satellites:
         return DriftPrior(v.drift_mps, v.time)
     return prev
+
+
+def first_fix(epochs: Iterable[ObsEpoch], nav: NavData, tries: int = 30) -> Vec | None:
+    """A receiver's position from the first of its epochs that SPP fixes (at most `tries`), None
+    if none does: where a receiver is, to metres, e.g. for its distance to a base station."""
+    for epoch in itertools.islice(epochs, tries):
+        res = solve_epoch(epoch, nav)
+        if res.spp.ok:
+            return np.asarray(res.spp.position, dtype=float)
+    return None
