@@ -162,6 +162,17 @@ def test_bad_requests_name_what_is_wrong(real_data: Path, tmp_path: Path) -> Non
     with pytest.raises(ConfigError, match=r"different intervals.*--interval"):
         plan_recording(rec)
     assert plan_recording(rec, interval_s=30.0).manifest.interval_s == 30.0
+    # a file found that cannot be read is skipped with its reason, not the end of the plan; the
+    # same file named by the user is an error
+    (rec / "2020_06_03_TST_03.obs").unlink()
+    (rec / "damaged.obs").write_text(
+        "     3.03           OBSERVATION DATA    M: Mixed            RINEX VERSION / TYPE\n"
+    )
+    plan = plan_recording(rec)
+    assert [v.id for v in plan.manifest.vehicles] == ["0759", "3040"]
+    assert plan.skipped == ["damaged.obs: not read (header has no END OF HEADER line)"]
+    with pytest.raises(RecordingError, match=r"damaged\.obs: header has no END OF HEADER"):
+        plan_recording(rec, vehicles={"d": Path("damaged.obs")})
     r = runner.invoke(app, ["recording", "init", str(rec), "--vehicle", "0759"])
     assert r.exit_code == 2 and "expected ID=VALUE" in r.output
 

@@ -146,12 +146,13 @@ def plan_recording(
         candidates = [r.path.resolve() for r in found if r.kind == "obs"] + logs
     if base_path is not None and base_path not in candidates:
         candidates.append(base_path)
-    # a log is a vehicle only when it holds observations (one may hold navigation only); a file
-    # the user named must be one
+    # a file found (not named by the user) that cannot be read is skipped with its reason; a log
+    # is a vehicle only when it holds observations (one may hold navigation only)
     named = set(chosen.values()) | {base_path}
-    summaries = _summaries(candidates, {p for p in logs if p not in named})
+    summaries, unreadable = _summaries(candidates, {p for p in candidates if p not in named}, set(logs))
+    skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
     skipped += [f"{p.relative_to(root)}: a log with neither observations nor ephemerides"
-                for p in candidates if p not in summaries and p not in nav]  # fmt: skip
+                for p in candidates if p not in summaries and p not in unreadable and p not in nav]  # fmt: skip
     rovers = [p for p in summaries if p != base_path]
     if not rovers:
         raise RecordingError(f"{root}: no observation file (RINEX, UBX or RTCM 3) for a vehicle below it")
@@ -208,19 +209,28 @@ def _navigation(
     return nav, logs
 
 
-def _summaries(paths: Sequence[Path], optional: set[Path]) -> dict[Path, ObsSummary]:
-    """Each file read once; an `optional` one (a log nobody named) without observations is left out."""
+def _summaries(
+    paths: Sequence[Path], optional: set[Path], logs: set[Path]
+) -> tuple[dict[Path, ObsSummary], dict[Path, str]]:
+    """Each file read once. An `optional` one (found, not named by the user) that cannot be read
+    is left out with the reason (the second dict; a log's reason is only that it holds no
+    observations, as a navigation log does), and so is an optional log without observations."""
     out: dict[Path, ObsSummary] = {}
+    unreadable: dict[Path, str] = {}
     for p in paths:
         try:
             summary = summarise_obs(p)
-        except RecordingError:
+        except RecordingError as exc:
             if p not in optional:
                 raise
+            if p not in logs:
+                unreadable[p] = f"not read ({str(exc).removeprefix(f'{p}: ')})"
             continue
         if summary.epochs or p not in optional:
             out[p] = summary
-    return out
+        elif p not in logs:
+            unreadable[p] = "no epoch with GPS or BeiDou pseudoranges"
+    return out, unreadable
 
 
 def _base_position(
