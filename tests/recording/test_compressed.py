@@ -6,6 +6,7 @@ rnx2crx and the archive formats), named as reference-station networks name them.
 
 from __future__ import annotations
 
+import gzip
 import shutil
 from pathlib import Path
 
@@ -15,12 +16,15 @@ from typer.testing import CliRunner
 
 from coplane.cli import app
 from coplane.evaluate.evaluation import evaluate
-from coplane.recording.compressed import is_compressed, plain_file, plain_name
+from coplane.recording.compressed import file_format, is_compressed, plain_file, plain_name
+from coplane.recording.convert import convert_recording
 from coplane.recording.discover import sniff
+from coplane.recording.plan import plan_recording, write_plan
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.reader import open_recording
 from coplane.recording.rinex_nav import read_nav
 from coplane.recording.rinex_obs import read_obs
+from coplane.sim.generate import simulate
 
 runner = CliRunner()
 GEONET = "rtklib_geonet_0759_3040_20050402"
@@ -32,6 +36,12 @@ def test_names() -> None:
     assert plain_name("brdc1370.21n.gz") == "brdc1370.21n"
     assert plain_name("rover.obs.bz2") == "rover.obs"
     assert plain_name("rover.obs") == "rover.obs" and not is_compressed(Path("rover.obs"))
+    assert [file_format(Path(n)) for n in ("u1.ubx.gz", "b.RTCM3", "x.21d.Z", "x.obs")] == [
+        "ubx",
+        "rtcm3",
+        "rinex",
+        "rinex",
+    ]
 
 
 @pytest.mark.parametrize(
@@ -108,3 +118,28 @@ def test_a_compressed_folder_end_to_end(real_data: Path, tmp_path: Path) -> None
         results[folder.name] = {m: (st["0759"].h_rmse_m, st["0759"].v_rmse_m) for m, st in ev.stats.items()}
     assert results["packed"] == results["plain"]
     assert set(results["packed"]) == {"non-cp", "rtklib"}
+
+
+@pytest.mark.parametrize("fmt", ["ubx", "rtcm3"])
+def test_archived_receiver_logs_read_as_the_plain_ones(tmp_path: Path, fmt: str) -> None:
+    """`rover.ubx.gz`, `base.rtcm3.gz`: a recording of archived logs opens and reads as the plain one."""
+    source = simulate("urban-loop", tmp_path / "sim", vehicles=2, duration_s=10, seed=4)
+    plain = tmp_path / fmt
+    convert_recording(source, fmt, plain)  # type: ignore[arg-type]  # the parametrised Format
+    packed = tmp_path / f"{fmt}-gz"
+    shutil.copytree(plain, packed, ignore=shutil.ignore_patterns("fleet.toml"))
+    for log in [*packed.rglob("*.ubx"), *packed.rglob("*.rtcm3")]:
+        log.with_name(log.name + ".gz").write_bytes(gzip.compress(log.read_bytes()))
+        log.unlink()
+    plain_rec = open_recording(plain)
+    m = plain_rec.manifest
+    assert m.base is not None
+    base = Path(m.base.obs.relative_to(m.root).as_posix() + ".gz")
+    plan = plan_recording(packed, base=base, base_position=m.base.position_ecef_m)
+    packed_rec = open_recording(write_plan(plan))
+    assert [v.id for v in packed_rec.manifest.vehicles] == ["u1", "u2"]
+    assert packed_rec.vehicle_epochs("u1") == plain_rec.vehicle_epochs("u1")
+    assert packed_rec.base_epochs() == plain_rec.base_epochs()
+    # the same ephemerides (every log with some is merged, so a record may come from another log)
+    toes = {sat: [e.toe for e in ephs] for sat, ephs in plain_rec.nav.ephemerides.items()}
+    assert {sat: [e.toe for e in ephs] for sat, ephs in packed_rec.nav.ephemerides.items()} == toes

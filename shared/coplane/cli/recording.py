@@ -230,13 +230,15 @@ def print_receivers(
     title: str, root: Path, summaries: Mapping[Path, ObsSummary], roles: Mapping[Path, str]
 ) -> None:
     """One row per observation file: what it is for, what it holds."""
+    from coplane.recording.compressed import file_format
+
     table = Table(title=title)
     for col in COLUMNS:
         table.add_column(col, justify="left" if col in ("role", "file", "format") else "right")
     for path, s in summaries.items():
         span = (s.last - s.first) if s.first is not None and s.last is not None else 0.0
         per = " / ".join(f"{s.satellites_per_epoch.get(k, 0.0):.1f}" for k in ("G", "C"))
-        log = {".ubx": "UBX", ".rtcm3": "RTCM 3"}.get(path.suffix.lower())
+        log = {"ubx": "UBX", "rtcm3": "RTCM 3"}.get(file_format(path))
         table.add_row(
             roles.get(path, "-"),
             str(path.relative_to(root)),

@@ -26,6 +26,7 @@ import numpy as np
 from coplane.errors import ConfigError
 from coplane.evaluate.rtklib_row import postpos_files, rtklib_options, rtklib_unavailable, run_postpos
 from coplane.gtime import GpsTime
+from coplane.recording.compressed import file_format
 from coplane.recording.csvfiles import read_truth, write_truth
 from coplane.recording.reader import Recording
 from coplane.typing import Vec
@@ -124,7 +125,7 @@ def use_rtk_truth(rec: Recording) -> str:
         raise ConfigError(f"the RTK reference needs RTKLIB: {reason}")
     notes = []
     for v in rec.manifest.vehicles:
-        if v.obs.suffix.lower() in (".ubx", ".rtcm3"):
+        if file_format(v.obs) != "rinex":
             raise ConfigError(f"{v.obs}: the RTK reference needs RINEX observations (RTKLIB postpos)")
         ref = rtk_reference(rec, v.id)
         rec.use_truth(v.id, ref.positions)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import io
 import re
 from pathlib import Path
-from typing import TextIO
+from typing import Literal, TextIO
 
 from coplane.recording.problems import RecordingError
 
@@ -57,6 +57,22 @@ def open_rinex_text(path: Path) -> TextIO:
     if not is_compressed(path):
         return path.open("r", encoding="latin-1", newline=None)
     return io.StringIO(decompressed(path).decode("latin-1"), newline=None)
+
+
+def file_format(path: Path) -> Literal["ubx", "rtcm3", "rinex"]:
+    """How a recording's file is read, by its name once decompressed (`rover.ubx.gz`: "ubx")."""
+    suffix = Path(plain_name(path.name)).suffix.lower()
+    return "ubx" if suffix == ".ubx" else "rtcm3" if suffix == ".rtcm3" else "rinex"
+
+
+def read_log_bytes(path: Path, what: str) -> bytes:
+    """A binary receiver log's bytes, decompressed when its name says it is compressed."""
+    if is_compressed(path):
+        return decompressed(path)
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read {what} file ({exc.strerror or exc})") from exc
 
 
 def plain_file(path: Path, directory: Path) -> Path:

@@ -19,7 +19,7 @@ from typing import Literal
 
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
-from coplane.recording.compressed import open_rinex_text, plain_name
+from coplane.recording.compressed import file_format, open_rinex_text, plain_name
 from coplane.recording.model import ObsEpoch, ObsHeader
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
@@ -28,8 +28,6 @@ from coplane.recording.sfrbx import read_sfrbx_nav
 from coplane.recording.ubx import read_ubx
 
 MAX_FILES = 2000  # a directory tree larger than this is not a drive's folder: refuse, naming it
-
-LOG_SUFFIXES = (".ubx", ".rtcm3")  # receiver logs: observations and navigation in one file
 
 
 @dataclass(frozen=True)
@@ -45,7 +43,7 @@ class ReceiverFile:
 
 def sniff(path: Path) -> ReceiverFile | None:
     """The kind of `path`: a receiver log by its extension, RINEX by its first line (decompressed first when its name says it is compressed); None otherwise."""
-    if path.suffix.lower() in LOG_SUFFIXES:
+    if file_format(path) != "rinex":  # a receiver log, plain or archived
         return ReceiverFile(path, "log", 0.0, "")
     try:
         with open_rinex_text(path) as f:  # a compressed file is decompressed whole to see its first line
@@ -120,10 +118,10 @@ def summarise_obs(path: Path) -> ObsSummary:
 
 
 def _read_epochs(path: Path, problems: Problems) -> tuple[ObsHeader, Iterable[ObsEpoch]]:
-    suffix = path.suffix.lower()
-    if suffix == ".ubx":
+    fmt = file_format(path)
+    if fmt == "ubx":
         return read_ubx(path, problems)
-    if suffix == ".rtcm3":
+    if fmt == "rtcm3":
         return read_rtcm3(path, problems)
     return iter_obs(path, problems)
 
@@ -131,7 +129,7 @@ def _read_epochs(path: Path, problems: Problems) -> tuple[ObsHeader, Iterable[Ob
 def log_has_ephemerides(path: Path) -> bool:
     """Whether a receiver log carries broadcast ephemerides (UBX RXM-SFRBX, RTCM 1019/1042)."""
     problems = Problems(keep=0)
-    nav = read_sfrbx_nav(path, problems) if path.suffix.lower() == ".ubx" else read_rtcm3_nav(path, problems)
+    nav = read_sfrbx_nav(path, problems) if file_format(path) == "ubx" else read_rtcm3_nav(path, problems)
     return bool(nav.ephemerides)
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from coplane.gtime import GpsTime
+from coplane.recording.compressed import file_format
 from coplane.recording.csvfiles import read_truth, read_uwb
 from coplane.recording.manifest import load_manifest
 from coplane.recording.model import Manifest, NavData, ObsEpoch, ObsHeader, TruthPoint, UwbRange
@@ -80,9 +81,10 @@ class Recording:
         if self._nav is None:
             nav = NavData()
             for p in self.manifest.nav_files:  # in manifest order: the first file's record wins
-                if p.suffix.lower() == ".rtcm3":
+                fmt = file_format(p)
+                if fmt == "rtcm3":
                     nav.merge(read_rtcm3_nav(p, self.problems))
-                elif p.suffix.lower() == ".ubx":
+                elif fmt == "ubx":
                     nav.merge(read_sfrbx_nav(p, self.problems))
                 else:
                     nav.merge(read_nav_files([p], self.problems))
@@ -98,10 +100,10 @@ class Recording:
     # ---- observations
     def _load_obs(self, key: str, path: Path) -> tuple[ObsHeader, list[ObsEpoch]]:
         if key not in self._obs:
-            suffix = path.suffix.lower()
-            if suffix == ".ubx":
+            fmt = file_format(path)
+            if fmt == "ubx":
                 header, epochs = read_ubx(path, self.problems, self._signals)
-            elif suffix == ".rtcm3":
+            elif fmt == "rtcm3":
                 header, epochs = read_rtcm3(path, self.problems, self._signals, reference=self._reference())
             else:
                 header, epochs = read_obs(path, self.problems, self._signals)

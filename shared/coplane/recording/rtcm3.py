@@ -55,9 +55,10 @@ from pyrtcm.rtcmtables import BEIDOU_SIG_MAP, GPS_SIG_MAP
 
 from coplane.gtime import GpsTime, bdt_to_gpst, gpst_to_bdt
 from coplane.recording.broadcast import nearest_week, resolve_week, today
+from coplane.recording.compressed import read_log_bytes
 from coplane.recording.frames import Frame, Skipped, rtcm_frames
 from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
-from coplane.recording.problems import Problems, RecordingError
+from coplane.recording.problems import Problems
 from coplane.recording.rinex_obs import (
     DEFAULT_SIGNALS,
     DEFAULT_SYSTEMS,
@@ -429,10 +430,7 @@ class RtcmReader:
 
 
 def _load(path: Path) -> bytes:
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read RTCM 3 file ({exc.strerror or exc})") from exc
+    return read_log_bytes(path, "RTCM 3")  # .rtcm3, or archived (.rtcm3.gz)
 
 
 def read_rtcm3(

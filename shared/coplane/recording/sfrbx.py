@@ -34,9 +34,10 @@ from pyubx2 import GET, UBXMessage, UBXReader
 from coplane.gtime import GpsTime
 from coplane.recording import sfrbx_bds as bds
 from coplane.recording.broadcast import URA_TABLE_M, nearest_week, resolve_week, today, ura_index
+from coplane.recording.compressed import read_log_bytes
 from coplane.recording.frames import Frame, ubx_frames
 from coplane.recording.model import Ephemeris, IonoCoefficients, NavData
-from coplane.recording.problems import Problems, RecordingError
+from coplane.recording.problems import Problems
 
 PREAMBLE = 0x8B
 _SC = math.pi
@@ -269,10 +270,7 @@ def read_sfrbx_nav(
     """
     path = Path(path)
     if frames is None:
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise RecordingError(f"{path}: cannot read UBX file ({exc.strerror or exc})") from exc
+        data = read_log_bytes(path, "UBX")  # .ubx, or archived (.ubx.gz)
         frames = []
         for item in ubx_frames(data):
             if isinstance(item, Frame):

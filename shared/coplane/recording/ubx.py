@@ -30,6 +30,7 @@ from pathlib import Path
 from pyubx2 import GET, UBXMessage, UBXReader
 
 from coplane.gtime import GpsTime
+from coplane.recording.compressed import read_log_bytes
 from coplane.recording.frames import Frame, ubx_frames
 from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
@@ -273,10 +274,7 @@ def read_ubx(
     """Read a UBX log's RXM-RAWX epochs (garbled frames are reported with their byte offset)."""
     path = Path(path)
     sig = dict(DEFAULT_SIGNALS if signals is None else signals)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read UBX file ({exc.strerror or exc})") from exc
+    data = read_log_bytes(path, "UBX")  # .ubx, or archived (.ubx.gz)
     rd = RawxReader(path, problems, sig, systems)
     epochs: list[ObsEpoch] = []
     for item in ubx_frames(data):
