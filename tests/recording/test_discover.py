@@ -195,6 +195,7 @@ def test_positions_and_ids(real_data: Path) -> None:
     base, rover = summarise_obs(nagoya / "base.obs"), summarise_obs(nagoya / "rover.obs")
     assert base.header.marker_name == rover.header.marker_name == "SEPT"  # a receiver's default
     assert vehicle_ids([base, rover]) == ["base", "rover"]  # so the file names, for every vehicle
+    assert vehicle_ids([rover], others=[base]) == ["rover"]  # the base shares it too
     geonet = summarise_obs(real_data / GEONET / "07590920.05o")
     assert vehicle_ids([geonet]) == ["0759"] and geonet.interval_s == 30.0 and geonet.doppler_share == 0.0
 

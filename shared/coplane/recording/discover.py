@@ -42,7 +42,8 @@ class ReceiverFile:
 
 
 def sniff(path: Path) -> ReceiverFile | None:
-    """The kind of `path`: a receiver log by its extension, RINEX by its first line (decompressed first when its name says it is compressed); None otherwise."""
+    """The kind of `path`: a receiver log by its extension, RINEX by its first line (decompressed
+    first when its name says it is compressed); None otherwise."""
     if file_format(path) != "rinex":  # a receiver log, plain or archived
         return ReceiverFile(path, "log", 0.0, "")
     try:
@@ -133,12 +134,14 @@ def log_has_ephemerides(path: Path) -> bool:
     return bool(nav.ephemerides)
 
 
-def vehicle_ids(summaries: Sequence[ObsSummary]) -> list[str]:
-    """The vehicles' ids: their headers' MARKER NAMEs when every one is a valid id and no two are
-    the same (receivers often leave a default such as "SEPT"), else every file name's stem made
-    one ([A-Za-z0-9_-], at most 32 characters), numbered where two collide."""
+def vehicle_ids(summaries: Sequence[ObsSummary], others: Sequence[ObsSummary] = ()) -> list[str]:
+    """The vehicles' ids: their headers' MARKER NAMEs when every one is a valid id and no two
+    receivers share one, the `others` (the base) included (receivers often leave a default such
+    as "SEPT"), else every file name's stem made one ([A-Za-z0-9_-], at most 32 characters),
+    numbered where two collide."""
     markers = [s.header.marker_name.strip() for s in summaries]
-    if all(is_vehicle_id(m) for m in markers) and len(set(markers)) == len(markers):
+    everyone = markers + [s.header.marker_name.strip() for s in others]
+    if all(is_vehicle_id(m) for m in markers) and len(set(everyone)) == len(everyone):
         return markers
     out: list[str] = []
     for s in summaries:
@@ -156,7 +159,7 @@ def receiver_files(root: Path) -> list[ReceiverFile]:
     if not root.is_dir():
         raise RecordingError(f"{root}: not a directory")
     paths = []
-    for p in sorted(root.rglob("*")):
+    for p in root.rglob("*"):  # counted as found: a whole disk is refused early, not walked
         if any(part.startswith(".") for part in p.relative_to(root).parts):
             continue
         if p.is_file():
@@ -165,4 +168,4 @@ def receiver_files(root: Path) -> list[ReceiverFile]:
                 raise RecordingError(
                     f"{root}: more than {MAX_FILES} files below it; point at one drive's folder"
                 )
-    return [r for r in (sniff(p) for p in paths) if r is not None]
+    return [r for r in (sniff(p) for p in sorted(paths)) if r is not None]

@@ -157,7 +157,8 @@ def plan_recording(
     if not rovers:
         raise RecordingError(f"{root}: no observation file (RINEX, UBX or RTCM 3) for a vehicle below it")
     if not chosen:
-        chosen = dict(zip(vehicle_ids([summaries[p] for p in rovers]), rovers, strict=True))
+        base_summary = [summaries[base_path]] if base_path is not None else []
+        chosen = dict(zip(vehicle_ids([summaries[p] for p in rovers], base_summary), rovers, strict=True))
     roles = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
     empty = [p for p, s in summaries.items() if s.epochs == 0]
     if empty:
