@@ -6,8 +6,10 @@ rnx2crx and the archive formats), named as reference-station networks name them.
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import shutil
+import zipfile
 from pathlib import Path
 
 import hatanaka
@@ -16,6 +18,7 @@ from typer.testing import CliRunner
 
 from coplane.cli import app
 from coplane.evaluate.evaluation import evaluate
+from coplane.recording import compressed
 from coplane.recording.compressed import file_format, is_compressed, plain_file, plain_name
 from coplane.recording.convert import convert_recording
 from coplane.recording.discover import sniff
@@ -85,12 +88,43 @@ def test_navigation_and_a_broken_archive(real_data: Path, tmp_path: Path) -> Non
     assert plain_file(plain, out) == plain  # a plain file is used where it is
     broken = tmp_path / "broken.05o.gz"
     broken.write_bytes(gz.read_bytes()[:200])  # cut short, as an interrupted download leaves it
-    with pytest.raises(RecordingError, match=r"broken.05o.gz: cannot decompress"):
+    with pytest.raises(
+        RecordingError, match=r"broken\.05o\.gz: cannot decompress \(the archive is cut short\)"
+    ):
         read_obs(broken, Problems())
-    (tmp_path / "text.obs.gz").write_text("not gzip at all\n")
-    with pytest.raises(RecordingError, match="cannot decompress"):
-        read_nav(tmp_path / "text.obs.gz", Problems())
-    assert sniff(tmp_path / "text.obs.gz") is not None and sniff(tmp_path / "text.obs.gz").kind == "other"  # type: ignore[union-attr]
+    fake = tmp_path / "fake.05n.gz"
+    fake.write_bytes(b"\x1f\x8b" + bytes(range(256)) * 4)  # gzip's magic, then no gzip
+    with pytest.raises(RecordingError, match=r"fake\.05n\.gz: cannot decompress \(error"):
+        read_nav(fake, Problems())
+    assert sniff(fake) is not None and sniff(fake).kind == "other"  # type: ignore[union-attr]
+    # named as compressed but plain: read as it is
+    (tmp_path / "plain.05n.gz").write_bytes(plain.read_bytes())
+    assert read_nav(tmp_path / "plain.05n.gz", Problems()) == read_nav(plain, Problems())
+    # two gzip members end to end (as `cat a.gz b.gz` makes), then padding: one file
+    half = len(plain.read_bytes()) // 2
+    two = tmp_path / "two.05n.gz"
+    two.write_bytes(
+        gzip.compress(plain.read_bytes()[:half]) + gzip.compress(plain.read_bytes()[half:]) + b"\0" * 8
+    )
+    assert read_nav(two, Problems()) == read_nav(plain, Problems())
+
+
+def test_a_crafted_archive_cannot_exhaust_memory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A few kB that would decompress to gigabytes: stopped at the bound, with the file named."""
+    monkeypatch.setattr(compressed, "MAX_PLAIN_BYTES", 1 << 20)  # 1 MiB here, 2 GiB in use
+    for name, packed in (
+        ("bomb.obs.gz", gzip.compress(bytes(4 << 20))),
+        ("bomb.obs.bz2", bz2.compress(bytes(4 << 20))),
+    ):
+        (tmp_path / name).write_bytes(packed)
+        assert len(packed) < 20_000
+        with pytest.raises(RecordingError, match=rf"{name}: more than .* GiB once decompressed"):
+            read_obs(tmp_path / name, Problems())
+    zipped = tmp_path / "bomb.obs.zip"
+    with zipfile.ZipFile(zipped, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("bomb.obs", bytes(4 << 20))
+    with pytest.raises(RecordingError, match="once decompressed"):
+        read_obs(zipped, Problems())
 
 
 def test_a_compressed_folder_end_to_end(real_data: Path, tmp_path: Path) -> None:

@@ -10,14 +10,20 @@ plain copy a program that reads plain RINEX only (RTKLIB's postpos) needs.
 
 from __future__ import annotations
 
+import bz2
 import io
 import re
+import zipfile
+import zlib
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Literal, TextIO
+from typing import Any, Literal, TextIO
 
 from coplane.recording.problems import RecordingError
 
 ARCHIVE_SUFFIXES = (".gz", ".z", ".bz2", ".zip")  # lower case: RINEX 2 archives use ".Z"
+MAX_PLAIN_BYTES = 2 * 2**30  # a day of 1 Hz multi-GNSS observations is a few hundred MB
+_CHUNK = 1 << 20
 _HATANAKA = re.compile(r"(\.crx|\.\d\dd)$")  # RINEX 3 long names, RINEX 2 short names (".21d")
 
 
@@ -41,15 +47,79 @@ def is_compressed(path: Path) -> bool:
 
 
 def decompressed(path: Path) -> bytes:
-    """The plain content of a compressed file; RecordingError naming it when it cannot be read."""
+    """The plain content of a compressed file; RecordingError naming it when it cannot be read,
+    or when it would exceed `MAX_PLAIN_BYTES` (a crafted archive must not exhaust memory)."""
     import hatanaka  # the reference implementation of Compact RINEX (RNXCMP), wrapped for Python
 
     try:
-        return hatanaka.decompress(path)
-    except FileNotFoundError as exc:
-        raise RecordingError(f"{path}: no such file") from exc
-    except Exception as exc:  # gzip, zlib, bzip2, zip, LZW and crx2rnx each raise their own
+        data = path.read_bytes()
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    try:
+        plain = _unarchive(data, path)
+        if b"COMPACT RINEX" in plain[:80]:
+            plain = hatanaka.crx2rnx(plain)
+    except RecordingError:
+        raise
+    except Exception as exc:  # zlib, bzip2, zip, LZW and crx2rnx each raise their own
         raise RecordingError(f"{path}: cannot decompress ({type(exc).__name__}: {exc})") from exc
+    if len(plain) > MAX_PLAIN_BYTES:  # Compact RINEX expands a few times
+        raise _too_large(path)
+    return plain
+
+
+def _unarchive(data: bytes, path: Path) -> bytes:
+    """The archive layer (gzip, bzip2, zip, Unix compress) taken off, by magic bytes as RNXCMP's
+    tools do. hatanaka decompresses archives whole with no bound, so gzip, bzip2 and zip are
+    streamed here with the standard library's decompressors, which stop at MAX_PLAIN_BYTES;
+    Unix compress (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress."""
+    if data[:2] == b"\x1f\x8b":
+        return _bounded(_members(data, b"\x1f\x8b", lambda: zlib.decompressobj(wbits=31), path), path)
+    if data[:3] == b"BZh":
+        return _bounded(_members(data, b"BZh", bz2.BZ2Decompressor, path), path)
+    if data[:4] == b"PK\x03\x04":
+        with zipfile.ZipFile(io.BytesIO(data)) as z:
+            names = z.namelist()
+            if len(names) != 1:
+                raise RecordingError(f"{path}: a zip archive must hold one file, it holds {len(names)}")
+            with z.open(names[0]) as f:
+                return _bounded(iter(lambda: f.read(_CHUNK), b""), path)
+    if data[:2] == b"\x1f\x9d":
+        import ncompress  # hatanaka's own dependency for LZW
+
+        return bytes(ncompress.decompress(data))
+    return data  # Compact RINEX without an archive around it
+
+
+def _members(data: bytes, magic: bytes, new: Callable[[], Any], path: Path) -> Iterator[bytes]:
+    """Every member's output, in chunks (gzip and bzip2 files may be several streams end to end;
+    what follows the last one, padding or not, is ignored, as gzip itself does)."""
+    while data.startswith(magic):
+        d = new()
+        while not d.eof:
+            chunk = d.decompress(data, _CHUNK)
+            data = d.unconsumed_tail if hasattr(d, "unconsumed_tail") else b""
+            if chunk:
+                yield chunk
+            elif not data and (not hasattr(d, "needs_input") or d.needs_input):
+                raise RecordingError(f"{path}: cannot decompress (the archive is cut short)")
+        data = d.unused_data.lstrip(b"\0")  # trailing padding is not another member
+
+
+def _bounded(chunks: Iterable[bytes], path: Path) -> bytes:
+    out = bytearray()
+    for chunk in chunks:
+        out += chunk
+        if len(out) > MAX_PLAIN_BYTES:
+            raise _too_large(path)
+    return bytes(out)
+
+
+def _too_large(path: Path) -> RecordingError:
+    return RecordingError(
+        f"{path}: more than {MAX_PLAIN_BYTES / 2**30:g} GiB once decompressed; split it, or "
+        "decompress it first if it is genuine"
+    )
 
 
 def open_rinex_text(path: Path) -> TextIO:
