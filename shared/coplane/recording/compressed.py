@@ -48,7 +48,8 @@ def is_compressed(path: Path) -> bool:
 
 def decompressed(path: Path) -> bytes:
     """The plain content of a compressed file; RecordingError naming it when it cannot be read,
-    or when it would exceed `MAX_PLAIN_BYTES` (a crafted archive must not exhaust memory)."""
+    or when it would exceed `MAX_PLAIN_BYTES` (a crafted archive must not exhaust memory: gzip,
+    bzip2 and zip stop there; a `.Z` is checked only once decompressed, see `_unarchive`)."""
     import hatanaka  # the reference implementation of Compact RINEX (RNXCMP), wrapped for Python
 
     try:
@@ -72,7 +73,8 @@ def _unarchive(data: bytes, path: Path) -> bytes:
     """The archive layer (gzip, bzip2, zip, Unix compress) taken off, by magic bytes as RNXCMP's
     tools do. hatanaka decompresses archives whole with no bound, so gzip, bzip2 and zip are
     streamed here with the standard library's decompressors, which stop at MAX_PLAIN_BYTES;
-    Unix compress (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress."""
+    Unix compress (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress,
+    whole: no streaming LZW decoder is at hand, so the bound is checked after it."""
     if data[:2] == b"\x1f\x8b":
         return _bounded(_members(data, b"\x1f\x8b", lambda: zlib.decompressobj(wbits=31), path), path)
     if data[:3] == b"BZh":
