@@ -86,13 +86,22 @@ def test_the_image_preloads_it() -> None:
     assert "libjemalloc2" in dockerfile and "ENV LD_PRELOAD=libjemalloc.so.2" in dockerfile
 
 
+# a child just spawned may be between its exec and the dynamic linker's mapping of the preloaded
+# library (a window that a loaded CI machine widens): each is looked at until its interpreter is
+# mapped, and only then judged
 POOL = """
-import dataclasses, multiprocessing as mp
+import dataclasses, multiprocessing as mp, time
 from coplane.fgo.config import FgoConfig
 from coplane.parallel import smoothers_for
 pool = smoothers_for(dataclasses.replace(FgoConfig(), solver="isam2-fixed-lag"), 2)
-kids = mp.active_children()
-print(" ".join("jemalloc" in open(f"/proc/{k.pid}/maps").read() and "jemalloc" or "other" for k in kids))
+def allocator(pid):
+    for _ in range(600):
+        maps = open(f"/proc/{pid}/maps").read()
+        if "jemalloc" in maps or "libpython" in maps or "_multiprocessing" in maps:
+            return "jemalloc" if "jemalloc" in maps else "other"
+        time.sleep(0.05)
+    return "not-started"
+print(" ".join(allocator(k.pid) for k in mp.active_children()))
 pool.close()
 """
 
