@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -118,7 +119,7 @@ def init(
     """
     import tomli_w
 
-    from coplane.recording.health import nav_gap
+    from coplane.recording.health import ephemeris_gap
     from coplane.recording.manifest import MANIFEST_NAME, manifest_dict
     from coplane.recording.plan import parse_position, plan_recording, write_plan
     from coplane.recording.reader import open_recording
@@ -148,7 +149,14 @@ def init(
         typer.echo(tomli_w.dumps(manifest_dict(plan.manifest)))
         return
     path = write_plan(plan, force)
-    gap = nav_gap(open_recording(path))
+    # the observations' span is known from the plan's one read of each file: only the navigation
+    # files are read again, as the recording reads them
+    vehicles = [plan.summaries[v.obs] for v in plan.manifest.vehicles]
+    gap = ephemeris_gap(
+        open_recording(path),
+        min(s.first for s in vehicles if s.first is not None),
+        max(s.last for s in vehicles if s.last is not None),
+    )
     for note in [*plan.notes, *([gap + ": nothing can be positioned"] if gap else [])]:
         err_console.print(f"note: {note}")
     console.print(
@@ -169,7 +177,7 @@ def show(
 
     from coplane.geo import ecef_to_geodetic
     from coplane.gnss.epoch_solver import first_fix
-    from coplane.recording.discover import summarise_obs
+    from coplane.recording.discover import summarise
     from coplane.recording.health import input_health
     from coplane.recording.plan import coverage_notes
     from coplane.recording.reader import open_recording
@@ -177,7 +185,14 @@ def show(
     rec = open_recording(recording)
     m = rec.manifest
     roles = {v.obs: v.id for v in m.vehicles} | ({m.base.obs: "base"} if m.base else {})
-    summaries = {p: summarise_obs(p) for p in roles}
+    # from the epochs the recording's reader keeps (read once, for every figure below)
+    headers = {v.obs: rec.vehicle_header(v.id) for v in m.vehicles}
+    epochs = {v.obs: rec.vehicle_epochs(v.id) for v in m.vehicles}
+    base_header = rec.base_header()
+    if m.base is not None and base_header is not None:
+        headers[m.base.obs], epochs[m.base.obs] = base_header, rec.base_epochs()
+    problems = Counter(p.path for p in rec.problems.items)  # the first 1000 kept, per file
+    summaries = {p: summarise(p, headers[p], epochs[p], problems[str(p)]) for p in roles}
     print_receivers(f"{m.name} ({m.root})", m.root, summaries, roles)
     systems: dict[str, list[GpsTime]] = {}
     for sat, ephs in rec.nav.ephemerides.items():
@@ -194,7 +209,7 @@ def show(
             f"base: {m.base.obs.relative_to(m.root)} at {np.degrees(lat):.7f}, {np.degrees(lon):.7f}, {h:.3f} m"
         )
         for v in m.vehicles:  # DGNSS weakens with distance: the atmosphere decorrelates
-            fix = first_fix(rec.vehicle_epochs(v.id), rec.nav)
+            fix = first_fix(epochs[v.obs], rec.nav)
             far = (
                 "-"
                 if fix is None
@@ -203,8 +218,8 @@ def show(
             console.print(f"{v.id}: {far} from the base at its first SPP fix")
     for v in m.vehicles:
         truth = rec.truth_at(v.id)
-        epochs = {rec.nominal(ep.time) for ep in rec.vehicle_epochs(v.id)}
-        covered = len(epochs & set(truth)) / len(epochs) if epochs else 0.0
+        nominal = {rec.nominal(ep.time) for ep in epochs[v.obs]}
+        covered = len(nominal & set(truth)) / len(nominal) if nominal else 0.0
         console.print(
             f"{v.id}: antenna {v.antenna_height_m:g} m above the road; truth "
             + (f"{len(truth)} rows, {100 * covered:.0f} % of its epochs" if truth else "none")

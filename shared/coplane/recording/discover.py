@@ -90,7 +90,14 @@ def summarise_obs(path: Path) -> ObsSummary:
     receiver log by its extension, as a recording reads it."""
     problems = Problems(keep=0)
     header, epochs = _read_epochs(path, problems)
-    s = ObsSummary(path, header)
+    summary = summarise(path, header, epochs)
+    summary.problems = problems.total  # known once the epochs are read
+    return summary
+
+
+def summarise(path: Path, header: ObsHeader, epochs: Iterable[ObsEpoch], problems: int = 0) -> ObsSummary:
+    """What a receiver's epochs hold, from epochs already read (a recording's reader has them)."""
+    s = ObsSummary(path, header, problems=problems)
     times: list[GpsTime] = []
     sats: dict[str, int] = {sys: 0 for sys in DEFAULT_SYSTEMS}
     ranges = dopplers = 0
@@ -105,7 +112,6 @@ def summarise_obs(path: Path) -> ObsSummary:
                 dopplers += math.isfinite(o.doppler_hz)
     s.epochs = len(times)
     s.times = tuple(times)
-    s.problems = problems.total
     if times:
         s.first, s.last = times[0], times[-1]
         s.satellites_per_epoch = {k: n / len(times) for k, n in sats.items() if n}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from coplane.gtime import GpsTime
 from coplane.recording.reader import Recording
 
 MAX_PROBLEM_SHARE = 0.05  # above this share of records with a problem, the input is suspect
@@ -40,15 +41,22 @@ def input_health(rec: Recording) -> InputHealth:
 def nav_gap(rec: Recording) -> str | None:
     """A sentence naming the nav files when their ephemerides are nowhere near the observations
     (a week-old brdc file is the usual cause of a run that positions nothing)."""
-    toes = [e.toe for ephs in rec.nav.ephemerides.values() for e in ephs]
     times = [ep.time for v in rec.manifest.vehicles for ep in rec.vehicle_epochs(v.id)]
-    if not toes or not times:
+    if not times:
         return None
-    first, last, toe0, toe1 = min(times), max(times), min(toes), max(toes)
+    return ephemeris_gap(rec, min(times), max(times))
+
+
+def ephemeris_gap(rec: Recording, first: GpsTime, last: GpsTime) -> str | None:
+    """`nav_gap` for observations spanning `first` .. `last`, when a caller knows the span
+    already (`coplane recording init` has read every file once): the navigation files only."""
+    toes = [e.toe for ephs in rec.nav.ephemerides.values() for e in ephs]
+    if not toes:
+        return None
     if any(min(abs(t - toe) for toe in toes) <= EPHEMERIS_REACH_S for t in (first, last)):
         return None
     files = ", ".join(str(f) for f in rec.manifest.nav_files)
-    return f"the ephemerides in {files} are for {toe0} .. {toe1}; the observations span {first} .. {last}"
+    return f"the ephemerides in {files} are for {min(toes)} .. {max(toes)}; the observations span {first} .. {last}"
 
 
 def health_warnings(health: InputHealth, fixes: int) -> list[str]:
