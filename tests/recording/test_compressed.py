@@ -120,6 +120,8 @@ def test_a_crafted_archive_cannot_exhaust_memory(tmp_path: Path, monkeypatch: py
         assert len(packed) < 20_000
         with pytest.raises(RecordingError, match=rf"{name}: more than .* GiB once decompressed"):
             read_obs(tmp_path / name, Problems())
+        # telling what a file is decompresses its first kB only: no bound reached, not RINEX
+        assert sniff(tmp_path / name) is None
     zipped = tmp_path / "bomb.obs.zip"
     with zipfile.ZipFile(zipped, "w", zipfile.ZIP_DEFLATED) as z:
         z.writestr("bomb.obs", bytes(4 << 20))

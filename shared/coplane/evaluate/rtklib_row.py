@@ -152,12 +152,7 @@ def read_xyz_solution(path: Path) -> list[tuple[GpsTime, np.ndarray, np.ndarray,
 def postpos_files(paths: list[Path], directory: Path) -> list[str]:
     """`paths` as postpos reads them: RTKLIB takes plain RINEX only (it would shell out to crx2rnx
     and gzip), so each compressed one is decompressed into its own folder of `directory`."""
-    out = []
-    for i, p in enumerate(paths):
-        folder = directory / f"input-{i}"
-        folder.mkdir(parents=True, exist_ok=True)
-        out.append(str(plain_file(p, folder)))
-    return out
+    return [str(plain_file(p, directory / f"input-{i}")) for i, p in enumerate(paths)]
 
 
 def run_postpos(

@@ -24,6 +24,7 @@ from coplane.recording.problems import RecordingError
 ARCHIVE_SUFFIXES = (".gz", ".z", ".bz2", ".zip")  # lower case: RINEX 2 archives use ".Z"
 MAX_PLAIN_BYTES = 2 * 2**30  # a day of 1 Hz multi-GNSS observations is a few hundred MB
 _CHUNK = 1 << 20
+_HEAD = 4096  # enough for a Compact RINEX file's first three lines
 _HATANAKA = re.compile(r"(\.crx|\.\d\dd)$")  # RINEX 3 long names, RINEX 2 short names (".21d")
 
 
@@ -69,28 +70,29 @@ def decompressed(path: Path) -> bytes:
     return plain
 
 
-def _unarchive(data: bytes, path: Path) -> bytes:
+def _unarchive(data: bytes, path: Path, head: int | None = None) -> bytes:
     """The archive layer (gzip, bzip2, zip, Unix compress) taken off, by magic bytes as RNXCMP's
-    tools do. hatanaka decompresses archives whole with no bound, so gzip, bzip2 and zip are
-    streamed here with the standard library's decompressors, which stop at MAX_PLAIN_BYTES;
-    Unix compress (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress,
-    whole: no streaming LZW decoder is at hand, so the bound is checked after it."""
+    tools do; `head`: only the first that many bytes, decompressing no further than needed.
+    hatanaka decompresses archives whole with no bound, so gzip, bzip2 and zip are streamed here
+    with the standard library's decompressors, which stop at MAX_PLAIN_BYTES; Unix compress
+    (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress, whole: no
+    streaming LZW decoder is at hand, so the bound is checked after it."""
     if data[:2] == b"\x1f\x8b":
-        return _bounded(_members(data, b"\x1f\x8b", lambda: zlib.decompressobj(wbits=31), path), path)
+        return _bounded(_members(data, b"\x1f\x8b", lambda: zlib.decompressobj(wbits=31), path), path, head)
     if data[:3] == b"BZh":
-        return _bounded(_members(data, b"BZh", bz2.BZ2Decompressor, path), path)
+        return _bounded(_members(data, b"BZh", bz2.BZ2Decompressor, path), path, head)
     if data[:4] == b"PK\x03\x04":
         with zipfile.ZipFile(io.BytesIO(data)) as z:
             names = z.namelist()
             if len(names) != 1:
                 raise RecordingError(f"{path}: a zip archive must hold one file, it holds {len(names)}")
             with z.open(names[0]) as f:
-                return _bounded(iter(lambda: f.read(_CHUNK), b""), path)
+                return _bounded(iter(lambda: f.read(_CHUNK), b""), path, head)
     if data[:2] == b"\x1f\x9d":
         import ncompress  # hatanaka's own dependency for LZW
 
-        return bytes(ncompress.decompress(data))
-    return data  # Compact RINEX without an archive around it
+        return bytes(ncompress.decompress(data))[:head]
+    return data[:head]  # Compact RINEX without an archive around it
 
 
 def _members(data: bytes, magic: bytes, new: Callable[[], Any], path: Path) -> Iterator[bytes]:
@@ -108,10 +110,13 @@ def _members(data: bytes, magic: bytes, new: Callable[[], Any], path: Path) -> I
         data = d.unused_data.lstrip(b"\0")  # trailing padding is not another member
 
 
-def _bounded(chunks: Iterable[bytes], path: Path) -> bytes:
+def _bounded(chunks: Iterable[bytes], path: Path, head: int | None = None) -> bytes:
+    """The chunks joined, up to MAX_PLAIN_BYTES (an error beyond), or only their first `head` bytes."""
     out = bytearray()
     for chunk in chunks:
         out += chunk
+        if head is not None and len(out) >= head:
+            return bytes(out[:head])
         if len(out) > MAX_PLAIN_BYTES:
             raise _too_large(path)
     return bytes(out)
@@ -131,6 +136,27 @@ def open_rinex_text(path: Path) -> TextIO:
     return io.StringIO(decompressed(path).decode("latin-1"), newline=None)
 
 
+def first_rinex_line(path: Path) -> str:
+    """The `RINEX VERSION / TYPE` line a file would begin with once plain, from its first few kB
+    only (a compressed file is not decompressed whole to tell what it is): in Compact RINEX that
+    line is the third. RecordingError when a compressed file cannot be read."""
+    try:
+        with path.open("rb") as f:
+            data = f.read() if is_compressed(path) else f.read(_HEAD)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    try:
+        head = _unarchive(data, path, _HEAD) if is_compressed(path) else data
+    except RecordingError:
+        raise
+    except Exception as exc:  # the decompressors' own errors, as in `decompressed`
+        raise RecordingError(f"{path}: cannot decompress ({type(exc).__name__}: {exc})") from exc
+    lines = head.decode("latin-1").splitlines()
+    if lines and "COMPACT RINEX" in lines[0]:
+        return lines[2] if len(lines) > 2 else ""
+    return lines[0] if lines else ""
+
+
 def file_format(path: Path) -> Literal["ubx", "rtcm3", "rinex"]:
     """How a recording's file is read, by its name once decompressed (`rover.ubx.gz`: "ubx")."""
     suffix = Path(plain_name(path.name)).suffix.lower()
@@ -148,9 +174,11 @@ def read_log_bytes(path: Path, what: str) -> bytes:
 
 
 def plain_file(path: Path, directory: Path) -> Path:
-    """`path` itself when plain, else its decompressed copy in `directory` (same plain name)."""
+    """`path` itself when plain, else its decompressed copy in `directory` (made if needed; same
+    plain name)."""
     if not is_compressed(path):
         return path
+    directory.mkdir(parents=True, exist_ok=True)
     out = directory / plain_name(path.name)
     out.write_bytes(decompressed(path))
     return out

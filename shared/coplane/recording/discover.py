@@ -19,7 +19,7 @@ from typing import Literal
 
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
-from coplane.recording.compressed import file_format, open_rinex_text, plain_name
+from coplane.recording.compressed import file_format, first_rinex_line, is_compressed, plain_name
 from coplane.recording.model import ObsEpoch, ObsHeader
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
@@ -47,12 +47,9 @@ def sniff(path: Path) -> ReceiverFile | None:
     if file_format(path) != "rinex":  # a receiver log, plain or archived
         return ReceiverFile(path, "log", 0.0, "")
     try:
-        with open_rinex_text(path) as f:  # a compressed file is decompressed whole to see its first line
-            line = f.readline(200)
-    except OSError:
-        return None
-    except RecordingError:  # named like a compressed file but not one
-        return ReceiverFile(path, "other", 0.0, "unreadable")
+        line = first_rinex_line(path)  # a compressed file's first kB, not all of it
+    except RecordingError:  # unreadable, or named like a compressed file but not one
+        return None if not is_compressed(path) else ReceiverFile(path, "other", 0.0, "unreadable")
     if "RINEX VERSION / TYPE" not in line:
         return None
     try:
