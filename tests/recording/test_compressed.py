@@ -13,6 +13,7 @@ import zipfile
 from pathlib import Path
 
 import hatanaka
+import ncompress
 import pytest
 from typer.testing import CliRunner
 
@@ -115,6 +116,7 @@ def test_a_crafted_archive_cannot_exhaust_memory(tmp_path: Path, monkeypatch: py
     for name, packed in (
         ("bomb.obs.gz", gzip.compress(bytes(4 << 20))),
         ("bomb.obs.bz2", bz2.compress(bytes(4 << 20))),
+        ("bomb.obs.Z", ncompress.compress(bytes(4 << 20))),
     ):
         (tmp_path / name).write_bytes(packed)
         assert len(packed) < 20_000

@@ -2,15 +2,16 @@
 
 A CORS base or a daily BRDC file usually comes gzip- or Unix-compressed (`.gz`, `.Z`), and
 observation files also in Hatanaka's Compact RINEX (`.crx`, RINEX 2 `.YYd`), often both
-(`.crx.gz`). coplane's readers take them as they come: `open_rinex_text` gives the plain text,
-decompressed whole in memory by the `hatanaka` package (RNXCMP's crx2rnx and the archive formats;
-bzip2 and zip too), or the file itself when its name says it is plain. `plain_file` writes the
+(`.crx.gz`). coplane's readers take them as they come: `open_rinex_text` gives the plain text, decompressed
+in memory (the archive layer streamed up to a bound, Compact RINEX by the `hatanaka` package,
+RNXCMP's crx2rnx), or the file itself when its name says it is plain. `plain_file` writes the
 plain copy a program that reads plain RINEX only (RTKLIB's postpos) needs.
 """
 
 from __future__ import annotations
 
 import bz2
+import contextlib
 import io
 import re
 import zipfile
@@ -49,8 +50,8 @@ def is_compressed(path: Path) -> bool:
 
 def decompressed(path: Path) -> bytes:
     """The plain content of a compressed file; RecordingError naming it when it cannot be read,
-    or when it would exceed `MAX_PLAIN_BYTES` (a crafted archive must not exhaust memory: gzip,
-    bzip2 and zip stop there; a `.Z` is checked only once decompressed, see `_unarchive`)."""
+    or when it would exceed `MAX_PLAIN_BYTES` (a crafted archive must not exhaust memory: every
+    archive format stops there, see `_unarchive`)."""
     import hatanaka  # the reference implementation of Compact RINEX (RNXCMP), wrapped for Python
 
     try:
@@ -73,10 +74,10 @@ def decompressed(path: Path) -> bytes:
 def _unarchive(data: bytes, path: Path, head: int | None = None) -> bytes:
     """The archive layer (gzip, bzip2, zip, Unix compress) taken off, by magic bytes as RNXCMP's
     tools do; `head`: only the first that many bytes, decompressing no further than needed.
-    hatanaka decompresses archives whole with no bound, so gzip, bzip2 and zip are streamed here
-    with the standard library's decompressors, which stop at MAX_PLAIN_BYTES; Unix compress
-    (LZW, rare outside old RINEX 2 archives) goes through hatanaka's ncompress, whole: no
-    streaming LZW decoder is at hand, so the bound is checked after it."""
+    hatanaka decompresses archives whole with no bound, so they are streamed here and stop at
+    MAX_PLAIN_BYTES: gzip, bzip2 and zip with the standard library's decompressors, Unix compress
+    (LZW, which the standard library lacks) with ncompress, hatanaka's own dependency, writing
+    into `_BoundedSink`."""
     if data[:2] == b"\x1f\x8b":
         return _bounded(_members(data, b"\x1f\x8b", lambda: zlib.decompressobj(wbits=31), path), path, head)
     if data[:3] == b"BZh":
@@ -91,7 +92,10 @@ def _unarchive(data: bytes, path: Path, head: int | None = None) -> bytes:
     if data[:2] == b"\x1f\x9d":
         import ncompress  # hatanaka's own dependency for LZW
 
-        return bytes(ncompress.decompress(data))[:head]
+        sink = _BoundedSink(path, head)
+        with contextlib.suppress(_HeadFull):  # the head asked for is complete
+            ncompress.decompress(data, sink)
+        return bytes(sink.out)
     return data[:head]  # Compact RINEX without an archive around it
 
 
@@ -108,6 +112,33 @@ def _members(data: bytes, magic: bytes, new: Callable[[], Any], path: Path) -> I
             elif not data and (not hasattr(d, "needs_input") or d.needs_input):
                 raise RecordingError(f"{path}: cannot decompress (the archive is cut short)")
         data = d.unused_data.lstrip(b"\0")  # trailing padding is not another member
+
+
+class _HeadFull(Exception):
+    """Raised into ncompress's loop once the `head` bytes asked for are written: nothing more is needed."""
+
+
+class _BoundedSink(io.RawIOBase):
+    """A binary stream ncompress writes its output into, chunk by chunk (it has no iterator of
+    chunks as zlib and bz2 do): it keeps the first `head` bytes, or all up to MAX_PLAIN_BYTES,
+    and stops the decoder with an exception beyond, before the memory is spent."""
+
+    def __init__(self, path: Path, head: int | None) -> None:
+        super().__init__()
+        self.out = bytearray()
+        self._path, self._head = path, head
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        self.out += b
+        if self._head is not None and len(self.out) >= self._head:
+            del self.out[self._head :]
+            raise _HeadFull
+        if len(self.out) > MAX_PLAIN_BYTES:
+            raise _too_large(self._path)
+        return len(b)
 
 
 def _bounded(chunks: Iterable[bytes], path: Path, head: int | None = None) -> bytes:
