@@ -20,12 +20,10 @@ from typing import Literal
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
 from coplane.recording.compressed import file_format, first_rinex_line, is_compressed, plain_name
+from coplane.recording.logs import log_navigation, log_observations, parse_log
 from coplane.recording.model import ObsEpoch, ObsHeader
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
-from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
-from coplane.recording.sfrbx import read_sfrbx_nav
-from coplane.recording.ubx import read_ubx
 
 MAX_FILES = 2000  # a directory tree larger than this is not a drive's folder: refuse, naming it
 
@@ -83,13 +81,40 @@ class ObsSummary:
 
 
 def summarise_obs(path: Path) -> ObsSummary:
-    """Read `path` once with coplane's reader (GPS and BeiDou signals, as every method uses); a
-    receiver log by its extension, as a recording reads it."""
+    """Read a RINEX observation file once with coplane's reader (GPS and BeiDou signals, as every
+    method uses); a receiver log with `summarise_log`."""
     problems = Problems(keep=0)
-    header, epochs = _read_epochs(path, problems)
+    header, epochs = iter_obs(path, problems)
     summary = summarise(path, header, epochs)
     summary.problems = problems.total  # known once the epochs are read
     return summary
+
+
+@dataclass
+class LogSummary:
+    """What one pass over a receiver log (UBX, RTCM 3) found: its observations, or why none could
+    be read, and whether it carries broadcast ephemerides (UBX RXM-SFRBX, RTCM 1019/1042)."""
+
+    obs: ObsSummary | None
+    error: RecordingError | None
+    ephemerides: bool
+
+
+def summarise_log(path: Path) -> LogSummary:
+    """A receiver log read once for both things it may hold (`recording.logs`)."""
+    problems = Problems(keep=0)
+    try:
+        log = parse_log(path, problems)
+    except RecordingError as exc:
+        return LogSummary(None, exc, False)
+    ephemerides = bool(log_navigation(log, problems).ephemerides)
+    try:
+        header, epochs = log_observations(log)
+    except RecordingError as exc:
+        return LogSummary(None, exc, ephemerides)
+    summary = summarise(path, header, epochs)
+    summary.problems = problems.total
+    return LogSummary(summary, None, ephemerides)
 
 
 def summarise(path: Path, header: ObsHeader, epochs: Iterable[ObsEpoch], problems: int = 0) -> ObsSummary:
@@ -119,22 +144,6 @@ def summarise(path: Path, header: ObsHeader, epochs: Iterable[ObsEpoch], problem
     elif spacing:
         s.interval_s = round(statistics.median(spacing), 3)
     return s
-
-
-def _read_epochs(path: Path, problems: Problems) -> tuple[ObsHeader, Iterable[ObsEpoch]]:
-    fmt = file_format(path)
-    if fmt == "ubx":
-        return read_ubx(path, problems)
-    if fmt == "rtcm3":
-        return read_rtcm3(path, problems)
-    return iter_obs(path, problems)
-
-
-def log_has_ephemerides(path: Path) -> bool:
-    """Whether a receiver log carries broadcast ephemerides (UBX RXM-SFRBX, RTCM 1019/1042)."""
-    problems = Problems(keep=0)
-    nav = read_sfrbx_nav(path, problems) if file_format(path) == "ubx" else read_rtcm3_nav(path, problems)
-    return bool(nav.ephemerides)
 
 
 def vehicle_ids(summaries: Sequence[ObsSummary], others: Sequence[ObsSummary] = ()) -> list[str]:

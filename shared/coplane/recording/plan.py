@@ -25,10 +25,11 @@ from coplane.geo import enu_to_ecef, geodetic_to_ecef
 from coplane.ids import is_vehicle_id
 from coplane.recording.csvfiles import write_truth
 from coplane.recording.discover import (
+    LogSummary,
     ObsSummary,
     ReceiverFile,
-    log_has_ephemerides,
     receiver_files,
+    summarise_log,
     summarise_obs,
     vehicle_ids,
 )
@@ -121,7 +122,10 @@ def plan_recording(
     found = receiver_files(root)
     notes: list[str] = []
     skipped: list[str] = []
-    nav, logs = _navigation(root, found, skipped)
+    logs = {
+        r.path.resolve(): summarise_log(r.path.resolve()) for r in found if r.kind == "log"
+    }  # each read once
+    nav = _navigation(root, found, logs, skipped)
     base_path = inside(root, base, "--base") if base is not None else None
     if (base_path is None) != (base_position is None):
         raise ConfigError(
@@ -143,13 +147,13 @@ def plan_recording(
         candidates = list(chosen.values())
     else:
         chosen = {}
-        candidates = [r.path.resolve() for r in found if r.kind == "obs"] + logs
+        candidates = [r.path.resolve() for r in found if r.kind == "obs"] + list(logs)
     if base_path is not None and base_path not in candidates:
         candidates.append(base_path)
     # a file found (not named by the user) that cannot be read is skipped with its reason; a log
     # is a vehicle only when it holds observations (one may hold navigation only)
     named = set(chosen.values()) | {base_path}
-    summaries, unreadable = _summaries(candidates, {p for p in candidates if p not in named}, set(logs))
+    summaries, unreadable = _summaries(candidates, {p for p in candidates if p not in named}, logs)
     skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
     skipped += [f"{p.relative_to(root)}: a log with neither observations nor ephemerides"
                 for p in candidates if p not in summaries and p not in unreadable and p not in nav]  # fmt: skip
@@ -189,13 +193,12 @@ def plan_recording(
 
 
 def _navigation(
-    root: Path, found: Sequence[ReceiverFile], skipped: list[str]
-) -> tuple[list[Path], list[Path]]:
+    root: Path, found: Sequence[ReceiverFile], logs: Mapping[Path, LogSummary], skipped: list[str]
+) -> list[Path]:
     """The navigation files to merge (GPS / BeiDou RINEX first, then the logs with ephemerides: a
-    satellite's first record wins) and every receiver log; the other files found go to `skipped`."""
-    logs = [r.path.resolve() for r in found if r.kind == "log"]
+    satellite's first record wins); the other files found go to `skipped`."""
     nav = [r.path for r in found if r.kind == "nav" and r.system in NAV_SYSTEMS]
-    nav += [p for p in logs if log_has_ephemerides(p)]
+    nav += [p for p, log in logs.items() if log.ephemerides]
     for r in found:
         if r.kind == "nav" and r.system not in NAV_SYSTEMS:
             skipped.append(f"{r.path.relative_to(root)}: {r.system} navigation (coplane uses GPS and BeiDou)")
@@ -207,11 +210,11 @@ def _navigation(
             f"{root}: no GPS or BeiDou navigation file (RINEX, or a UBX / RTCM 3 log with ephemerides) "
             "below it; add one (e.g. the day's BRDC file, or the receiver's own navigation log)"
         )
-    return nav, logs
+    return nav
 
 
 def _summaries(
-    paths: Sequence[Path], optional: set[Path], logs: set[Path]
+    paths: Sequence[Path], optional: set[Path], logs: Mapping[Path, LogSummary]
 ) -> tuple[dict[Path, ObsSummary], dict[Path, str]]:
     """Each file read once. An `optional` one (found, not named by the user) that cannot be read
     is left out with the reason (the second dict; a log's reason is only that it holds no
@@ -220,7 +223,7 @@ def _summaries(
     unreadable: dict[Path, str] = {}
     for p in paths:
         try:
-            summary = summarise_obs(p)
+            summary = _read_summary(p, logs)
         except RecordingError as exc:
             if p not in optional:
                 raise
@@ -232,6 +235,16 @@ def _summaries(
         elif p not in logs:
             unreadable[p] = "no epoch with GPS or BeiDou pseudoranges"
     return out, unreadable
+
+
+def _read_summary(path: Path, logs: Mapping[Path, LogSummary]) -> ObsSummary:
+    """A RINEX file's summary, or a log's from its one read (its error raised again)."""
+    log = logs.get(path)
+    if log is None:
+        return summarise_obs(path)
+    if log.obs is None:
+        raise log.error or RecordingError(f"{path}: no observations")
+    return log.obs
 
 
 def _base_position(

@@ -10,12 +10,13 @@ epoch nearest to their tag within 0.1 x interval_s.
 Observation files are read by their extension: `.ubx` (u-blox RXM-RAWX, recording/ubx.py),
 `.rtcm3` (RTCM 3 MSM4/MSM7, recording/rtcm3.py), anything else RINEX. Navigation files ending
 `.rtcm3` give their 1019/1042 ephemerides, `.ubx` their RXM-SFRBX GPS LNAV subframes
-(recording/sfrbx.py); files are merged in manifest order, the first record of a toe winning. An RTCM 3 obs file's epochs carry no week: it is
+(recording/sfrbx.py); a log that is both is parsed once (recording/logs.py). Files are merged in manifest order, the first record of a toe winning. An RTCM 3 obs file's epochs carry no week: it is
 taken from the file's own ephemeris messages, else from the recording's navigation data.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,14 +24,12 @@ from pathlib import Path
 from coplane.gtime import GpsTime
 from coplane.recording.compressed import file_format
 from coplane.recording.csvfiles import read_truth, read_uwb
+from coplane.recording.logs import LogCache, log_navigation, log_observations
 from coplane.recording.manifest import load_manifest
 from coplane.recording.model import Manifest, NavData, ObsEpoch, ObsHeader, TruthPoint, UwbRange
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_nav import read_nav_files
 from coplane.recording.rinex_obs import SignalCodes, read_obs
-from coplane.recording.rtcm3 import read_rtcm3, read_rtcm3_nav
-from coplane.recording.sfrbx import read_sfrbx_nav
-from coplane.recording.ubx import read_ubx
 from coplane.typing import Vec
 
 MATCH_FRACTION = 0.1  # uwb/truth rows match an epoch within this fraction of the interval
@@ -56,6 +55,10 @@ class Recording:
         self._signals = signals
         self._nav: NavData | None = None
         self._obs: dict[str, tuple[ObsHeader, list[ObsEpoch]]] = {}
+        # a receiver log named as observations and as navigation is parsed once for both
+        receivers = [v.obs for v in manifest.vehicles] + ([manifest.base.obs] if manifest.base else [])
+        uses = Counter(p for p in [*manifest.nav_files, *receivers] if file_format(p) != "rinex")
+        self._logs = LogCache(self.problems, signals, uses)
         self._uwb: list[UwbRange] | None = None
         self._truth: dict[str, list[TruthPoint]] = {}
         self._truth_at: dict[str, dict[GpsTime, tuple[float, float, float]]] = {}
@@ -81,13 +84,10 @@ class Recording:
         if self._nav is None:
             nav = NavData()
             for p in self.manifest.nav_files:  # in manifest order: the first file's record wins
-                fmt = file_format(p)
-                if fmt == "rtcm3":
-                    nav.merge(read_rtcm3_nav(p, self.problems))
-                elif fmt == "ubx":
-                    nav.merge(read_sfrbx_nav(p, self.problems))
-                else:
+                if file_format(p) == "rinex":
                     nav.merge(read_nav_files([p], self.problems))
+                else:
+                    nav.merge(log_navigation(self._logs.take(p), self.problems))
             if not nav.ephemerides:
                 files = ", ".join(str(p) for p in self.manifest.nav_files)
                 raise RecordingError(
@@ -102,9 +102,9 @@ class Recording:
         if key not in self._obs:
             fmt = file_format(path)
             if fmt == "ubx":
-                header, epochs = read_ubx(path, self.problems, self._signals)
+                header, epochs = log_observations(self._logs.take(path))
             elif fmt == "rtcm3":
-                header, epochs = read_rtcm3(path, self.problems, self._signals, reference=self._reference())
+                header, epochs = log_observations(self._logs.take(path), self._reference())
             else:
                 header, epochs = read_obs(path, self.problems, self._signals)
             self._obs[key] = (header, self._dedupe(path, epochs))

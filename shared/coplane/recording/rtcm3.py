@@ -433,6 +433,45 @@ def _load(path: Path) -> bytes:
     return read_log_bytes(path, "RTCM 3")  # .rtcm3, or archived (.rtcm3.gz)
 
 
+@dataclass
+class Rtcm3Log:
+    """One pass over an RTCM 3 log: its MSMs and its ephemerides, decoded on demand. A log often
+    carries both, and a recording takes it as observations and as a navigation source
+    (`coplane.recording.logs`): read once, its damage is counted once. The epochs' weeks need a
+    reference time the whole recording's navigation gives, hence `reference` at the call."""
+
+    reader: RtcmReader
+    msms: list[Msm]
+    ephs: list[tuple[int, Any]]
+
+    def observations(self, reference: GpsTime | None = None) -> tuple[ObsHeader, list[ObsEpoch]]:
+        """MSM4/MSM7 epochs, their weeks placed near `reference` (None: the log's own ephemerides, else today)."""
+        rd = self.reader
+        epochs = rd.epochs(self.msms, rd.reference(self.ephs, reference))
+        obs_types = {
+            s: tuple(x for x in (c.pseudorange, c.carrier, c.doppler, c.snr) if x)
+            for s, c in rd.codes.items()
+        }
+        return ObsHeader(version=0.0, receiver="RTCM 3 MSM", obs_types=obs_types), epochs
+
+    def navigation(self, reference: GpsTime | None = None) -> NavData:
+        """The 1019/1042 ephemerides."""
+        return self.reader.nav(self.ephs, self.reader.reference(self.ephs, reference))
+
+
+def parse_rtcm3(
+    path: str | Path,
+    problems: Problems,
+    signals: Mapping[str, SignalCodes] | None = None,
+    systems: Sequence[str] = DEFAULT_SYSTEMS,
+) -> Rtcm3Log:
+    """An RTCM 3 log read once (garbled frames reported with their byte offset)."""
+    path = Path(path)
+    rd = RtcmReader(path, problems, dict(DEFAULT_SIGNALS if signals is None else signals), systems)
+    msms, ephs = rd.parse(_load(path))
+    return Rtcm3Log(rd, msms, ephs)
+
+
 def read_rtcm3(
     path: str | Path,
     problems: Problems,
@@ -441,19 +480,9 @@ def read_rtcm3(
     reference: GpsTime | None = None,
 ) -> tuple[ObsHeader, list[ObsEpoch]]:
     """MSM4/MSM7 epochs of an RTCM 3 file (garbled frames reported with their byte offset)."""
-    path = Path(path)
-    rd = RtcmReader(path, problems, dict(DEFAULT_SIGNALS if signals is None else signals), systems)
-    msms, ephs = rd.parse(_load(path))
-    epochs = rd.epochs(msms, rd.reference(ephs, reference))
-    obs_types = {
-        s: tuple(x for x in (c.pseudorange, c.carrier, c.doppler, c.snr) if x) for s, c in rd.codes.items()
-    }
-    return ObsHeader(version=0.0, receiver="RTCM 3 MSM", obs_types=obs_types), epochs
+    return parse_rtcm3(path, problems, signals, systems).observations(reference)
 
 
 def read_rtcm3_nav(path: str | Path, problems: Problems, reference: GpsTime | None = None) -> NavData:
     """The 1019/1042 ephemerides of an RTCM 3 file."""
-    path = Path(path)
-    rd = RtcmReader(path, problems, DEFAULT_SIGNALS, DEFAULT_SYSTEMS)
-    _, ephs = rd.parse(_load(path))
-    return rd.nav(ephs, rd.reference(ephs, reference))
+    return parse_rtcm3(path, problems).navigation(reference)

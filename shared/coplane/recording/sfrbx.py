@@ -34,10 +34,10 @@ from pyubx2 import GET, UBXMessage, UBXReader
 from coplane.gtime import GpsTime
 from coplane.recording import sfrbx_bds as bds
 from coplane.recording.broadcast import URA_TABLE_M, nearest_week, resolve_week, today, ura_index
-from coplane.recording.compressed import read_log_bytes
-from coplane.recording.frames import Frame, ubx_frames
+from coplane.recording.frames import Frame
 from coplane.recording.model import Ephemeris, IonoCoefficients, NavData
 from coplane.recording.problems import Problems
+from coplane.recording.ubx import SFRBX_CLASS_ID, log_frames
 
 PREAMBLE = 0x8B
 _SC = math.pi
@@ -270,19 +270,7 @@ def read_sfrbx_nav(
     """
     path = Path(path)
     if frames is None:
-        data = read_log_bytes(path, "UBX")  # .ubx, or archived (.ubx.gz)
-        frames = []
-        for item in ubx_frames(data):
-            if isinstance(item, Frame):
-                frames.append(item)
-            elif not item.ascii:
-                problems.add(
-                    path,
-                    None,
-                    "garbled-frame",
-                    f"{item.length} byte(s) skipped: {item.reason}",
-                    offset=item.offset,
-                )
+        frames = log_frames(path, problems)
     dec = SfrbxDecoder(path, problems, NavData(), reference or today())
     for fr in frames:
         dec.add(fr)
@@ -301,7 +289,7 @@ class SfrbxDecoder:
     def add(self, fr: Frame) -> None:
         """One UBX frame (anything but RXM-SFRBX is ignored); bad subframes are counted."""
         path, problems, nav = self.path, self.problems, self.nav
-        if fr.raw[2:4] != b"\x02\x13":  # RXM-SFRBX class/id: skip other messages before parsing
+        if fr.raw[2:4] != SFRBX_CLASS_ID:  # skip other messages before parsing
             return
         try:
             msg = UBXReader.parse(fr.raw)

@@ -24,7 +24,8 @@ RAWX has no field for the receiver clock offset RINEX may carry; it is not writt
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from pyubx2 import GET, UBXMessage, UBXReader
@@ -66,6 +67,7 @@ _LEAPS: tuple[tuple[GpsTime, int], ...] = (
     (GpsTime.from_calendar(2015, 7, 1, 0, 0, 16), 17),
     (GpsTime.from_calendar(2017, 1, 1, 0, 0, 17), 18),
 )
+SFRBX_CLASS_ID = b"\x02\x13"  # RXM-SFRBX's class and id bytes: navigation subframes (recording/sfrbx.py)
 _RAWX_HEAD = 16  # bytes before the repeated measurement blocks
 MAX_LOCKTIME_MS = 64500  # RAWX locktime saturates here
 # Nominal standard deviations written to RAWX: coplane keeps no per-measurement sigma.
@@ -265,24 +267,32 @@ class RawxReader:
         return SatObservation(sat, pr, dop, cn0, cp)
 
 
-def read_ubx(
-    path: str | Path,
-    problems: Problems,
-    signals: Mapping[str, SignalCodes] | None = None,
-    systems: Sequence[str] = DEFAULT_SYSTEMS,
-) -> tuple[ObsHeader, list[ObsEpoch]]:
-    """Read a UBX log's RXM-RAWX epochs (garbled frames are reported with their byte offset)."""
-    path = Path(path)
-    sig = dict(DEFAULT_SIGNALS if signals is None else signals)
-    data = read_log_bytes(path, "UBX")  # .ubx, or archived (.ubx.gz)
-    rd = RawxReader(path, problems, sig, systems)
-    epochs: list[ObsEpoch] = []
-    for item in ubx_frames(data):
+@dataclass
+class UbxLog:
+    """One pass over a UBX log: its RXM-RAWX epochs and its RXM-SFRBX frames. A u-blox log
+    usually carries both, and a recording takes it as a vehicle's observations and as a
+    navigation source (`coplane.recording.logs`): read once, its damage is counted once."""
+
+    path: Path
+    header: ObsHeader
+    epochs: list[ObsEpoch]
+    sfrbx: list[Frame]  # for `sfrbx.read_sfrbx_nav(frames=...)`
+    damaged: bool  # problems had been reported when it was read
+
+    def observations(self) -> tuple[ObsHeader, list[ObsEpoch]]:
+        """Its epochs; RecordingError when it has none and nothing was damaged (not a raw log)."""
+        if not self.epochs and not self.damaged:
+            raise RecordingError(f"{self.path}: no UBX RXM-RAWX message (not a u-blox raw observation log)")
+        return self.header, self.epochs
+
+
+def log_frames(path: Path, problems: Problems) -> Iterator[Frame]:
+    """The UBX frames of a log (.ubx, or archived: .ubx.gz); the bytes between them are reported
+    with their offset, except NMEA text, which is another protocol, not damage."""
+    for item in ubx_frames(read_log_bytes(path, "UBX")):
         if isinstance(item, Frame):
-            ep = rd.epoch(item)
-            if ep is not None:
-                epochs.append(ep)
-        elif not item.ascii:  # NMEA text between UBX frames is another protocol, not damage
+            yield item
+        elif not item.ascii:
             problems.add(
                 path,
                 None,
@@ -290,10 +300,39 @@ def read_ubx(
                 f"{item.length} byte(s) skipped: {item.reason}",
                 offset=item.offset,
             )
-    if not epochs and not problems:
-        raise RecordingError(f"{path}: no UBX RXM-RAWX message (not a u-blox raw observation log)")
+
+
+def parse_ubx(
+    path: str | Path,
+    problems: Problems,
+    signals: Mapping[str, SignalCodes] | None = None,
+    systems: Sequence[str] = DEFAULT_SYSTEMS,
+) -> UbxLog:
+    """A UBX log read once for its observations and its navigation subframes."""
+    path = Path(path)
+    rd = RawxReader(path, problems, dict(DEFAULT_SIGNALS if signals is None else signals), systems)
+    epochs: list[ObsEpoch] = []
+    sfrbx: list[Frame] = []
+    for fr in log_frames(path, problems):
+        if fr.raw[2:4] == SFRBX_CLASS_ID:
+            sfrbx.append(fr)
+            continue
+        ep = rd.epoch(fr)
+        if ep is not None:
+            epochs.append(ep)
     obs_types = {s: _rinex_types(c) for s, c in rd.codes.items()}
-    return ObsHeader(version=0.0, receiver="u-blox (UBX RXM-RAWX)", obs_types=obs_types), epochs
+    header = ObsHeader(version=0.0, receiver="u-blox (UBX RXM-RAWX)", obs_types=obs_types)
+    return UbxLog(path, header, epochs, sfrbx, bool(problems))
+
+
+def read_ubx(
+    path: str | Path,
+    problems: Problems,
+    signals: Mapping[str, SignalCodes] | None = None,
+    systems: Sequence[str] = DEFAULT_SYSTEMS,
+) -> tuple[ObsHeader, list[ObsEpoch]]:
+    """Read a UBX log's RXM-RAWX epochs (garbled frames are reported with their byte offset)."""
+    return parse_ubx(path, problems, signals, systems).observations()
 
 
 def _rinex_types(c: SignalCodes) -> tuple[str, ...]:
