@@ -87,3 +87,15 @@ def test_fleet_epoch_is_frozen() -> None:
     assert isinstance(fe, FleetEpoch)
     with pytest.raises(AttributeError):
         fe.index = 3  # type: ignore[misc]
+
+
+def test_problems_beyond_those_kept_are_counted_by_kind_and_by_file() -> None:
+    """Only the first `keep` are kept in full; the counts (what `recording show` prints per file) are whole."""
+    from coplane.recording.problems import Problems
+
+    p = Problems(keep=2)
+    for k in range(5):
+        p.add("a.obs", k + 1, "malformed-line", "bad")
+    p.add("b.ubx", None, "garbled-frame", "1 byte(s) skipped", offset=7)
+    assert len(p.items) == 2 and p.total == 6
+    assert p.by_path == {"a.obs": 5, "b.ubx": 1} and p.counts == {"malformed-line": 5, "garbled-frame": 1}

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -191,8 +190,7 @@ def show(
     base_header = rec.base_header()
     if m.base is not None and base_header is not None:
         headers[m.base.obs], epochs[m.base.obs] = base_header, rec.base_epochs()
-    problems = Counter(p.path for p in rec.problems.items)  # the first 1000 kept, per file
-    summaries = {p: summarise(p, headers[p], epochs[p], problems[str(p)]) for p in roles}
+    summaries = {p: summarise(p, headers[p], epochs[p], rec.problems.by_path[str(p)]) for p in roles}
     print_receivers(f"{m.name} ({m.root})", m.root, summaries, roles)
     systems: dict[str, list[GpsTime]] = {}
     for sat, ephs in rec.nav.ephemerides.items():

@@ -34,17 +34,19 @@ class Problem:
 
 @dataclass
 class Problems:
-    """Collects problems; keeps the first `keep` in full and counts all of them by kind."""
+    """Collects problems; keeps the first `keep` in full and counts all of them by kind and by file."""
 
     keep: int = 1000
     items: list[Problem] = field(default_factory=list)
     counts: Counter[str] = field(default_factory=Counter)
+    by_path: Counter[str] = field(default_factory=Counter)
 
     def add(
         self, path: str | Path, line: int | None, kind: str, reason: str, *, offset: int | None = None
     ) -> None:
         p = Problem(str(path), line, kind, reason, offset)
         self.counts[kind] += 1
+        self.by_path[p.path] += 1
         if len(self.items) < self.keep:
             self.items.append(p)
             log.warning("%s", p)
