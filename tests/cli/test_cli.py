@@ -68,6 +68,7 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
         app, ["eval", str(rec), "--methods", "non-cp,pc", "--interruption", "0,50", "--out", str(out)]
     )
     assert r.exit_code == 0, r.output
+    assert "epoch/s" not in r.output  # no progress bars redrawn into what is not a terminal
     assert (out / "accuracy.md").read_text().count("| pc") >= 3
     by_env = (out / "accuracy_by_environment.md").read_text()  # pooled, per simulated road section
     assert "| pc@r50 |" in by_env and "open (" in by_env and "H p50 / p99 / max" in by_env
@@ -182,3 +183,18 @@ def test_fleet_prints_the_input_problems_and_fails_strict(monkeypatch: pytest.Mo
     assert "3 input problems" in r.output and "epoch-time-jump x2" in r.output, r.output
     r = runner.invoke(app, ["fleet", "--no-api", "--insecure", "--strict"])
     assert r.exit_code == 3, r.output
+
+
+def test_progress_bars_on_a_terminal_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    from coplane.cli.options import progress_bars
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr("sys.stderr", io.StringIO())
+    assert not progress_bars()
+    monkeypatch.setattr("sys.stderr", Tty())
+    assert progress_bars()

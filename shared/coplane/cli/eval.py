@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from coplane.cli.options import interruption_rates, method_names, recording_or_default
+from coplane.cli.options import interruption_rates, method_names, progress_bars, recording_or_default
 from coplane.cli.render import STRICT_HELP, check_input, console, print_accuracy, print_problems
 
 
@@ -95,7 +95,7 @@ def eval_(
         seed=seed,
         vehicles=vehicle,
         dgnss=dgnss,
-        progress=True,
+        progress=progress_bars(),
         jobs=jobs,
         road_map=road_map,
         fgo=fgo_changes,

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from coplane.cli.options import recording_or_default
+from coplane.cli.options import progress_bars, recording_or_default
 from coplane.cli.render import STRICT_HELP, check_input, console, err_console, print_accuracy, print_problems
 
 if TYPE_CHECKING:
@@ -143,7 +143,9 @@ def fleet(
 
     def progress(done: int, total: int) -> None:
         if not bars:
-            bars.append(tqdm(total=total, desc=f"fleet {method} ({pace})", unit="epoch"))
+            bars.append(
+                tqdm(total=total, desc=f"fleet {method} ({pace})", unit="epoch", disable=not progress_bars())
+            )
         bars[0].update(done - bars[0].n)
 
     def close_bar() -> None:

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from coplane.cli.options import progress_bars
 from coplane.cli.render import console
 
 map_app = typer.Typer(
@@ -59,7 +60,7 @@ def build(
                 seed=seed,
                 dgnss=dgnss,
                 jobs=jobs,
-                progress=True,
+                progress=progress_bars(),
                 road_map=road_map if spec.plane_map else None,
             )
             ext = extend_map(road_map, run, rec)

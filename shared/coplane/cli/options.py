@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from coplane.errors import ConfigError
@@ -14,6 +15,12 @@ def recording_or_default(recording: Path | None) -> Path:
     from coplane.sim.generate import ensure_default_recording
 
     return ensure_default_recording()
+
+
+def progress_bars() -> bool:
+    """Whether to draw progress bars: on a terminal only. Redrawn into a log file or a pipe, a bar
+    leaves one long line of carriage returns in front of the report."""
+    return sys.stderr.isatty()
 
 
 def interruption_rates(text: str) -> list[float]:

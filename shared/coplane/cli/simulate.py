@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from coplane.cli.options import progress_bars
 from coplane.cli.render import console
 from coplane.errors import ConfigError
 from coplane.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS
@@ -50,7 +51,7 @@ def simulate_command(
     t0 = time.perf_counter()
     try:
         result = run_simulation(
-            scenario, vehicles, duration, seed, progress=True, start_offset_s=start_offset
+            scenario, vehicles, duration, seed, progress=progress_bars(), start_offset_s=start_offset
         )
     except ValueError as exc:  # sim reports bad arguments (a window past the ephemerides) as ValueError
         raise ConfigError(str(exc)) from exc

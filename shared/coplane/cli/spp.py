@@ -9,6 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from coplane.cli.options import progress_bars
 from coplane.cli.render import STRICT_HELP, check_input, console, fmt, label_column, print_problems
 
 COLUMNS = (
@@ -42,7 +43,7 @@ def spp(
     from coplane.evaluate.spp_run import spp_to_pos
     from coplane.recording.health import health_warnings
 
-    report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=True)
+    report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=progress_bars())
     table = Table(title=f"SPP {'DGNSS' if report.dgnss else 'standalone'}: {report.recording}")
     label_column(table, COLUMNS[0], [v.vehicle for v in report.vehicles])
     for col in COLUMNS[1:]:
