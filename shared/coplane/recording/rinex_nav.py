@@ -1,10 +1,15 @@
-"""RINEX 3.02-3.05 (mixed or per-system) and RINEX 2.10/2.11 GPS navigation reader.
+"""RINEX 4.00-4.02 and 3.02-3.05 (mixed or per-system) and RINEX 2.10/2.11 GPS navigation reader.
 
 Produces `Ephemeris` for GPS LNAV and BeiDou D1/D2 records and `IonoCoefficients` from the
-header (`IONOSPHERIC CORR` GPSA/GPSB/BDSA/BDSB, RINEX 2 `ION ALPHA`/`ION BETA`). Records of
-other systems (R and S: 4 lines, E/J/I: 8 lines) are skipped. Records are found by their first
-line (a satellite id and a date), not by counting lines, so a broken record cannot shift the
-rest of the file; a record of a wanted system that is broken is skipped with `file:line` reason.
+header (`IONOSPHERIC CORR` GPSA/GPSB/BDSA/BDSB, RINEX 2 `ION ALPHA`/`ION BETA`) or, in RINEX 4,
+from the Klobuchar `ION` records (GPS `LNAV`, BeiDou `D1D2`; the first readable one of a system).
+Records of other systems (R and S: 4 lines, E/J/I: 8 lines) are skipped. Records are found by
+their first line (a satellite id and a date), not by counting lines, so a broken record cannot
+shift the rest of the file; a record of a wanted system that is broken is skipped with
+`file:line` reason. RINEX 4 (what IGS broadcast files such as BRD400DLR are today) opens each
+record with a `> EPH G01 LNAV` line naming its type, satellite and message: the body of an `EPH`
+GPS LNAV or BeiDou D1/D2 record is RINEX 3's, and every other record (CNAV, other systems,
+`STO`, `EOP`, NeQuick `ION`) is skipped up to the next `>` line.
 
 BeiDou epoch (toc), toe and transmission times are BDT in the file: toc/toe are converted to
 GPST here (gtime.bdt_to_gpst) so all downstream time arithmetic is in one scale; `week` stays
@@ -18,6 +23,7 @@ Sanity limits (a broken record is dropped, not repaired): sqrt(A) within 2500..1
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable
 from pathlib import Path
@@ -31,6 +37,11 @@ WANTED = ("G", "C")
 # Lines per record in RINEX 3 navigation files (first line included).
 RECORD_LINES = {"G": 8, "C": 8, "E": 8, "J": 8, "I": 8, "R": 4, "S": 4}
 SQRT_A_RANGE = (2500.0, 10000.0)
+# RINEX 4 record types, and the messages read: GPS LNAV, BeiDou D1 (MEO/IGSO) and D2 (GEO)
+# ephemerides, and their Klobuchar ionosphere; the others (CNAV, CNV1-3, ...) are skipped
+RECORD_TYPES4 = ("EPH", "ION", "STO", "EOP")
+EPHEMERIS_MESSAGES4 = {("G", "LNAV"), ("C", "D1"), ("C", "D2")}
+KLOBUCHAR_MESSAGES4 = {("G", "LNAV"), ("C", "D1D2")}
 
 
 def _num(text: str) -> float:
@@ -87,9 +98,9 @@ class _NavFile:
         except ValueError:
             raise RecordingError(f"{self.path}:1: unreadable RINEX version {lines[0][0:9]!r}") from None
         kind = lines[0][20:21]
-        if not 2.0 <= self.version < 4.0:
+        if not 2.0 <= self.version < 5.0:
             raise RecordingError(
-                f"{self.path}:1: RINEX version {self.version} is not supported (2.xx or 3.0x)"
+                f"{self.path}:1: RINEX version {self.version} is not supported (2.xx, 3.0x or 4.0x)"
             )
         if self.version < 3.0 and kind != "N":
             raise RecordingError(f"{self.path}:1: RINEX 2 file type {kind!r} is not GPS navigation ('N')")
@@ -138,6 +149,9 @@ class _NavFile:
         return len(line) >= 22 and line[0:2].strip().isdigit() and line[2] == " "
 
     def records(self, lines: list[str], first: int) -> None:
+        if self.version >= 4.0:
+            self._records4(lines, first)
+            return
         is_start = self._is_start3 if self.version >= 3.0 else self._is_start2
         i = first
         n = len(lines)
@@ -162,6 +176,47 @@ class _NavFile:
                 j += 1
             self._record(lines[i:j], i + 1)
             i = j
+
+    def _records4(self, lines: list[str], first: int) -> None:
+        """RINEX 4: each record is its `>` line and the lines up to the next one."""
+        starts = [i for i in range(first, len(lines)) if lines[i].startswith(">")] + [len(lines)]
+        stray = [i for i in range(first, starts[0]) if lines[i].strip()]
+        if stray:
+            self._p(
+                stray[0] + 1,
+                "unexpected-line",
+                f"{len(stray)} line(s) outside any record skipped: {lines[stray[0]][:40].rstrip()!r}",
+            )
+        for i, j in itertools.pairwise(starts):
+            body = [x for x in lines[i + 1 : j] if x.strip()]
+            head = lines[i][1:].split()
+            if len(head) < 2 or head[0] not in RECORD_TYPES4:
+                self._p(
+                    i + 1, "malformed-record", f"unreadable record line {lines[i][:40].rstrip()!r}: skipped"
+                )
+                continue
+            kind, sys, message = head[0], head[1][0], head[-1]
+            if kind == "EPH" and (sys, message) in EPHEMERIS_MESSAGES4:
+                self._record(body, i + 2)
+            elif kind == "ION" and (sys, message) in KLOBUCHAR_MESSAGES4:
+                self._klobuchar4(sys, body, i + 2)
+
+    def _klobuchar4(self, sys: str, body: list[str], lineno: int) -> None:
+        """A RINEX 4 Klobuchar `ION` record: transmission time and alpha0-2, alpha3 and beta0-2,
+        beta3 and a region code; the first readable one of a system is kept."""
+        if sys in self.nav.iono:
+            return
+        try:
+            if len(body) < 3:
+                raise ValueError(f"{len(body)} data line(s), expected 3")
+            self._date(body[0][4:23])
+            vals = _fields(body[0][23:], 3, 0) + _fields(body[1][4:], 4, 1) + _fields(body[2][4:], 1, 2)
+        except ValueError as exc:
+            self._p(lineno, "malformed-record", f"{sys} ionosphere (ION): {exc}: not used")
+            return
+        self.nav.iono[sys] = IonoCoefficients(
+            (vals[0], vals[1], vals[2], vals[3]), (vals[4], vals[5], vals[6], vals[7])
+        )
 
     def _record(self, rec: list[str], lineno: int) -> None:
         if self.version >= 3.0:

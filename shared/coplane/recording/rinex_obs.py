@@ -146,8 +146,10 @@ class _Header:
             version = float(line[0:9])
         except ValueError:
             raise RecordingError(f"{self.path}:1: unreadable RINEX version {line[0:9]!r}") from None
-        if not 2.0 <= version < 4.0:
-            raise RecordingError(f"{self.path}:1: RINEX version {version} is not supported (2.xx or 3.0x)")
+        if not 2.0 <= version < 5.0:  # RINEX 4 kept RINEX 3.05's observation records
+            raise RecordingError(
+                f"{self.path}:1: RINEX version {version} is not supported (2.xx, 3.0x or 4.0x)"
+            )
         if line[20:21] != "O":
             raise RecordingError(f"{self.path}:1: not an observation file (type {line[20:21]!r})")
         return _HeaderState(version=version, file_system=(line[40:41].strip() or "G"))
