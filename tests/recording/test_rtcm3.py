@@ -20,6 +20,7 @@ from coplane.recording.rtcm3 import (
     C_LIGHT,
     CNR_LSB_DBHZ,
     FREQ_HZ,
+    LIGHT_MS,
     PSEUDORANGE_LSB_M,
     lock_indicator,
     msm_frames,
@@ -84,6 +85,36 @@ def test_msm7_carrier_and_msm4(tmp_path: Path) -> None:
     assert abs(s4.pseudorange_m - pr) <= 2.0**-24 * C_LIGHT * 1e-3 / 2  # MSM4: 17.9 mm LSB
     assert math.isnan(s4.doppler_hz) and s4.cn0_dbhz == 44.0  # no Doppler in MSM4; 1 dB-Hz C/N0
     assert abs(s4.carrier_cycles * lam - (pr + 3.0)) <= 2.0**-29 * C_LIGHT * 1e-3 / 2 + 1e-9
+
+
+@pytest.mark.parametrize("msm", [4, 5, 6, 7])
+def test_every_msm_level_in_and_out(tmp_path: Path, msm: int) -> None:
+    """MSM4-7, GPS and BeiDou: a base station's stream may be any (casters choose by bandwidth).
+    MSM6/7 carry the extended resolution, MSM5/7 the phase-range rates (Doppler)."""
+    t = GpsTime(2320, 115200.0)
+    sats = (SatObservation("G05", 2.2e7 + 0.4321, -1234.567, 44.3, math.nan),)
+    sats += (SatObservation("C12", 2.3e7 + 0.1234, 987.654, 38.6, math.nan),)
+    write_rtcm3(tmp_path / "m.rtcm3", [ObsEpoch(t, sats)], msm=msm)
+    data = (tmp_path / "m.rtcm3").read_bytes()
+    assert RTCMReader.parse(data).identity == f"107{msm}"
+    p = Problems()
+    got = read_rtcm3(tmp_path / "m.rtcm3", p, reference=t)[1][0].by_sat()
+    assert not p and set(got) == {"G05", "C12"}
+    extended, rates = msm in (6, 7), msm in (5, 7)
+    for s in sats:
+        g = got[s.sat]
+        lam = C_LIGHT / FREQ_HZ[s.sat[0]]
+        assert (
+            abs(g.pseudorange_m - s.pseudorange_m)
+            <= (2.0**-29 if extended else 2.0**-24) * LIGHT_MS / 2 + 1e-9
+        )
+        assert abs(g.cn0_dbhz - s.cn0_dbhz) <= (CNR_LSB_DBHZ if extended else 1.0) / 2 + 1e-9
+        if rates:
+            assert abs(g.doppler_hz - s.doppler_hz) <= 0.5e-4 / lam + 1e-9
+        else:
+            assert math.isnan(g.doppler_hz)
+    with pytest.raises(ValueError, match="MSM3: coplane writes MSM4 to MSM7"):
+        write_rtcm3(tmp_path / "x.rtcm3", [ObsEpoch(t, sats)], msm=3)
 
 
 def test_ephemerides_1019_1042_within_lsb(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ two epochs rounding to one nominal time keeps the first); uwb and truth rows mat
 epoch nearest to their tag within 0.1 x interval_s.
 
 Observation files are read by their extension: `.ubx` (u-blox RXM-RAWX, recording/ubx.py),
-`.rtcm3` (RTCM 3 MSM4/MSM7, recording/rtcm3.py), anything else RINEX. Navigation files ending
+`.rtcm3` (RTCM 3 MSM4-MSM7, recording/rtcm3.py), anything else RINEX. Navigation files ending
 `.rtcm3` give their 1019/1042 ephemerides, `.ubx` their RXM-SFRBX GPS LNAV subframes
 (recording/sfrbx.py); a log that is both is parsed once (recording/logs.py). Files are merged in manifest order, the first record of a toe winning. An RTCM 3 obs file's epochs carry no week: it is
 taken from the file's own ephemeris messages, else from the recording's navigation data.

@@ -1,5 +1,5 @@
-"""RTCM 3 observation files: MSM7 (1077 GPS, 1127 BeiDou) in and out, MSM4 (1074, 1124) in,
-broadcast ephemerides 1019 (GPS) and 1042 (BeiDou) in and out, through pyrtcm.
+"""RTCM 3 observation files: MSM4 to MSM7 (1074-1077 GPS, 1124-1127 BeiDou) in and out (MSM7 by
+default), broadcast ephemerides 1019 (GPS) and 1042 (BeiDou) in and out, through pyrtcm.
 
 Reading gives the RINEX reader's model (coplane.recording.model): "G05" / "C12", the selected
 signal per system (GPS L1 C/A = MSM signal 2 "1C", BeiDou B1I = "2I"), metres, Hz with the RINEX
@@ -12,6 +12,8 @@ MSM7 resolutions (RTCM 10403.3; c = 299 792 458 m/s, 1 ms of light = 299 792.458
 * phase-range rate: DF399 1 m/s + DF404 0.0001 m/s, so Doppler = -rate/lambda is kept to
   0.05 mm/s, 2.6e-4 Hz on L1 / B1I;
 * C/N0: DF408 2^-4 = 0.0625 dB-Hz (MSM4: DF403 1 dB-Hz, and MSM4 has no Doppler);
+* MSM5 is MSM4's resolution with MSM7's phase-range rates (Doppler), MSM6 MSM7's resolution
+  without them: receivers and casters choose by bandwidth, so a base station's stream may be any;
 * epoch time: DF004 (GPS) / DF427 (BDT) whole milliseconds of the week, no week number.
 Ephemeris LSBs are those of the ICDs, which RTCM copies (pyrtcm's RTCM_DATA_FIELDS carries them:
 e.g. 1019 sqrt(A) 2^-19 m^0.5, M0 2^-31 semicircles, toe 16 s; 1042 a0 2^-33 s, toe 8 s); real
@@ -75,7 +77,7 @@ C_LIGHT = 299_792_458.0
 LIGHT_MS = C_LIGHT * 1e-3  # metres per millisecond of light travel
 FREQ_HZ = {"G": 1575.42e6, "C": 1561.098e6}  # L1 C/A, B1I: the only carriers written
 MSM7 = {"G": "1077", "C": "1127"}
-MSM4 = {"G": "1074", "C": "1124"}
+MSM_IDS = {n: {"G": f"107{n}", "C": f"112{n}"} for n in (4, 5, 6, 7)}  # MSM4..MSM7 per system
 _SIG_MAPS = {"G": GPS_SIG_MAP, "C": BEIDOU_SIG_MAP}
 _SYSTEM_OF = {"107": "G", "112": "C"}
 _P2_10, _P2_29, _P2_24, _P2_31 = 2.0**-10, 2.0**-29, 2.0**-24, 2.0**-31
@@ -143,8 +145,10 @@ def msm_frames(
     msm: int = 7,
     state: _MsmState | None = None,
 ) -> list[bytes]:
-    """One epoch as MSM7 (or MSM4) frames: GPS then BeiDou, the multiple-message bit set on all
-    but the last."""
+    """One epoch as MSM7 (or MSM4, 5, 6) frames: GPS then BeiDou, the multiple-message bit set on
+    all but the last."""
+    if msm not in MSM_IDS:
+        raise ValueError(f"MSM{msm}: coplane writes MSM4 to MSM7")
     state = state or _MsmState()
     tag, shift = msm_tag(ep.time)
     by_sys: dict[str, list[SatObservation]] = {}
@@ -159,7 +163,7 @@ def msm_frames(
         sats = sorted(by_sys.get(sys, []), key=lambda s: int(s.sat[1:]))
         v = _msm_values(sys, sats, tag, shift, signals[sys], msm, state)
         v |= {"DF003": station, "DF393": 1 if n < len(systems) - 1 else 0}
-        out.append(build_frame((MSM7 if msm == 7 else MSM4)[sys], v))
+        out.append(build_frame(MSM_IDS[msm][sys], v))
     return out
 
 
@@ -192,24 +196,25 @@ def _msm_values(
         cp_ms = (s.carrier_cycles + shift * dop) * lam / LIGHT_MS if has_cp else math.nan
         cn0 = s.cn0_dbhz
         lock = state.lock_ms(s.sat, tag, has_cp)
-        if msm == 7:
+        if msm in (6, 7):  # extended resolution
             v["DF405" + k] = round((pr_ms - rough) / _P2_29)
             fine_cp = round((cp_ms - rough) / _P2_31) if has_cp else -(1 << 23)
             v["DF406" + k] = fine_cp if abs(fine_cp) < (1 << 23) else -(1 << 23)
             v["DF407" + k] = lock_indicator(lock)
             v["DF408" + k] = 0 if not math.isfinite(cn0) else max(1, min(1023, round(cn0 / CNR_LSB_DBHZ)))
-            if math.isfinite(s.doppler_hz):
-                rate = -s.doppler_hz * lam
-                v["DF399" + k] = round(rate)
-                v["DF404" + k] = round((rate - round(rate)) / RATE_LSB_MPS)
-            else:
-                v["DF399" + k], v["DF404" + k] = -(1 << 13), -(1 << 14)
         else:
             v["DF400" + k] = round((pr_ms - rough) / _P2_24)
             fine_cp = round((cp_ms - rough) / _P2_29) if has_cp else -(1 << 21)
             v["DF401" + k] = fine_cp if abs(fine_cp) < (1 << 21) else -(1 << 21)
             v["DF402" + k] = min(15, lock_indicator(lock) // 64)  # coarse: MSM4 lock is 4 bits
             v["DF403" + k] = 0 if not math.isfinite(cn0) else max(1, min(63, round(cn0)))
+        if msm in (5, 7):  # phase-range rates: the Doppler
+            if math.isfinite(s.doppler_hz):
+                rate = -s.doppler_hz * lam
+                v["DF399" + k] = round(rate)
+                v["DF404" + k] = round((rate - round(rate)) / RATE_LSB_MPS)
+            else:
+                v["DF399" + k], v["DF404" + k] = -(1 << 13), -(1 << 14)
     return v
 
 
@@ -306,7 +311,7 @@ class RtcmReader:
         sys = _SYSTEM_OF.get(ident[:3])
         if ident in ("1019", "1042", "1005", "1006"):
             return (item.offset, msg)
-        if sys in self.codes and ident[3:] in ("4", "7"):
+        if sys in self.codes and ident[3:] in ("4", "5", "6", "7"):
             ms = int(msg.DF004) if sys == "G" else int(msg.DF427) + _BDT_LAG_MS
             if not 0 <= int(msg.DF004 if sys == "G" else msg.DF427) < _WEEK_MS:
                 self._p(item.offset, "malformed-epoch", f"MSM {ident} epoch time {ms} ms: skipped")
@@ -359,7 +364,7 @@ class RtcmReader:
 
     def _msm_sats(self, m: Msm) -> list[SatObservation]:
         msg, sys = m.msg, m.sys
-        msm7 = msg.identity[3] == "7"
+        extended, rates = msg.identity[3] in "67", msg.identity[3] in "57"  # MSM6/7; MSM5/7
         code = self.codes[sys]
         lam = C_LIGHT / FREQ_HZ[sys]
         index = {int(getattr(msg, f"PRN_{i:02d}")): i for i in range(1, msg.NSat + 1)}
@@ -375,7 +380,7 @@ class RtcmReader:
             if n_ms == 255:
                 continue  # rough range invalid
             rough = n_ms + _raw(msg, "DF398" + sk, "DF398") * _P2_10
-            if msm7:
+            if extended:
                 fine_pr, fine_cp = _raw(msg, "DF405" + k, "DF405"), _raw(msg, "DF406" + k, "DF406")
                 pr_ok, cp_ok = fine_pr != -(1 << 19), fine_cp != -(1 << 23)
                 pr_ms, cp_ms = rough + fine_pr * _P2_29, rough + fine_cp * _P2_31
@@ -393,7 +398,7 @@ class RtcmReader:
                 self._p(m.offset, "absurd-value", f"{sat}: pseudorange {pr} m outside 1.5e7..5e7 m")
                 continue
             dop = math.nan
-            if msm7 and code.doppler is not None:
+            if rates and code.doppler is not None:
                 rough_rate = int(getattr(msg, "DF399" + sk))
                 fine_rate = _raw(msg, "DF404" + k, "DF404")
                 if rough_rate != -(1 << 13) and fine_rate != -(1 << 14):
@@ -445,7 +450,7 @@ class Rtcm3Log:
     ephs: list[tuple[int, Any]]
 
     def observations(self, reference: GpsTime | None = None) -> tuple[ObsHeader, list[ObsEpoch]]:
-        """MSM4/MSM7 epochs, their weeks placed near `reference` (None: the log's own ephemerides, else today)."""
+        """MSM4-MSM7 epochs, their weeks placed near `reference` (None: the log's own ephemerides, else today)."""
         rd = self.reader
         epochs = rd.epochs(self.msms, rd.reference(self.ephs, reference))
         obs_types = {
@@ -479,7 +484,7 @@ def read_rtcm3(
     systems: Sequence[str] = DEFAULT_SYSTEMS,
     reference: GpsTime | None = None,
 ) -> tuple[ObsHeader, list[ObsEpoch]]:
-    """MSM4/MSM7 epochs of an RTCM 3 file (garbled frames reported with their byte offset)."""
+    """MSM4-MSM7 epochs of an RTCM 3 file (garbled frames reported with their byte offset)."""
     return parse_rtcm3(path, problems, signals, systems).observations(reference)
 
 
