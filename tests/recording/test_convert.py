@@ -29,7 +29,7 @@ from typer.testing import CliRunner
 
 from coplane.cli.convert import convert
 from coplane.recording.convert import convert_recording
-from coplane.recording.problems import Problems
+from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.reader import open_recording
 from coplane.recording.rinex_obs import read_obs
 from coplane.recording.writer import write_obs
@@ -126,3 +126,20 @@ def test_cli_convert(sources: dict[str, Path], tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "resolution: RTCM 3 MSM7" in res.output and "fleet.toml" in res.output
     assert open_recording(tmp_path / "c").vehicle_epochs("u1")
+
+
+@pytest.mark.parametrize("msm", [4, 5, 6])
+def test_other_msm_levels(sources: dict[str, Path], tmp_path: Path, msm: int) -> None:
+    """`--msm`: the observations and the base as MSM4-6, each read back within its own resolution."""
+    res = convert_recording(sources["whole"], "rtcm3", tmp_path / "m", msm=msm)
+    assert res.problems == 0 and f"RTCM 3 MSM{msm}:" in res.resolution
+    for d in res.differences:
+        assert d.epochs_read == d.epochs_source and d.satellites_missing == 0
+        assert d.max_pseudorange_m <= (0.28e-3 if msm == 6 else 9.0e-3)  # LSB 0.56 mm or 17.9 mm
+        assert d.max_doppler_hz <= (2.7e-4 if msm == 5 else 0.0)  # MSM4 and MSM6: no Doppler read
+    back = open_recording(tmp_path / "m")
+    assert all(math.isnan(s.doppler_hz) for e in back.vehicle_epochs("u1") for s in e.sats) == (msm != 5)
+    with pytest.raises(RecordingError, match="MSM5 asked for a UBX conversion"):
+        convert_recording(sources["whole"], "ubx", tmp_path / "u", msm=5)
+    with pytest.raises(RecordingError, match="MSM3: the RTCM 3 MSM level is 4 to 7"):
+        convert_recording(sources["whole"], "rtcm3", tmp_path / "u", msm=3)

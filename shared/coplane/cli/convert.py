@@ -23,16 +23,22 @@ def convert(
         Path | None, typer.Argument(help="Fleet recording; default: the bundled one.")
     ] = None,
     to: Annotated[
-        ReceiverFormat, typer.Option("--to", help="ubx (RXM-RAWX) or rtcm3 (MSM7 + 1019/1042).")
+        ReceiverFormat, typer.Option("--to", help="ubx (RXM-RAWX) or rtcm3 (MSM7, or --msm, + 1019/1042).")
     ] = (ReceiverFormat.ubx),
     out: Annotated[Path, typer.Option(help="Output recording directory (gets its own fleet.toml).")] = Path(
         "out/convert"
     ),
+    msm: Annotated[
+        int,
+        typer.Option(
+            min=4, max=7, help="RTCM 3 MSM level, 4-7 (MSM4 and MSM6 carry no Doppler); --to rtcm3 only."
+        ),
+    ] = 7,
 ) -> None:
     """Write each vehicle as UBX or RTCM 3 (the base as RTCM 3), read it back and print the difference."""
     from coplane.recording.convert import convert_recording
 
-    res = convert_recording(recording_or_default(recording), to.value, out)
+    res = convert_recording(recording_or_default(recording), to.value, out, msm)
     console.print(f"resolution: {res.resolution}")
     table = Table(title=f"read back vs source ({to.value})")
     for col in ("receiver", "epochs", "missing sats", "max |dP| mm", "max |dD| Hz", "max |dC/N0| dB-Hz"):

@@ -2,7 +2,7 @@
 
 For tests (the same data through another reader must give the same positions) and for users
 who have logs: each vehicle becomes vehicles/<id>.ubx (RXM-RAWX) or vehicles/<id>.rtcm3 (MSM7,
-with 1019/1042 first), the base becomes base/<name>.rtcm3 (a reference station speaks RTCM),
+or MSM4-6 as asked, with 1019/1042 first), the base becomes base/<name>.rtcm3 (a reference station speaks RTCM),
 uwb.csv and truth/ are copied, and a fleet.toml points at them. Navigation:
 * RTCM 3: nav/ephemerides.rtcm3 (1019/1042 only) first, then nav/iono.rnx, a RINEX header with
   the Klobuchar coefficients only, because RTCM 3 has no ionosphere message;
@@ -41,17 +41,25 @@ from coplane.recording.writer import write_nav
 Format = Literal["ubx", "rtcm3"]
 FORMATS: tuple[str, ...] = ("ubx", "rtcm3")
 
-RESOLUTION: dict[str, str] = {
-    "ubx": (
-        "UBX RXM-RAWX: pseudorange and carrier phase are doubles (exact); Doppler is a float32 "
-        "(<= 2.4e-4 Hz below 4096 Hz); C/N0 is whole dB-Hz (rounded, <= 0.5 dB); epoch tags are doubles (exact)"
-    ),
-    "rtcm3": (
-        f"RTCM 3 MSM7: pseudorange LSB 2^-29 ms = {PSEUDORANGE_LSB_M * 1e3:.3f} mm (rounding <= "
-        f"{PSEUDORANGE_LSB_M * 500:.3f} mm); phase-range rate LSB {RATE_LSB_MPS} m/s (Doppler <= 2.6e-4 Hz on "
-        f"L1/B1I); C/N0 LSB {CNR_LSB_DBHZ} dB-Hz; epoch tags whole ms (a sub-ms tag is moved to the ms along each Doppler)"
-    ),
-}
+UBX_RESOLUTION = (
+    "UBX RXM-RAWX: pseudorange and carrier phase are doubles (exact); Doppler is a float32 "
+    "(<= 2.4e-4 Hz below 4096 Hz); C/N0 is whole dB-Hz (rounded, <= 0.5 dB); epoch tags are doubles (exact)"
+)
+
+
+def rtcm_resolution(msm: int) -> str:
+    """What an MSM level keeps of the observations (rtcm3.py's module docstring has the fields)."""
+    lsb_m = PSEUDORANGE_LSB_M if msm in (6, 7) else PSEUDORANGE_LSB_M * 32  # 2^-29 or 2^-24 ms
+    doppler = (
+        f"phase-range rate LSB {RATE_LSB_MPS} m/s (Doppler <= 2.6e-4 Hz on L1/B1I)"
+        if msm in (5, 7)
+        else "no Doppler"
+    )
+    cn0 = f"{CNR_LSB_DBHZ} dB-Hz" if msm in (6, 7) else "1 dB-Hz"
+    return (
+        f"RTCM 3 MSM{msm}: pseudorange LSB {lsb_m * 1e3:.3f} mm (rounding <= {lsb_m * 500:.3f} mm); "
+        f"{doppler}; C/N0 LSB {cn0}; epoch tags whole ms (a sub-ms tag is moved to the ms along each Doppler)"
+    )
 
 
 @dataclass
@@ -140,17 +148,22 @@ def _nav_files(rec: Recording, fmt: str, out: Path, result: ConvertResult) -> tu
     return (path, *(_copy(p, m.root, out) for p in m.nav_files))
 
 
-def convert_recording(source: str | Path, fmt: Format, out: str | Path) -> ConvertResult:
-    """Write `source` as a UBX or RTCM 3 recording in `out`, read it back and measure the difference."""
+def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int = 7) -> ConvertResult:
+    """Write `source` as a UBX or RTCM 3 recording in `out`, read it back and measure the difference.
+    `msm`: the RTCM 3 MSM level of the observations (4-7; MSM4 and MSM6 carry no Doppler)."""
     if fmt not in FORMATS:
         raise RecordingError(f"unknown format {fmt!r} (expected one of {', '.join(FORMATS)})")
+    if msm not in (4, 5, 6, 7):
+        raise RecordingError(f"MSM{msm}: the RTCM 3 MSM level is 4 to 7")
+    if fmt == "ubx" and msm != 7:
+        raise RecordingError(f"MSM{msm} asked for a UBX conversion: the MSM level is for RTCM 3 only")
     rec = open_recording(source)
     m = rec.manifest
     out = Path(out).resolve()
     if out == m.root or out.is_relative_to(m.root):
         raise RecordingError(f"{out}: the output must not be inside the source recording {m.root}")
     out.mkdir(parents=True, exist_ok=True)
-    result = ConvertResult(out, fmt, RESOLUTION[fmt])
+    result = ConvertResult(out, fmt, UBX_RESOLUTION if fmt == "ubx" else rtcm_resolution(msm))
 
     vehicles: list[VehicleSpec] = []
     for station, v in enumerate(m.vehicles, start=1):
@@ -159,14 +172,14 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path) -> Conve
         if fmt == "ubx":
             write_ubx(path, epochs, nav=rec.nav)
         else:
-            rep = write_rtcm3(path, epochs, rec.nav, station=station)
+            rep = write_rtcm3(path, epochs, rec.nav, station=station, msm=msm)
             result.skipped += [f"{v.id}: {s}" for s in rep.skipped]
         truth = _copy(v.truth, m.root, out) if v.truth is not None else None
         vehicles.append(VehicleSpec(v.id, path, v.antenna_height_m, truth))
     base = None
     if m.base is not None:
         path = out / "base" / f"{m.base.obs.stem}.rtcm3"
-        rep = write_rtcm3(path, rec.base_epochs(), rec.nav, station=0)
+        rep = write_rtcm3(path, rec.base_epochs(), rec.nav, station=0, msm=msm)
         result.skipped += [f"base: {s}" for s in rep.skipped]
         base = BaseSpec(path, m.base.position_ecef_m)
     uwb = None
