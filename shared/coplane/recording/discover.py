@@ -26,6 +26,9 @@ from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import DEFAULT_SYSTEMS, iter_obs
 
 MAX_FILES = 2000  # a directory tree larger than this is not a drive's folder: refuse, naming it
+# where `recording init` writes one receiver's consecutive files joined (recording/splice.py): not
+# looked in, or the joined files would be found beside their parts
+SPLICED_DIR = "spliced"
 
 
 @dataclass(frozen=True)
@@ -167,12 +170,14 @@ def vehicle_ids(summaries: Sequence[ObsSummary], others: Sequence[ObsSummary] = 
 
 
 def receiver_files(root: Path) -> list[ReceiverFile]:
-    """Every RINEX file and receiver log under `root` (sorted, hidden folders skipped)."""
+    """Every RINEX file and receiver log under `root` (sorted; hidden folders and the joined files
+    of `SPLICED_DIR` skipped)."""
     if not root.is_dir():
         raise RecordingError(f"{root}: not a directory")
     paths = []
     for p in root.rglob("*"):  # counted as found: a whole disk is refused early, not walked
-        if any(part.startswith(".") for part in p.relative_to(root).parts):
+        parts = p.relative_to(root).parts
+        if any(part.startswith(".") for part in parts) or parts[0] == SPLICED_DIR:
             continue
         if p.is_file():
             paths.append(p)

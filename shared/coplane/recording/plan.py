@@ -36,6 +36,7 @@ from coplane.recording.discover import (
 from coplane.recording.manifest import MANIFEST_NAME, write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
 from coplane.recording.problems import RecordingError
+from coplane.recording.splice import join_runs, splice
 
 # the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
 NAV_SYSTEMS = ("G", "C", "M")
@@ -86,6 +87,8 @@ class RecordingPlan:
     notes: list[str]
     # truth files to write: vehicles given a surveyed point instead of a trajectory (`--truth ID=x,y,z`)
     static_truth: dict[str, list[TruthPoint]] = field(default_factory=dict)
+    # joined files to write (`recording.splice`): the joined file -> its parts, in time order
+    splices: dict[Path, tuple[Path, ...]] = field(default_factory=dict)
 
 
 def inside(root: Path, path: Path, what: str) -> Path:
@@ -157,6 +160,11 @@ def plan_recording(
     skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
     skipped += [f"{p.relative_to(root)}: a log with neither observations nor ephemerides"
                 for p in candidates if p not in summaries and p not in unreadable and p not in nav]  # fmt: skip
+    # one receiver's consecutive RINEX files (a CORS's hourly files) become one
+    roles_given = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
+    summaries, splices, moved = join_runs(root, summaries, set(logs), roles_given, notes)
+    base_path = moved.get(base_path, base_path) if base_path is not None else None
+    chosen = {vid: moved.get(p, p) for vid, p in chosen.items()}
     rovers = [p for p in summaries if p != base_path]
     if not rovers:
         raise RecordingError(f"{root}: no observation file (RINEX, UBX or RTCM 3) for a vehicle below it")
@@ -189,7 +197,7 @@ def plan_recording(
     specs = tuple(VehicleSpec(vid, p, antenna_height_m, truths.get(vid)) for vid, p in chosen.items())
     uwb_spec = UwbSpec(inside(root, uwb, "--uwb")) if uwb is not None else None
     manifest = Manifest(root, name or root.name, interval, tuple(nav), specs, base_spec, uwb_spec)
-    return RecordingPlan(manifest, summaries, roles, skipped, notes, static)
+    return RecordingPlan(manifest, summaries, roles, skipped, notes, static, splices)
 
 
 def _navigation(
@@ -335,10 +343,15 @@ def write_plan(plan: RecordingPlan, force: bool = False) -> Path:
     """Write the plan's static truth files and its fleet.toml; an existing file is replaced only
     with `force` (ConfigError naming it otherwise). Returns the manifest's path."""
     root = plan.manifest.root
-    targets = [root / "truth" / f"{vid}.csv" for vid in plan.static_truth] + [root / MANIFEST_NAME]
+    targets = [root / "truth" / f"{vid}.csv" for vid in plan.static_truth] + [
+        *plan.splices,
+        root / MANIFEST_NAME,
+    ]
     existing = [p for p in targets if p.exists()]
     if existing and not force:
         raise ConfigError(f"{existing[-1]} exists; --force replaces it")
     for vid, points in plan.static_truth.items():
         write_truth(root / "truth" / f"{vid}.csv", points)
+    for joined, parts in plan.splices.items():
+        splice(parts, joined)
     return write_manifest(plan.manifest)

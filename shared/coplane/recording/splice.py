@@ -1,0 +1,152 @@
+"""One receiver's consecutive RINEX observation files joined into one (`coplane recording init`).
+
+Reference stations publish hourly files and loggers rotate theirs, while a fleet recording names
+one observation file per receiver (docs/recording-format.md). Files are one receiver's when their
+headers agree (RINEX version, marker, receiver, antenna, observation types, interval) and their
+epochs follow one another: no overlap, and at most `MAX_GAP_S` between one's last epoch and the
+next one's first. Receivers of one drive log at the same time, so they never qualify. The joined
+file is plain RINEX: the first file's header without the records that describe one file only
+(TIME OF LAST OBS, # OF SATELLITES, PRN / # OF OBS), then every file's epoch records in time
+order. Written here because the tools that splice RINEX (gfzrnx, teqc) are not Python packages
+this project can depend on, and the job, given the checks above, is a join of text.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from coplane.gtime import GpsTime
+from coplane.recording.compressed import open_rinex_text, plain_name
+from coplane.recording.discover import SPLICED_DIR, ObsSummary
+
+MAX_GAP_S = 60.0  # an hourly file's last epoch to the next one's first is one interval
+_ONE_FILE_ONLY = ("TIME OF LAST OBS", "# OF SATELLITES", "PRN / # OF OBS")
+
+
+def same_receiver(a: ObsSummary, b: ObsSummary) -> bool:
+    """Whether two files' headers describe one receiver with the same observations (a marker
+    name is required: two anonymous files are not known to be one receiver)."""
+    ha, hb = a.header, b.header
+    return bool(ha.marker_name) and (
+        ha.version,
+        ha.marker_name,
+        ha.receiver,
+        ha.antenna,
+        ha.obs_types,
+        a.interval_s,
+    ) == (hb.version, hb.marker_name, hb.receiver, hb.antenna, hb.obs_types, b.interval_s)
+
+
+def receiver_runs(summaries: Sequence[ObsSummary]) -> list[list[ObsSummary]]:
+    """Groups of two or more files that are one receiver's consecutive files, each in time order."""
+    timed = sorted((s for s in summaries if s.first is not None and s.last is not None), key=_start)
+    runs: list[list[ObsSummary]] = []
+    for s in timed:
+        run = next((r for r in runs if same_receiver(r[-1], s) and _follows(r[-1], s)), None)
+        if run is None:
+            runs.append([s])
+        else:
+            run.append(s)
+    return [r for r in runs if len(r) > 1]
+
+
+def _start(s: ObsSummary) -> GpsTime:
+    assert s.first is not None
+    return s.first
+
+
+def _follows(a: ObsSummary, b: ObsSummary) -> bool:
+    assert a.last is not None and b.first is not None
+    return 0.0 < b.first - a.last <= MAX_GAP_S
+
+
+def spliced_name(first: Path) -> str:
+    """`hksc161a.21o` -> `hksc161a-spliced.21o` (compressed names as their plain files)."""
+    plain = Path(plain_name(first.name))
+    return f"{plain.stem}-spliced{plain.suffix}"
+
+
+def spliced_summary(run: Sequence[ObsSummary], path: Path) -> ObsSummary:
+    """The joined file's summary from its parts' (the same numbers a read of it gives)."""
+    epochs = sum(s.epochs for s in run)
+    ranges = [s.epochs * sum(s.satellites_per_epoch.values()) for s in run]
+    systems = {k for s in run for k in s.satellites_per_epoch}
+    return dataclasses.replace(
+        run[0],
+        path=path,
+        epochs=epochs,
+        last=run[-1].last,
+        satellites_per_epoch={
+            k: sum(s.epochs * s.satellites_per_epoch.get(k, 0.0) for s in run) / epochs
+            for k in sorted(systems)
+        },
+        doppler_share=sum(r * s.doppler_share for r, s in zip(ranges, run, strict=True))
+        / (sum(ranges) or 1.0),
+        problems=sum(s.problems for s in run),
+        times=tuple(t for s in run for t in s.times),
+    )
+
+
+def splice(sources: Sequence[Path], out: Path) -> Path:
+    """Write `sources` (one receiver's consecutive files, in time order) as one plain RINEX file."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    with tmp.open("w", encoding="latin-1", newline="\n") as f:
+        for k, src in enumerate(sources):
+            with open_rinex_text(src) as text:
+                in_header = True
+                for line in text:
+                    line = line.rstrip("\r\n")
+                    if in_header:
+                        if k == 0 and line[60:].strip() not in _ONE_FILE_ONLY:
+                            f.write(line + "\n")
+                        in_header = line[60:].strip() != "END OF HEADER"
+                    else:
+                        f.write(line + "\n")
+    tmp.replace(out)  # whole or not at all, as the manifest
+    return out
+
+
+def join_runs(
+    root: Path,
+    summaries: Mapping[Path, ObsSummary],
+    logs: set[Path],
+    roles: Mapping[Path, str],
+    notes: list[str],
+) -> tuple[dict[Path, ObsSummary], dict[Path, tuple[Path, ...]], dict[Path, Path]]:
+    """`summaries` with each run of one receiver's consecutive RINEX files (not `logs`) replaced by
+    the joined file, at its first part's place, under `root`/spliced; the joined files and their
+    parts; every part's joined file. A run whose parts the user named as different receivers
+    (`roles`) is left apart. Each join, or refusal, is said in `notes`."""
+    splices: dict[Path, tuple[Path, ...]] = {}
+    moved: dict[Path, Path] = {}
+    for run in receiver_runs([s for p, s in summaries.items() if p not in logs]):
+        parts = tuple(s.path for s in run)
+        names = ", ".join(str(p.relative_to(root)) for p in parts)
+        named = sorted({roles[p] for p in parts if p in roles})
+        if len(named) > 1:
+            notes.append(
+                f"{names}: one receiver's consecutive files by their headers, named as {' and '.join(named)}: not joined"
+            )
+            continue
+        joined = root / SPLICED_DIR / spliced_name(parts[0])
+        n = 2
+        while joined in splices:
+            joined = joined.with_name(f"{Path(spliced_name(parts[0])).stem}-{n}{joined.suffix}")
+            n += 1
+        splices[joined] = parts
+        moved.update(dict.fromkeys(parts, joined))
+        notes.append(
+            f"{names}: one receiver's consecutive files (marker {run[0].header.marker_name!r}), "
+            f"joined as {joined.relative_to(root)}"
+        )
+    out: dict[Path, ObsSummary] = {}
+    for p, s in summaries.items():
+        j = moved.get(p)
+        if j is None:
+            out[p] = s
+        elif j not in out:
+            out[j] = spliced_summary([summaries[q] for q in splices[j]], j)
+    return out, splices, moved
