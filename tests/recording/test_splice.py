@@ -11,6 +11,7 @@ import re
 import shutil
 from pathlib import Path
 
+import hatanaka
 import pytest
 
 from coplane.recording.discover import receiver_files
@@ -41,16 +42,20 @@ def _body_index(path: Path, pattern: re.Pattern[str], pick: int) -> int:
 
 
 def test_a_reference_stations_hourly_files_become_one(real_data: Path, tmp_path: Path) -> None:
-    """GEONET's base (RINEX 2.10, with splice event records) cut at 00:30; the base is named by its first half."""
+    """GEONET's base (RINEX 2.10, with splice event records) cut at 00:30, the second half compressed;
+    the base is named by its first half."""
     root = tmp_path / "geonet"
     shutil.copytree(real_data / GEONET, root, ignore=shutil.ignore_patterns("fleet.toml", "truth"))
     src = root / "30400920.05o"
     want_header, want = read_obs(src, Problems())
     at = _body_index(src, _EPOCH2, 60)  # the 61st epoch: 00:30:00
     _cut(src, root / "3040092a.05o", root / "3040092b.05o", at)
+    second = root / "3040092b.05d.Z"  # as networks publish it: Compact RINEX, Unix-compressed
+    second.write_bytes(hatanaka.compress((root / "3040092b.05o").read_bytes(), compression="Z"))
+    (root / "3040092b.05o").unlink()
     plan = plan_recording(root, base=Path("3040092a.05o"), base_position=BASE_3040)
     joined = root / "spliced" / "3040092a-spliced.05o"
-    assert plan.splices == {joined: (root / "3040092a.05o", root / "3040092b.05o")}
+    assert plan.splices == {joined: (root / "3040092a.05o", second)}
     assert plan.manifest.base is not None and plan.manifest.base.obs == joined
     assert [v.id for v in plan.manifest.vehicles] == ["0759"]
     assert any("joined as spliced/3040092a-spliced.05o" in n for n in plan.notes)
