@@ -105,4 +105,6 @@ def test_overlapping_or_distant_files_are_not_joined(real_data: Path, tmp_path: 
         end = next(i for i, x in enumerate(b) if "END OF HEADER" in x) + 1
         starts = [i for i in range(end, len(b)) if b[i].startswith("> ")]
         (root / "rover_b.obs").write_text("".join(b[:end] + b[starts[121] :]), encoding="latin-1")
-    assert not plan_recording(root).splices
+    plan = plan_recording(root)
+    assert not plan.splices
+    assert any("122 s apart (more than 60): not joined" in n for n in plan.notes) == (gap_s > 0)

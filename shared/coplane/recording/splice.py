@@ -142,6 +142,7 @@ def join_runs(
             f"{names}: one receiver's consecutive files (marker {run[0].header.marker_name!r}), "
             f"joined as {joined.relative_to(root)}"
         )
+    notes += _far_apart([s for p, s in summaries.items() if p not in logs], root)
     out: dict[Path, ObsSummary] = {}
     for p, s in summaries.items():
         j = moved.get(p)
@@ -150,3 +151,18 @@ def join_runs(
         elif j not in out:
             out[j] = spliced_summary([summaries[q] for q in splices[j]], j)
     return out, splices, moved
+
+
+def _far_apart(summaries: Sequence[ObsSummary], root: Path) -> list[str]:
+    """Notes on files whose headers say one receiver but whose epochs are more than `MAX_GAP_S`
+    apart: kept as separate receivers, which the user may not expect."""
+    timed = sorted((s for s in summaries if s.first is not None and s.last is not None), key=_start)
+    out = []
+    for k, b in enumerate(timed):
+        a = next((a for a in reversed(timed[:k]) if same_receiver(a, b)), None)
+        if a is not None and a.last is not None and b.first is not None and b.first - a.last > MAX_GAP_S:
+            out.append(
+                f"{a.path.relative_to(root)}, {b.path.relative_to(root)}: one receiver by their headers, "
+                f"{b.first - a.last:.0f} s apart (more than {MAX_GAP_S:.0f}): not joined, two receivers"
+            )
+    return out
