@@ -78,3 +78,18 @@ def test_a_navigation_only_log_is_not_an_observation_file(tmp_path: Path) -> Non
     assert logs.log_navigation(parsed, problems).ephemerides and not problems
     with pytest.raises(Exception, match="no UBX RXM-RAWX message"):
         logs.log_observations(parsed)
+
+
+def test_a_log_that_cannot_be_read_is_skipped_with_its_reason(tmp_path: Path) -> None:
+    source = simulate("urban-loop", tmp_path / "sim", vehicles=1, duration_s=5, seed=12)
+    out = tmp_path / "ubx"
+    convert_recording(source, "ubx", out)
+    (out / "fleet.toml").unlink()
+    (out / "vehicles" / "broken.ubx.gz").write_bytes(b"\x1f\x8b" + bytes(range(256)))  # gzip's magic only
+    plan = plan_recording(
+        out, base=out / "base" / "ref.rtcm3", base_position=(-2169358.1569, 4387163.9326, 4076271.6104)
+    )
+    assert [v.id for v in plan.manifest.vehicles] == ["u1"]
+    assert any(s.startswith("vehicles/broken.ubx.gz: not read (cannot decompress") for s in plan.skipped), (
+        plan.skipped
+    )

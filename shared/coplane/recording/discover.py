@@ -101,6 +101,7 @@ class LogSummary:
     obs: ObsSummary | None
     error: RecordingError | None
     ephemerides: bool
+    readable: bool = True  # False: the file itself could not be read (e.g. a broken archive)
 
 
 def summarise_log(path: Path) -> LogSummary:
@@ -109,7 +110,7 @@ def summarise_log(path: Path) -> LogSummary:
     try:
         log = parse_log(path, problems)
     except RecordingError as exc:
-        return LogSummary(None, exc, False)
+        return LogSummary(None, exc, False, readable=False)
     ephemerides = bool(log_navigation(log, problems).ephemerides)
     try:
         header, epochs = log_observations(log)

@@ -158,7 +158,8 @@ def plan_recording(
     named = set(chosen.values()) | {base_path}
     summaries, unreadable = _summaries(candidates, {p for p in candidates if p not in named}, logs)
     skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
-    skipped += [f"{p.relative_to(root)}: a log with neither observations nor ephemerides"
+    skipped += [f"{p.relative_to(root)}: " + ("a log with neither observations nor ephemerides" if logs[p].readable
+                else f"not read ({str(logs[p].error).removeprefix(f'{p}: ')})")
                 for p in candidates if p not in summaries and p not in unreadable and p not in nav]  # fmt: skip
     # one receiver's consecutive RINEX files (a CORS's hourly files) become one
     roles_given = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
