@@ -69,6 +69,22 @@ def test_stream_cut_anywhere_equals_the_file(logs: dict[str, Path], fmt: str) ->
         assert problems.total == 0
 
 
+@pytest.mark.parametrize("msm", [5, 6])
+def test_a_base_streaming_msm5_or_msm6_equals_the_file(
+    logs: dict[str, Path], tmp_path: Path, msm: int
+) -> None:
+    """Casters choose the MSM level by bandwidth: an MSM5 (Doppler, coarse) or MSM6 (fine, no
+    Doppler) stream decodes as the file reader reads it."""
+    sim = logs["rtcm3"].parents[2] / "sim"
+    convert_recording(sim, "rtcm3", tmp_path / "m", msm=msm)
+    path = tmp_path / "m" / "vehicles" / "u1.rtcm3"
+    epochs, nav = _reference("rtcm3", path)
+    got, got_nav, problems = _stream("rtcm3", path.read_bytes(), seed=msm)
+    assert got == epochs and len(got) == 60 and got_nav.ephemerides == nav.ephemerides
+    assert problems.total == 0
+    assert any(s.doppler_hz == s.doppler_hz for s in got[0].sats) == (msm == 5)  # NaN: no Doppler
+
+
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_scanner_fed_in_pieces_finds_the_file_scan_frames(logs: dict[str, Path], fmt: str) -> None:
     data = logs[fmt].read_bytes()
