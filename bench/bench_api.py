@@ -4,16 +4,14 @@ Starts a Zenoh router, the API, a fusion server and the recording's agents as pr
 `coplane fleet` does), and drives GET /vehicles from a loopback client at a fixed request rate
 (a few workers, each paced; bounded by --duration and --max-requests, then it stops) in three
 phases: while a realtime replay runs, while a lockstep replay runs (agents and server saturate the
-CPU), and idle after the replay. Prints a Markdown table for docs/performance.md ("API latency").
+CPU), and idle after the replay. Prints a Markdown table; `--out docs/performance.md` rewrites
+its block there ("API latency").
 Latency is per request, client-side (send to full body), so it includes the Python client.
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import os
-import platform
 import tempfile
 import threading
 import time
@@ -90,9 +88,11 @@ def main() -> None:
         "--phases", default="realtime,lockstep,idle", help="comma-separated subset of realtime,lockstep,idle"
     )
     ap.add_argument("--logs", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None, help="rewrite the bench_api block of this page")
     args = ap.parse_args()
     tmp = tempfile.TemporaryDirectory(prefix="bench-api-")
-    if args.recording is None:
+    made = args.recording is None
+    if made:
         from coplane.sim.generate import simulate
 
         args.recording = simulate(out_dir=Path(tmp.name) / "rec", vehicles=8, duration_s=600.0, seed=0)
@@ -160,18 +160,20 @@ def main() -> None:
     finally:
         procs.stop_all()
         tmp.cleanup()
-    print(
-        f"{dt.date.today()}, {platform.machine()} {os.cpu_count()} CPUs, Python {platform.python_version()}; "
-        f"recording {rec.name} ({len(vehicles)} vehicles); GET /vehicles at {args.rate:g} req/s from "
-        f"{args.workers} loopback clients, {args.duration:g} s per phase"
+    from docblock import machine, publish
+
+    head = (
+        f"machine: {machine()}; recording {'a simulated 8-vehicle, 600 s fleet' if made else rec.name} "
+        f"({len(vehicles)} vehicles); GET /vehicles at {args.rate:g} req/s from {args.workers} loopback "
+        f"clients, {args.duration:g} s per phase"
     )
-    print()
-    print(
-        "| phase | requests | req/s | p50 ms | p90 ms | p99 ms | max ms | errors | vehicles | solutions/s |"
+    table = (
+        "| phase | requests | req/s | p50 ms | p90 ms | p99 ms | max ms | errors | vehicles | solutions/s |\n"
+        "|---|---|---|---|---|---|---|---|---|---|"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(r)
+    rows = table.split("\n") + rows
+    cmd = "python bench/bench_api.py" + (f" --out {args.out}" if args.out else "")
+    publish(args.out, "bench_api", cmd, head, rows)
 
 
 if __name__ == "__main__":

@@ -6,14 +6,12 @@ Markdown table of p50/p99 latency per fleet size. The latency is measured where 
 at a subscriber of the solution key, against the publish time the agent stamped on the oldest
 node message of that epoch.
 
-    .venv/bin/python bench/bench_e2e.py --vehicles 4 64 --duration 30
+    .venv/bin/python bench/bench_e2e.py --vehicles 4 64 --duration 30 [--out docs/performance.md]
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import platform
 import tempfile
 import threading
 import time
@@ -69,6 +67,7 @@ def main() -> None:
     ap.add_argument("--vehicles", type=int, nargs="+", default=[4, 64])
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--paces", nargs="+", default=["lockstep", "realtime"])
+    ap.add_argument("--out", type=Path, default=None, help="rewrite the bench_e2e block of this page")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,14 +84,22 @@ def main() -> None:
                     f"| {m} | {pace} | {len(a)} | {np.percentile(a, 50):.0f} | {np.percentile(a, 99):.0f} | {a.max():.0f} | {wall:.0f} |"
                 )
                 print(rows[-1], flush=True)
-    print(
-        f"\n## End-to-end latency (bench/bench_e2e.py, {dt.date.today()}, {platform.machine()}, 2 cores)\n\n"
-        "Oldest node message of an epoch (agent publish) -> solution received by a subscriber. "
-        "Lockstep waits for every vehicle; realtime solves 0.3 s after an epoch's first message. "
-        "The first two epochs (process start-up) are not counted.\n\n"
-        "| vehicles | pace | epochs | p50 ms | p99 ms | max ms | wall s |\n|---|---|---|---|---|---|---|"
+    from docblock import machine, publish
+
+    head = (
+        f"machine: {machine()}; simulated urban loop, {int(args.duration)} epochs. Oldest node message "
+        "of an epoch (agent publish) -> solution received by a subscriber. Lockstep waits for every "
+        "vehicle; realtime solves 0.3 s after an epoch's first message. The first two epochs (process "
+        "start-up) are not counted."
     )
-    print("\n".join(rows))
+    table = "| vehicles | pace | epochs | p50 ms | p99 ms | max ms | wall s |\n|---|---|---|---|---|---|---|"
+    rows = table.split("\n") + rows
+    cmd = (
+        f"python bench/bench_e2e.py --vehicles {' '.join(map(str, args.vehicles))} --duration {args.duration:g}"
+        + (f" --paces {' '.join(args.paces)}" if args.paces != ["lockstep", "realtime"] else "")
+        + (f" --out {args.out}" if args.out else "")
+    )
+    publish(args.out, "bench_e2e", cmd, head, rows)
 
 
 if __name__ == "__main__":

@@ -6,14 +6,14 @@ after the first method), with the default jobs (one process per core: vehicle wo
 fusion step, evaluate.vehicle_workers) and with everything in one process (`--jobs 1`), printed
 as a Markdown table for docs/performance.md.
 
-    .venv/bin/python bench/bench_eval.py --repeats 3
+    .venv/bin/python bench/bench_eval.py --repeats 3 [--out docs/performance.md]
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -29,6 +29,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--out", type=Path, default=None, help="rewrite the bench_eval block of this page")
     args = ap.parse_args()
     t0 = time.perf_counter()
     rec = open_recording(bundled_default_path())
@@ -52,17 +53,22 @@ def main() -> None:
             f"{np.median(s):.1f} | {np.percentile(s, 99):.1f} | {'yes' if w < 10 else 'no'} |"
         )
         print(rows[-1], flush=True)
-    print(
-        f"\n## coplane eval on the bundled recording (bench/bench_eval.py, {dt.date.today()}, 2 cores)\n\n"
-        f"4 vehicles x 600 epochs, DGNSS, the methods' defaults (docs/fgo.md). Loading the recording: "
-        f"{load_s:.1f} s (once). Wall time per method = every vehicle's SPP, Doppler, plane and node "
-        f"message plus the fusion solve, median of {args.repeats} runs, with the default {jobs} jobs and "
-        "with `--jobs 1`.\n\n"
+    from docblock import machine, publish
+
+    head = (
+        f"machine: {machine()}; bundled recording, 4 vehicles x 600 epochs, DGNSS, the methods' defaults "
+        f"(docs/fgo.md); loading the recording: {load_s:.1f} s (once). Wall time per method = every "
+        "vehicle's SPP, Doppler, plane and node message plus the fusion solve, median of "
+        f"{args.repeats} runs, with the default {jobs} jobs and with `--jobs 1`."
+    )
+    table = (
         "| method | epochs | wall s (median) | wall s (min) | wall s, 1 job | 1 job / default | "
         "solve ms/epoch (median) | solve ms p99 | < 10 s |\n"
         "|---|---|---|---|---|---|---|---|---|"
     )
-    print("\n".join(rows))
+    rows = table.split("\n") + rows
+    cmd = f"python bench/bench_eval.py --repeats {args.repeats}" + (f" --out {args.out}" if args.out else "")
+    publish(args.out, "bench_eval", cmd, head, rows)
 
 
 if __name__ == "__main__":
