@@ -121,11 +121,13 @@ def test_broken_rinex4_records_are_counted_and_the_rest_kept(
     eph = next(i for i, x in enumerate(lines) if x.startswith("> EPH G") and x.endswith("LNAV"))
     lines[eph + 3] = lines[eph + 3][:30]  # a GPS record cut short inside a field
     lines.insert(eph, "> XYZ G01 LNAV")  # an unknown record type, with no body
+    lines.insert(eph, "> EPH G02 LNAV")  # a wanted record with no body
+    lines[eph:eph] = ["> EPH G03 LNAV", "Gxx 2024 06 24 09 00 00"]  # its first line unreadable
     bad = tmp_path / "bad.rnx"
     bad.write_text("\n".join(lines) + "\n")
     problems = Problems()
     nav = read_nav(bad, problems)
-    assert dict(problems.counts) == {"unexpected-line": 1, "malformed-record": 3}, problems.items
+    assert dict(problems.counts) == {"unexpected-line": 1, "malformed-record": 5}, problems.items
     want = read_nav(v3, Problems())
     assert sum(map(len, nav.ephemerides.values())) == sum(map(len, want.ephemerides.values())) - 1
     assert "G" not in nav.iono and nav.iono["C"] == BDS_KLOBUCHAR  # the broken GPS ION record: none

@@ -197,6 +197,13 @@ class _NavFile:
                 continue
             kind, sys, message = head[0], head[1][0], head[-1]
             if kind == "EPH" and (sys, message) in EPHEMERIS_MESSAGES4:
+                if not body or not self._is_start3(body[0]):
+                    self._p(
+                        i + 2,
+                        "malformed-record",
+                        f"{head[1]} {message}: no satellite and epoch line: skipped",
+                    )
+                    continue
                 self._record(body, i + 2)
             elif kind == "ION" and (sys, message) in KLOBUCHAR_MESSAGES4:
                 self._klobuchar4(sys, body, i + 2)
