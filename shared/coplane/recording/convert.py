@@ -30,8 +30,11 @@ from coplane.recording.rtcm3 import (
     C_LIGHT,
     CNR_LSB_DBHZ,
     FREQ_HZ,
+    MSM_IDS,
     PSEUDORANGE_LSB_M,
     RATE_LSB_MPS,
+    msm_extended,
+    msm_rates,
     write_rtcm3,
 )
 from coplane.recording.sfrbx import write_sfrbx_nav
@@ -49,13 +52,13 @@ UBX_RESOLUTION = (
 
 def rtcm_resolution(msm: int) -> str:
     """What an MSM level keeps of the observations (rtcm3.py's module docstring has the fields)."""
-    lsb_m = PSEUDORANGE_LSB_M if msm in (6, 7) else PSEUDORANGE_LSB_M * 32  # 2^-29 or 2^-24 ms
+    lsb_m = PSEUDORANGE_LSB_M if msm_extended(msm) else PSEUDORANGE_LSB_M * 32  # 2^-29 or 2^-24 ms
     doppler = (
         f"phase-range rate LSB {RATE_LSB_MPS} m/s (Doppler <= 2.6e-4 Hz on L1/B1I)"
-        if msm in (5, 7)
+        if msm_rates(msm)
         else "no Doppler"
     )
-    cn0 = f"{CNR_LSB_DBHZ} dB-Hz" if msm in (6, 7) else "1 dB-Hz"
+    cn0 = f"{CNR_LSB_DBHZ} dB-Hz" if msm_extended(msm) else "1 dB-Hz"
     return (
         f"RTCM 3 MSM{msm}: pseudorange LSB {lsb_m * 1e3:.3f} mm (rounding <= {lsb_m * 500:.3f} mm); "
         f"{doppler}; C/N0 LSB {cn0}; epoch tags whole ms (a sub-ms tag is moved to the ms along each Doppler)"
@@ -153,7 +156,7 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int
     `msm`: the RTCM 3 MSM level of the observations (4-7; MSM4 and MSM6 carry no Doppler)."""
     if fmt not in FORMATS:
         raise RecordingError(f"unknown format {fmt!r} (expected one of {', '.join(FORMATS)})")
-    if msm not in (4, 5, 6, 7):
+    if msm not in MSM_IDS:
         raise RecordingError(f"MSM{msm}: the RTCM 3 MSM level is 4 to 7")
     if fmt == "ubx" and msm != 7:
         raise RecordingError(f"MSM{msm} asked for a UBX conversion: the MSM level is for RTCM 3 only")

@@ -98,10 +98,17 @@ class LogSummary:
     """What one pass over a receiver log (UBX, RTCM 3) found: its observations, or why none could
     be read, and whether it carries broadcast ephemerides (UBX RXM-SFRBX, RTCM 1019/1042)."""
 
+    path: Path
     obs: ObsSummary | None
     error: RecordingError | None
     ephemerides: bool
     readable: bool = True  # False: the file itself could not be read (e.g. a broken archive)
+
+    def unused_reason(self) -> str:
+        """Why a log that is neither a receiver nor a navigation source is left out."""
+        if self.readable:
+            return "a log with neither observations nor ephemerides"
+        return f"not read ({str(self.error).removeprefix(f'{self.path}: ')})"
 
 
 def summarise_log(path: Path) -> LogSummary:
@@ -110,15 +117,15 @@ def summarise_log(path: Path) -> LogSummary:
     try:
         log = parse_log(path, problems)
     except RecordingError as exc:
-        return LogSummary(None, exc, False, readable=False)
+        return LogSummary(path, None, exc, False, readable=False)
     ephemerides = bool(log_navigation(log, problems).ephemerides)
     try:
         header, epochs = log_observations(log)
     except RecordingError as exc:
-        return LogSummary(None, exc, ephemerides)
+        return LogSummary(path, None, exc, ephemerides)
     summary = summarise(path, header, epochs)
     summary.problems = problems.total
-    return LogSummary(summary, None, ephemerides)
+    return LogSummary(path, summary, None, ephemerides)
 
 
 def summarise(path: Path, header: ObsHeader, epochs: Iterable[ObsEpoch], problems: int = 0) -> ObsSummary:

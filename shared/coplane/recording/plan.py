@@ -158,9 +158,8 @@ def plan_recording(
     named = set(chosen.values()) | {base_path}
     summaries, unreadable = _summaries(candidates, {p for p in candidates if p not in named}, logs)
     skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
-    skipped += [f"{p.relative_to(root)}: " + ("a log with neither observations nor ephemerides" if logs[p].readable
-                else f"not read ({str(logs[p].error).removeprefix(f'{p}: ')})")
-                for p in candidates if p not in summaries and p not in unreadable and p not in nav]  # fmt: skip
+    unused = [p for p in candidates if p not in summaries and p not in unreadable and p not in nav]
+    skipped += [f"{p.relative_to(root)}: {logs[p].unused_reason()}" for p in unused]  # only logs are left
     # one receiver's consecutive RINEX files (a CORS's hourly files) become one
     roles_given = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
     summaries, splices, moved = join_runs(root, summaries, set(logs), roles_given, notes)

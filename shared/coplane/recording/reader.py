@@ -101,12 +101,11 @@ class Recording:
     def _load_obs(self, key: str, path: Path) -> tuple[ObsHeader, list[ObsEpoch]]:
         if key not in self._obs:
             fmt = file_format(path)
-            if fmt == "ubx":
-                header, epochs = log_observations(self._logs.take(path))
-            elif fmt == "rtcm3":
-                header, epochs = log_observations(self._logs.take(path), self._reference())
-            else:
+            if fmt == "rinex":
                 header, epochs = read_obs(path, self.problems, self._signals)
+            else:  # RTCM 3 places its week-less epochs near the navigation data's time
+                log = self._logs.take(path)
+                header, epochs = log_observations(log, self._reference() if fmt == "rtcm3" else None)
             self._obs[key] = (header, self._dedupe(path, epochs))
         return self._obs[key]
 

@@ -76,8 +76,20 @@ from coplane.recording.rtcm_encode import FieldRangeError, build_frame
 C_LIGHT = 299_792_458.0
 LIGHT_MS = C_LIGHT * 1e-3  # metres per millisecond of light travel
 FREQ_HZ = {"G": 1575.42e6, "C": 1561.098e6}  # L1 C/A, B1I: the only carriers written
-MSM7 = {"G": "1077", "C": "1127"}
 MSM_IDS = {n: {"G": f"107{n}", "C": f"112{n}"} for n in (4, 5, 6, 7)}  # MSM4..MSM7 per system
+MSM7 = MSM_IDS[7]
+
+
+def msm_extended(level: int) -> bool:
+    """Whether an MSM level carries the extended resolution (MSM6, MSM7: DF405-DF408)."""
+    return level in (6, 7)
+
+
+def msm_rates(level: int) -> bool:
+    """Whether an MSM level carries the phase-range rates, the Doppler (MSM5, MSM7: DF399, DF404)."""
+    return level in (5, 7)
+
+
 _SIG_MAPS = {"G": GPS_SIG_MAP, "C": BEIDOU_SIG_MAP}
 _SYSTEM_OF = {"107": "G", "112": "C"}
 _P2_10, _P2_29, _P2_24, _P2_31 = 2.0**-10, 2.0**-29, 2.0**-24, 2.0**-31
@@ -196,7 +208,7 @@ def _msm_values(
         cp_ms = (s.carrier_cycles + shift * dop) * lam / LIGHT_MS if has_cp else math.nan
         cn0 = s.cn0_dbhz
         lock = state.lock_ms(s.sat, tag, has_cp)
-        if msm in (6, 7):  # extended resolution
+        if msm_extended(msm):
             v["DF405" + k] = round((pr_ms - rough) / _P2_29)
             fine_cp = round((cp_ms - rough) / _P2_31) if has_cp else -(1 << 23)
             v["DF406" + k] = fine_cp if abs(fine_cp) < (1 << 23) else -(1 << 23)
@@ -208,7 +220,7 @@ def _msm_values(
             v["DF401" + k] = fine_cp if abs(fine_cp) < (1 << 21) else -(1 << 21)
             v["DF402" + k] = min(15, lock_indicator(lock) // 64)  # coarse: MSM4 lock is 4 bits
             v["DF403" + k] = 0 if not math.isfinite(cn0) else max(1, min(63, round(cn0)))
-        if msm in (5, 7):  # phase-range rates: the Doppler
+        if msm_rates(msm):
             if math.isfinite(s.doppler_hz):
                 rate = -s.doppler_hz * lam
                 v["DF399" + k] = round(rate)
@@ -364,7 +376,8 @@ class RtcmReader:
 
     def _msm_sats(self, m: Msm) -> list[SatObservation]:
         msg, sys = m.msg, m.sys
-        extended, rates = msg.identity[3] in "67", msg.identity[3] in "57"  # MSM6/7; MSM5/7
+        level = int(msg.identity[3])
+        extended, rates = msm_extended(level), msm_rates(level)
         code = self.codes[sys]
         lam = C_LIGHT / FREQ_HZ[sys]
         index = {int(getattr(msg, f"PRN_{i:02d}")): i for i in range(1, msg.NSat + 1)}

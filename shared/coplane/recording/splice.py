@@ -41,15 +41,19 @@ def same_receiver(a: ObsSummary, b: ObsSummary) -> bool:
 
 def receiver_runs(summaries: Sequence[ObsSummary]) -> list[list[ObsSummary]]:
     """Groups of two or more files that are one receiver's consecutive files, each in time order."""
-    timed = sorted((s for s in summaries if s.first is not None and s.last is not None), key=_start)
     runs: list[list[ObsSummary]] = []
-    for s in timed:
+    for s in _timed(summaries):
         run = next((r for r in runs if same_receiver(r[-1], s) and _follows(r[-1], s)), None)
         if run is None:
             runs.append([s])
         else:
             run.append(s)
     return [r for r in runs if len(r) > 1]
+
+
+def _timed(summaries: Sequence[ObsSummary]) -> list[ObsSummary]:
+    """The files with epochs, by their first epoch."""
+    return sorted((s for s in summaries if s.first is not None and s.last is not None), key=_start)
 
 
 def _start(s: ObsSummary) -> GpsTime:
@@ -156,7 +160,7 @@ def join_runs(
 def _far_apart(summaries: Sequence[ObsSummary], root: Path) -> list[str]:
     """Notes on files whose headers say one receiver but whose epochs are more than `MAX_GAP_S`
     apart: kept as separate receivers, which the user may not expect."""
-    timed = sorted((s for s in summaries if s.first is not None and s.last is not None), key=_start)
+    timed = _timed(summaries)
     out = []
     for k, b in enumerate(timed):
         a = next((a for a in reversed(timed[:k]) if same_receiver(a, b)), None)
