@@ -12,7 +12,6 @@ import pytest
 import coplane.evaluate.rtklib_row as rr
 from coplane.evaluate.evaluation import evaluate
 from coplane.evaluate.report import run_stats
-from coplane.gtime import GpsTime
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
 
@@ -66,18 +65,3 @@ def test_eval_skips_rtklib_with_a_message_when_pyrtklib_is_missing(
     assert not ev.runs and ev.notes["rtklib"].startswith("rtklib row skipped: pyrtklib is not importable")
     assert "rtklib row skipped" in caplog.text  # logged; `coplane eval` prints ev.notes
     assert "rtklib row skipped" in json.loads((tmp_path / "accuracy.json").read_text())["notes"]["rtklib"]
-
-
-def test_xyz_solution_reader(tmp_path: Path) -> None:
-    p = tmp_path / "x.pos"
-    p.write_text(
-        "% header\n"
-        "2320 115800.000  -2169549.9184   4387020.6790   4076310.4372   5  30   3.0000   4.0000   2.0000"
-        "  -2.0000   1.0000  -1.0000   0.00    0.0\n"
-        "garbage line\n"
-    )
-    rows = rr.read_xyz_solution(p)
-    assert len(rows) == 1
-    t, xyz, cov, q = rows[0]
-    assert t == GpsTime(2320, 115800.0) and q == 5 and xyz[0] == -2169549.9184
-    np.testing.assert_allclose(cov, [[9.0, -4.0, -1.0], [-4.0, 16.0, 1.0], [-1.0, 1.0, 4.0]])

@@ -103,8 +103,10 @@ def init(
     truth: Annotated[
         list[str] | None,
         typer.Option(
-            help="ID=FILE (repeatable): a vehicle's reference trajectory CSV; ID=x,y,z or ID=lat,lon,h: "
-            "the surveyed point a static receiver stood on (written as truth/ID.csv)."
+            help="ID=FILE (repeatable): a vehicle's reference trajectory: a truth CSV inside DIRECTORY, or "
+            "an RTKLIB .pos (fixed rows only, if it has any) or Inertial Explorer text export, converted to "
+            "truth/ID.csv; ID=x,y,z or ID=lat,lon,h: the surveyed point a static receiver stood on "
+            "(written as truth/ID.csv)."
         ),
     ] = None,
     dry_run: Annotated[bool, typer.Option(help="Print fleet.toml instead of writing it.")] = False,

@@ -29,9 +29,8 @@ from coplane.gtime import GpsTime
 from coplane.recording.compressed import file_format
 from coplane.recording.csvfiles import read_truth, write_truth
 from coplane.recording.reader import Recording
+from coplane.recording.trajectories import Q_FIX, Q_FLOAT
 from coplane.typing import Vec
-
-FIX, FLOAT = 1, 2  # RTKLIB's solution quality flags
 
 # What accuracy is measured against (`--truth` of `coplane eval`, `coplane fleet` and the API): the
 # recording's truth files, or RTKLIB's RTK reference (`use_rtk_truth`)
@@ -97,21 +96,21 @@ def rtk_reference(rec: Recording, vehicle: str | None = None, *, agree_m: float 
             opt.modear = rtk.ARMODE_CONT
             opt.soltype = soltype
             _, sols = run_postpos(opt, sopt, files, Path(tmp) / f"{vid}-{soltype}.pos")
-            runs.append({t.round_to(rec.manifest.interval_s): (x, q) for t, x, _, q in sols})
+            runs.append({r.time.round_to(rec.manifest.interval_s): (r.ecef, r.quality) for r in sols})
     forward, backward = runs
     ref = RtkReference(vid, agree_m=agree_m, n_epochs=len(forward.keys() | backward.keys()))
     for t in sorted(forward.keys() & backward.keys()):
         (xf, qf), (xb, qb) = forward[t], backward[t]
-        if qf not in (FIX, FLOAT) or qb not in (FIX, FLOAT):
+        if qf not in (Q_FIX, Q_FLOAT) or qb not in (Q_FIX, Q_FLOAT):
             continue
         apart = float(np.linalg.norm(xf - xb))
-        if qf == qb == FIX:
+        if qf == qb == Q_FIX:
             ref.both_fixed_m[t] = apart
         if apart > agree_m:
             ref.disagreeing += 1
             continue
-        ref.positions[t] = xf if qf == FIX else xb if qb == FIX else (xf + xb) / 2.0
-        ref.n_fixed += int(FIX in (qf, qb))
+        ref.positions[t] = xf if qf == Q_FIX else xb if qb == Q_FIX else (xf + xb) / 2.0
+        ref.n_fixed += int(Q_FIX in (qf, qb))
     return ref
 
 

@@ -24,15 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from coplane.evaluate.runner import MethodRun, lockstep_schedule
-from coplane.gtime import GpsTime
 from coplane.recording.compressed import plain_file
+from coplane.recording.problems import Problems
 from coplane.recording.reader import Recording
+from coplane.recording.trajectories import Q_NAMES, PosRecord, read_pos
 
 RTKLIB_METHOD = "rtklib"
-QUALITY_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "ppp"}
 
 # prcopt_t fields copied from RTKLIB's prcopt_default (a fresh prcopt_t from pyrtklib is all zeros,
 # which would e.g. reject every innovation with maxinno = 0)
@@ -118,46 +116,13 @@ def rtklib_options(rec: Recording, dgps: bool, elevation_mask_deg: float) -> tup
     return opt, sopt
 
 
-def _signed_sq(s: float) -> float:
-    return math.copysign(s * s, s)
-
-
-def read_xyz_solution(path: Path) -> list[tuple[GpsTime, np.ndarray, np.ndarray, int]]:
-    """(time, ECEF, 3x3 covariance, Q) rows of an RTKLIB XYZ solution file (GPST week/tow)."""
-    out = []
-    for line in path.read_text().splitlines():
-        if not line.strip() or line.startswith("%"):
-            continue
-        f = line.split()
-        if len(f) < 13:
-            continue
-        try:
-            week, tow = int(f[0]), float(f[1])
-            xyz = np.array([float(v) for v in f[2:5]])
-            q = int(f[5])
-            sx, sy, sz, sxy, syz, szx = (float(v) for v in f[7:13])
-        except ValueError:
-            continue
-        cov = np.array(
-            [
-                [sx * sx, _signed_sq(sxy), _signed_sq(szx)],
-                [_signed_sq(sxy), sy * sy, _signed_sq(syz)],
-                [_signed_sq(szx), _signed_sq(syz), sz * sz],
-            ]
-        )
-        out.append((GpsTime(week, tow), xyz, cov, q))
-    return out
-
-
 def postpos_files(paths: list[Path], directory: Path) -> list[str]:
     """`paths` as postpos reads them: RTKLIB takes plain RINEX only (it would shell out to crx2rnx
     and gzip), so each compressed one is decompressed into its own folder of `directory`."""
     return [str(plain_file(p, directory / f"input-{i}")) for i, p in enumerate(paths)]
 
 
-def run_postpos(
-    opt: Any, sopt: Any, files: list[str], out: Path
-) -> tuple[int, list[tuple[GpsTime, np.ndarray, np.ndarray, int]]]:
+def run_postpos(opt: Any, sopt: Any, files: list[str], out: Path) -> tuple[int, list[PosRecord]]:
     """RTKLIB postpos over `files` (rover, [base,] navigation) into `out`: its return code and the
     solutions read back (empty when it wrote none)."""
     import pyrtklib as rtk
@@ -168,7 +133,7 @@ def run_postpos(
     ret = rtk.postpos(
         rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, opt, sopt, rtk.filopt_t(), files, len(files), buf, "", ""
     )
-    return int(ret), read_xyz_solution(out) if out.exists() else []
+    return int(ret), read_pos(out, Problems()) if out.exists() else []
 
 
 def process_recording(
@@ -203,11 +168,11 @@ def process_recording(
             if ret != 0 or not sols:
                 res.failures[vid] = f"postpos returned {ret} with {len(sols)} solutions"
             quality: Counter[str] = Counter()
-            for t, xyz, cov, q in sols:
-                tn = t.round_to(dt)
-                run.positions[vid][tn] = xyz
-                run.covariances[vid][tn] = cov
-                quality[QUALITY_NAMES.get(q, str(q))] += 1
+            for r in sols:
+                tn = r.time.round_to(dt)
+                run.positions[vid][tn] = r.ecef
+                run.covariances[vid][tn] = r.covariance
+                quality[Q_NAMES.get(r.quality, str(r.quality))] += 1
             res.quality[vid] = quality
             run.solve_times_s.extend([elapsed / max(len(sols), 1)] * len(sols))
     run.wall_time_s = time.perf_counter() - t_start

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -13,23 +12,12 @@ import numpy as np
 from coplane import __version__
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
+from coplane.recording.trajectories import PosRecord
 from coplane.typing import Vec
 
 if TYPE_CHECKING:
     from coplane.evaluate.runner import MethodRun
     from coplane.recording.reader import Recording
-
-# RTKLIB solution quality flags
-Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
-
-
-@dataclass(frozen=True)
-class PosRecord:
-    time: GpsTime
-    ecef: Vec
-    covariance: Vec  # 3x3 ECEF
-    quality: int
-    n_sats: int
 
 
 def _sq(v: float) -> float:

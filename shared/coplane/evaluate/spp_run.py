@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats, accuracy
-from coplane.evaluate.solution_files import Q_DGPS, Q_SINGLE, PosRecord, write_pos
+from coplane.evaluate.solution_files import write_pos
 from coplane.gnss.epoch_solver import (
     EpochResult,
     EpochSolverOptions,
@@ -28,6 +28,7 @@ from coplane.gnss.epoch_solver import (
 from coplane.gtime import GpsTime
 from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import Recording, open_recording
+from coplane.recording.trajectories import Q_DGPS, Q_SINGLE, PosRecord
 
 log = logging.getLogger(__name__)
 

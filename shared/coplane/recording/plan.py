@@ -35,8 +35,9 @@ from coplane.recording.discover import (
 )
 from coplane.recording.manifest import MANIFEST_NAME, write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
-from coplane.recording.problems import RecordingError
+from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.splice import join_runs, splice
+from coplane.recording.trajectories import read_trajectory, sniff
 
 # the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
 NAV_SYSTEMS = ("G", "C", "M")
@@ -85,7 +86,8 @@ class RecordingPlan:
     roles: dict[Path, str]  # observation file -> vehicle id, or "base"
     skipped: list[str]  # files found and not used, each with the reason
     notes: list[str]
-    # truth files to write: vehicles given a surveyed point instead of a trajectory (`--truth ID=x,y,z`)
+    # truth files to write: a surveyed point (`--truth ID=x,y,z`), or a trajectory converted from
+    # another tool's file (`--truth ID=FILE.pos`)
     static_truth: dict[str, list[TruthPoint]] = field(default_factory=dict)
     # joined files to write (`recording.splice`): the joined file -> its parts, in time order
     splices: dict[Path, tuple[Path, ...]] = field(default_factory=dict)
@@ -93,10 +95,7 @@ class RecordingPlan:
 
 def inside(root: Path, path: Path, what: str) -> Path:
     """`path` (as given, else relative to `root`) resolved, and inside `root` as the format requires."""
-    candidates = [path] if path.is_absolute() else [root / path, path]
-    found = next((c.resolve() for c in candidates if c.is_file()), None)
-    if found is None:
-        raise ConfigError(f"{what} {path}: no such file (in {root} or the current directory)")
+    found = _given_file(root, path, what)
     if not found.is_relative_to(root.resolve()):
         raise ConfigError(
             f"{what} {found}: outside {root}; a recording's files must be inside its directory (move or copy it there)"
@@ -276,26 +275,50 @@ def _truths(
     interval: float,
     notes: list[str],
 ) -> tuple[dict[str, Path], dict[str, list[TruthPoint]]]:
-    """Each vehicle's truth file: given, a surveyed point (written as truth/<id>.csv, one row per
-    epoch it logged), or truth/<id>.csv where the format puts it."""
+    """Each vehicle's truth file: given; converted from another tool's trajectory (RTKLIB .pos,
+    Inertial Explorer text: `recording.trajectories`) or a surveyed point, either written as
+    truth/<id>.csv (one row per epoch it logged for a point); or truth/<id>.csv where the format
+    puts it."""
     unknown = sorted(set(given) - set(vehicles))
     if unknown:
         raise ConfigError(f"--truth {unknown[0]}: no such vehicle (vehicles: {', '.join(vehicles)})")
     files: dict[str, Path] = {}
-    static: dict[str, list[TruthPoint]] = {}
+    written: dict[str, list[TruthPoint]] = {}
     for vid, obs in vehicles.items():
         value = given.get(vid)
         default = root / "truth" / f"{vid}.csv"
         if isinstance(value, Path):
-            files[vid] = inside(root, value, f"--truth {vid}")
+            path = _given_file(root, value, f"--truth {vid}")
+            if sniff(path) == "csv":
+                files[vid] = inside(root, path, f"--truth {vid}")
+                continue
+            problems = Problems()
+            trajectory = read_trajectory(path, problems)
+            first = f"the first: {problems.items[0]}" if problems.items else ""
+            if not trajectory.points:
+                raise ConfigError(
+                    f"--truth {vid} {path}: no usable point; {problems.total} bad rows, {first}"
+                )
+            files[vid], written[vid] = default, trajectory.points
+            bad = f"; {problems.total} bad rows skipped, {first}" if problems else ""
+            notes.append(f"{vid}: truth/{vid}.csv converted from {path.name}: {trajectory.describe()}{bad}")
         elif value is not None:  # a surveyed point: the vehicle stood there at every epoch it logged
             files[vid] = default
             epochs = sorted({t.round_to(interval) for t in summaries[obs].times})
-            static[vid] = [TruthPoint(t, value) for t in epochs]
+            written[vid] = [TruthPoint(t, value) for t in epochs]
         elif default.is_file():  # the format's own layout, e.g. a `coplane convert` or simulator folder
             files[vid] = default
             notes.append(f"{vid}: truth/{vid}.csv taken as its reference trajectory")
-    return files, static
+    return files, written
+
+
+def _given_file(root: Path, path: Path, what: str) -> Path:
+    """A file the user named, as given or relative to `root`; ConfigError if there is none."""
+    candidates = [path] if path.is_absolute() else [root / path, path]
+    found = next((c.resolve() for c in candidates if c.is_file()), None)
+    if found is None:
+        raise ConfigError(f"{what} {path}: no such file (in {root} or the current directory)")
+    return found
 
 
 def _fleet_interval(vehicles: Sequence[ObsSummary]) -> float:
