@@ -29,6 +29,13 @@ VARIANTS: dict[str, dict[str, object]] = {
     },
     "paper-window": {"solver": "lm-window"},  # the paper's LM window + anchors instead of iSAM2
     "no-fde": {"fde_k": None},
+    # a Doppler outage extrapolates the window's newest Doppler velocity, not the difference of
+    # estimates (FgoConfig.motion_last_doppler); pseudoranges without redundancy loosened
+    # (FgoConfig.unverified_sigma_scale)
+    "last-doppler": {"motion_last_doppler": True},
+    "unverified-2": {"unverified_sigma_scale": 2.0},
+    "unverified-3": {"unverified_sigma_scale": 3.0},
+    "unverified-5": {"unverified_sigma_scale": 5.0},
     "fde-keep-on-rejected-prediction": {"fde_snapshot_fallback": False},
     "gate3-no-fde": {"fde_k": None, "gate_k": 3.0},
     "cauchy": {"robust": "cauchy"},

@@ -104,6 +104,12 @@ class FgoConfig:
     # window or a marginal prior otherwise counts as independent information (over-confident
     # covariances, too little weight on the velocity links).
     pseudorange_sigma_scale: float = 1.0
+    # Pseudoranges of an epoch that no test can check, as many as the unknowns they determine or
+    # fewer (3 + one clock per system: a deep canyon's 3-5 satellites), have their sigma scaled by
+    # this: a consistent NLOS subset passes unseen there, so its nominal sigma makes the window
+    # overconfident in a position tens of metres off, which then holds good epochs back for many
+    # seconds (dense-urban training seeds). 1: their nominal sigma.
+    unverified_sigma_scale: float = 1.0
     # Innovation gate on pseudoranges against the predicted position (previous estimate + Doppler
     # displacement), per constellation after removing the median clock residual: what an EKF's
     # chi-square gate does, here before the graph. None turns it off. Only vehicles with a state in
@@ -227,6 +233,13 @@ class FgoConfig:
     # Fallback between factor when a vehicle has no Doppler velocity at an epoch: the last known
     # velocity with sigma motion_sigma * dt (m/s) ...
     motion_sigma: float = 2.0
+    # ... where the last known velocity is the newest Doppler velocity in the vehicle's window
+    # (True) rather than the previous state's, else the difference of its last two estimates
+    # (False): after the first epoch of an outage that difference carries the smoother's correction
+    # of those estimates, which the fallback then extrapolates as motion for the whole outage (a
+    # height converging at 1.4 m/s ran on 10 m through a 10-s outage in the dense-urban training
+    # seeds). A receiver without any Doppler has only the difference (`no_doppler_velocity`).
+    motion_last_doppler: bool = False
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
     # A vehicle whose receiver reports no Doppler at all (an RTCM MSM4 stream, a pseudorange-only

@@ -93,7 +93,8 @@ def displacement(
 
     Both Doppler velocities known: their mean (exact for constant acceleration); only the new
     one: v_t * dt (the paper). No Doppler now: the last known velocity (Doppler of the previous
-    state, else the difference of the last two estimates) with sigma motion_sigma * dt, else
+    state, or of the newest state with one with `motion_last_doppler`, else the difference of the
+    last two estimates) with sigma motion_sigma * dt, else
     zero with sigma max_speed * dt; the fallbacks' vertical sigma is bounded by what a road allows
     (`motion_sigma_up`, `max_vertical_speed`). `no_doppler`: the receiver gives no Doppler at all,
     so the difference of estimates is all it ever has (`FgoConfig.no_doppler_velocity`).
@@ -103,6 +104,8 @@ def displacement(
         v = 0.5 * (velocity + last.velocity) if last.velocity is not None else velocity
         return MotionLink(last.pos_key, last.step, v * dt, cfg.sigma_v * dt, "velocity")
     v_last: Vec | None = last.velocity
+    if v_last is None and cfg.motion_last_doppler and not no_doppler:
+        v_last = next((b.velocity for b in reversed(hist) if b.velocity is not None), None)
     var_h = var_up = 0.0  # the variance (m^2/s^2) of a velocity made from two estimates
     mode: NoDopplerVelocity = cfg.no_doppler_velocity if no_doppler else "estimates"
     if v_last is None and len(hist) >= 2 and mode != "none":

@@ -132,6 +132,9 @@ def prepare_vehicle(
             stats.reject("track_restart")
             link, hist, init, restarted = None, None, restart_at, True  # no links to the diverged window
     dead_reckon = cfg.drop_undetermined_pseudoranges or (cfg.standstill_dead_reckoning and v.standstill)
+    if cfg.unverified_sigma_scale != 1.0 and 0 < len(prs) <= 3 + len(set(prs.systems)):
+        # no redundancy: whatever NLOS they hold, no test could see (FgoConfig)
+        prs = dataclasses.replace(prs, sigma=prs.sigma * cfg.unverified_sigma_scale)
     if hist and dead_reckon and 0 < len(prs) < determining_count(plane, cfg):
         stats.reject("undetermined_pseudorange", len(prs))
         prs = prs.subset(np.zeros(len(prs), dtype=bool))
