@@ -1,4 +1,5 @@
-"""`coplane recording init` joins one receiver's consecutive RINEX files (a CORS's hourly files).
+"""`coplane recording init` joins one receiver's consecutive files (a CORS's hourly RINEX, a logger's
+rotated UBX or RTCM 3 logs).
 
 The real files are cut in two at an epoch, as a network's hourly files are, each half with the
 whole header: init must join them back into one file that reads as the uncut one, and must never
@@ -7,6 +8,7 @@ join receivers that logged at the same time.
 
 from __future__ import annotations
 
+import gzip
 import re
 import shutil
 from pathlib import Path
@@ -18,7 +20,10 @@ from coplane.recording.discover import receiver_files
 from coplane.recording.plan import plan_recording, write_plan
 from coplane.recording.problems import Problems
 from coplane.recording.reader import open_recording
+from coplane.recording.rinex_nav import read_nav
 from coplane.recording.rinex_obs import read_obs
+from coplane.recording.rtcm3 import write_rtcm3
+from coplane.recording.ubx import write_ubx
 
 GEONET = "rtklib_geonet_0759_3040_20050402"
 NAGOYA = "matrtklib_nagoya_static_20240624"
@@ -108,3 +113,41 @@ def test_overlapping_or_distant_files_are_not_joined(real_data: Path, tmp_path: 
     plan = plan_recording(root)
     assert not plan.splices
     assert any("122 s apart (more than 60): not joined" in n for n in plan.notes) == (gap_s > 0)
+
+
+@pytest.mark.parametrize(("fmt", "cut"), [("ubx", "epoch"), ("rtcm3", "epoch"), ("ubx", "byte")])
+def test_a_loggers_rotated_logs_become_one(real_data: Path, tmp_path: Path, fmt: str, cut: str) -> None:
+    """Nagoya's rover written as a receiver log cut in two, at its 150th epoch (each half with the
+    ephemerides) or in the middle of a message as a logger's rotation by size cuts it, the second
+    half gzipped; the base logged beside it over the same minutes. The rover's halves are joined
+    (the joined log also gives the ephemerides), the base is not joined to either."""
+    root = tmp_path / "nagoya"
+    root.mkdir()
+    _, rover = read_obs(real_data / NAGOYA / "rover.obs", Problems())
+    _, base = read_obs(real_data / NAGOYA / "base.obs", Problems())
+    nav = read_nav(real_data / NAGOYA / "base.nav", Problems())
+    write = write_ubx if fmt == "ubx" else (lambda p, e, nav=None: write_rtcm3(p, e, nav))
+    if cut == "epoch":
+        write(root / f"rover_a.{fmt}", rover[:150], nav=nav)
+        write(root / f"rover_b.{fmt}", rover[150:], nav=nav)
+    else:
+        data = write(tmp_path / f"rover.{fmt}", rover, nav=nav).read_bytes()
+        (root / f"rover_a.{fmt}").write_bytes(data[: len(data) // 2])
+        (root / f"rover_b.{fmt}").write_bytes(data[len(data) // 2 :])
+    second = root / f"rover_b.{fmt}.gz"
+    second.write_bytes(gzip.compress((root / f"rover_b.{fmt}").read_bytes()))
+    (root / f"rover_b.{fmt}").unlink()
+    write(root / f"base.{fmt}", base, nav=nav)
+    plan = plan_recording(root)
+    joined = root / "spliced" / f"rover_a-spliced.{fmt}"
+    assert plan.splices == {joined: (root / f"rover_a.{fmt}", second)}
+    assert sorted(p.name for p in plan.summaries) == [f"base.{fmt}", joined.name]
+    if cut == "epoch":
+        assert plan.summaries[joined].epochs == len(rover) == 301
+    assert joined in plan.manifest.nav_files and second not in plan.manifest.nav_files
+    assert any(f"being {fmt.upper()} logs with the same signals, joined as" in n for n in plan.notes)
+    write_plan(plan)
+    rec = open_recording(root)
+    vid = next(v.id for v in rec.manifest.vehicles if v.obs == joined)
+    assert [e.time for e in rec.vehicle_epochs(vid)] == [e.time for e in rover]  # the cut message too
+    assert not rec.problems

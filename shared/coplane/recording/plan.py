@@ -159,9 +159,10 @@ def plan_recording(
     skipped += [f"{p.relative_to(root)}: {why}" for p, why in unreadable.items()]
     unused = [p for p in candidates if p not in summaries and p not in unreadable and p not in nav]
     skipped += [f"{p.relative_to(root)}: {logs[p].unused_reason()}" for p in unused]  # only logs are left
-    # one receiver's consecutive RINEX files (a CORS's hourly files) become one
+    # one receiver's consecutive files (a CORS's hourly files, a logger's rotated logs) become one
     roles_given = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
-    summaries, splices, moved = join_runs(root, summaries, set(logs), roles_given, notes)
+    summaries, splices, moved = join_runs(root, summaries, roles_given, notes)
+    nav = list(dict.fromkeys(moved.get(p, p) for p in nav))  # a joined log's ephemerides: from it
     base_path = moved.get(base_path, base_path) if base_path is not None else None
     chosen = {vid: moved.get(p, p) for vid, p in chosen.items()}
     rovers = [p for p in summaries if p != base_path]

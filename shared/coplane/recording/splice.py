@@ -1,14 +1,18 @@
-"""One receiver's consecutive RINEX observation files joined into one (`coplane recording init`).
+"""One receiver's consecutive observation files joined into one (`coplane recording init`).
 
 Reference stations publish hourly files and loggers rotate theirs, while a fleet recording names
-one observation file per receiver (docs/recording-format.md). Files are one receiver's when their
-headers agree (RINEX version, marker, receiver, antenna, observation types, interval) and their
-epochs follow one another: no overlap, and at most `MAX_GAP_S` between one's last epoch and the
-next one's first. Receivers of one drive log at the same time, so they never qualify. The joined
-file is plain RINEX: the first file's header without the records that describe one file only
-(TIME OF LAST OBS, # OF SATELLITES, PRN / # OF OBS), then every file's epoch records in time
-order. Written here because the tools that splice RINEX (gfzrnx, teqc) are not Python packages
-this project can depend on, and the job, given the checks above, is a join of text.
+one observation file per receiver (docs/recording-format.md). RINEX files are one receiver's when
+their headers agree (RINEX version, marker, receiver, antenna, observation types, interval);
+receiver logs (UBX, RTCM 3), whose messages name no receiver, when they are of one format with
+the same signals and interval. In both cases their epochs must follow one another: no overlap,
+and at most `MAX_GAP_S` between one's last epoch and the next one's first. Receivers of one drive
+log at the same time, so they never qualify. A joined RINEX file is plain RINEX: the first file's
+header without the records that describe one file only (TIME OF LAST OBS, # OF SATELLITES,
+PRN / # OF OBS), then every file's epoch records in time order. A joined log is the logs' bytes
+one after the other, as the receiver streamed them: a message cut at a file boundary by the
+logger's rotation is whole again. Written here because the tools that splice RINEX (gfzrnx, teqc)
+are not Python packages this project can depend on, and the job, given the checks above, is a
+join of text or bytes.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from coplane.gtime import GpsTime
-from coplane.recording.compressed import open_rinex_text, plain_name
+from coplane.recording.compressed import file_format, open_rinex_text, plain_name, read_log_bytes
 from coplane.recording.discover import SPLICED_DIR, ObsSummary
 
 MAX_GAP_S = 60.0  # an hourly file's last epoch to the next one's first is one interval
@@ -26,9 +30,15 @@ _ONE_FILE_ONLY = ("TIME OF LAST OBS", "# OF SATELLITES", "PRN / # OF OBS")
 
 
 def same_receiver(a: ObsSummary, b: ObsSummary) -> bool:
-    """Whether two files' headers describe one receiver with the same observations (a marker
-    name is required: two anonymous files are not known to be one receiver)."""
+    """Whether two files describe one receiver with the same observations: RINEX headers that
+    agree, a marker name required (two anonymous files are not known to be one receiver); logs of
+    one format with the same signals and interval (their messages name no receiver)."""
     ha, hb = a.header, b.header
+    if file_format(a.path) != "rinex" or file_format(b.path) != "rinex":
+        return file_format(a.path) == file_format(b.path) and (ha.obs_types, a.interval_s) == (
+            hb.obs_types,
+            b.interval_s,
+        )
     return bool(ha.marker_name) and (
         ha.version,
         ha.marker_name,
@@ -37,6 +47,13 @@ def same_receiver(a: ObsSummary, b: ObsSummary) -> bool:
         ha.obs_types,
         a.interval_s,
     ) == (hb.version, hb.marker_name, hb.receiver, hb.antenna, hb.obs_types, b.interval_s)
+
+
+def _why_same(s: ObsSummary) -> str:
+    """What made files one receiver's, for the notes."""
+    if file_format(s.path) != "rinex":
+        return f"being {file_format(s.path).upper()} logs with the same signals"
+    return f"their headers (marker {s.header.marker_name!r})"
 
 
 def receiver_runs(summaries: Sequence[ObsSummary]) -> list[list[ObsSummary]]:
@@ -94,9 +111,16 @@ def spliced_summary(run: Sequence[ObsSummary], path: Path) -> ObsSummary:
 
 
 def splice(sources: Sequence[Path], out: Path) -> Path:
-    """Write `sources` (one receiver's consecutive files, in time order) as one plain RINEX file."""
+    """Write `sources` (one receiver's consecutive files, in time order) as one file: plain RINEX,
+    or a log's bytes one after the other."""
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
+    if file_format(out) != "rinex":
+        with tmp.open("wb") as b:
+            for src in sources:
+                b.write(read_log_bytes(src, "receiver log"))
+        tmp.replace(out)
+        return out
     with tmp.open("w", encoding="latin-1", newline="\n") as f:
         for k, src in enumerate(sources):
             with open_rinex_text(src) as text:
@@ -116,17 +140,15 @@ def splice(sources: Sequence[Path], out: Path) -> Path:
 def join_runs(
     root: Path,
     summaries: Mapping[Path, ObsSummary],
-    logs: set[Path],
     roles: Mapping[Path, str],
     notes: list[str],
 ) -> tuple[dict[Path, ObsSummary], dict[Path, tuple[Path, ...]], dict[Path, Path]]:
-    """`summaries` with each run of one receiver's consecutive RINEX files (not `logs`) replaced by
-    the joined file, at its first part's place, under `root`/spliced; the joined files and their
+    """`summaries` with each run of one receiver's consecutive files replaced by the joined file, at its first part's place, under `root`/spliced; the joined files and their
     parts; every part's joined file. A run whose parts the user named as different receivers
     (`roles`) is left apart. Each join, or refusal, is said in `notes`."""
     splices: dict[Path, tuple[Path, ...]] = {}
     moved: dict[Path, Path] = {}
-    for run in receiver_runs([s for p, s in summaries.items() if p not in logs]):
+    for run in receiver_runs(list(summaries.values())):
         parts = tuple(s.path for s in run)
         names = ", ".join(str(p.relative_to(root)) for p in parts)
         named = sorted({roles[p] for p in parts if p in roles})
@@ -143,10 +165,10 @@ def join_runs(
         splices[joined] = parts
         moved.update(dict.fromkeys(parts, joined))
         notes.append(
-            f"{names}: one receiver's consecutive files (marker {run[0].header.marker_name!r}), "
+            f"{names}: one receiver's consecutive files by {_why_same(run[0])}, "
             f"joined as {joined.relative_to(root)}"
         )
-    notes += _far_apart([s for p, s in summaries.items() if p not in logs], root)
+    notes += _far_apart(list(summaries.values()), root)
     out: dict[Path, ObsSummary] = {}
     for p, s in summaries.items():
         j = moved.get(p)
@@ -166,7 +188,7 @@ def _far_apart(summaries: Sequence[ObsSummary], root: Path) -> list[str]:
         a = next((a for a in reversed(timed[:k]) if same_receiver(a, b)), None)
         if a is not None and a.last is not None and b.first is not None and b.first - a.last > MAX_GAP_S:
             out.append(
-                f"{a.path.relative_to(root)}, {b.path.relative_to(root)}: one receiver by their headers, "
+                f"{a.path.relative_to(root)}, {b.path.relative_to(root)}: one receiver by {_why_same(a)}, "
                 f"{b.first - a.last:.0f} s apart (more than {MAX_GAP_S:.0f}): not joined, two receivers"
             )
     return out
