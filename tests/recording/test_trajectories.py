@@ -277,5 +277,8 @@ def test_init_refuses_a_trajectory_without_one_usable_point(real_data: Path, tmp
     given = _write(
         tmp_path / "broken.pos", [LLH_HEADER.format(system="GPST"), "2024/06/24 08:20:00.000 x y z 1 2"]
     )
-    with pytest.raises(ConfigError, match=r"--truth u1 .*broken.pos: no usable point; 1 bad rows"):
+    with pytest.raises(
+        ConfigError,
+        match=r"--truth u1 .*broken.pos: no usable point \(1 bad rows, the first: .*broken.pos:2: ",
+    ):
         plan_recording(root, vehicles={"u1": root / "rover.obs"}, truth={"u1": given})

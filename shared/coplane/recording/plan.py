@@ -295,13 +295,11 @@ def _truths(
                 continue
             problems = Problems()
             trajectory = read_trajectory(path, problems)
-            first = f"the first: {problems.items[0]}" if problems.items else ""
+            bad = f"{problems.total} bad rows, the first: {problems.items[0]}" if problems.items else ""
             if not trajectory.points:
-                raise ConfigError(
-                    f"--truth {vid} {path}: no usable point; {problems.total} bad rows, {first}"
-                )
+                raise ConfigError(f"--truth {vid} {path}: no usable point ({bad or 'no rows'})")
             files[vid], written[vid] = default, trajectory.points
-            bad = f"; {problems.total} bad rows skipped, {first}" if problems else ""
+            bad = f"; {bad} (skipped)" if bad else ""
             notes.append(f"{vid}: truth/{vid}.csv converted from {path.name}: {trajectory.describe()}{bad}")
         elif value is not None:  # a surveyed point: the vehicle stood there at every epoch it logged
             files[vid] = default
