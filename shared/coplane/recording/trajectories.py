@@ -87,12 +87,16 @@ class _PosLayout:
 
 
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """(line number, text) of a text file; RecordingError if it cannot be read."""
+    """(line number, text) of a text file, read as it goes (a day at 100 Hz is a large file; a
+    binary one gets replacement characters and fails row by row); RecordingError if it cannot be
+    opened."""
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        f = path.open("r", encoding="utf-8", errors="replace")
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    yield from enumerate(text.splitlines(), start=1)
+    with f:
+        for n, line in enumerate(f, start=1):
+            yield n, line.rstrip("\r\n")
 
 
 def sniff(path: Path) -> str:
