@@ -63,3 +63,31 @@ def test_read_nav_files_merges_and_drops_duplicates() -> None:
 def test_unusable_nav_file_raises(name: str) -> None:
     with pytest.raises(RecordingError, match=name.replace(".", r"\.")):
         read_nav(BROKEN / name, Problems())
+
+
+STATUS_LINE = "     .000000000000D+00 .000000000000D+00 .000000000000D+00 .000000000000D+00"
+
+
+def test_rinex_305_glonass_records_are_skipped_whole(real_data: Path, tmp_path: Path) -> None:
+    """RINEX 3.05 (e.g. a day's merged broadcast file) gives each GLONASS record a fifth line:
+    skipped with its record, no problem counted, the GPS and BeiDou ephemerides as in 3.04."""
+    src = real_data / "matrtklib_nagoya_static_20240624" / "base.nav"
+    lines = src.read_text().splitlines()
+    out, k = [], 0
+    while k < len(lines):
+        line = lines[k]
+        if k == 0:
+            line = "     3.05" + line[9:]
+        out.append(line)
+        if line.startswith("R") and line[1:3].isdigit():
+            out += [*lines[k + 1 : k + 4], STATUS_LINE]
+            k += 4
+            continue
+        k += 1
+    assert sum(1 for x in out if x.startswith("R")) > 5
+    v305 = tmp_path / "base305.nav"
+    v305.write_text("\n".join(out) + "\n")
+    want, got = Problems(), Problems()
+    nav304, nav305 = read_nav(src, want), read_nav(v305, got)
+    assert not want and not got
+    assert nav305.ephemerides == nav304.ephemerides

@@ -228,7 +228,8 @@ class _NavFile:
     def _record(self, rec: list[str], lineno: int) -> None:
         if self.version >= 3.0:
             sys = rec[0][0]
-            want = RECORD_LINES.get(sys)
+            # RINEX 3.05 gave a GLONASS record a fourth line of broadcast orbits (status flags)
+            want = 5 if sys == "R" and self.version >= 3.05 else RECORD_LINES.get(sys)
             if want is None:
                 self._p(lineno, "malformed-record", f"unknown system {sys!r}: record skipped")
                 return
