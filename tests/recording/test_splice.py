@@ -90,6 +90,31 @@ def test_receivers_logging_together_are_never_joined(real_data: Path, tmp_path: 
     assert not plan.splices and any("named as a and b: not joined" in n for n in plan.notes)
 
 
+def test_a_named_receivers_continuation_is_found_and_joined(real_data: Path, tmp_path: Path) -> None:
+    """`--vehicle` and `--base` name the first hour's files: the next hour's are still read, only to
+    join them to the named ones; files named by nobody stay out of the recording, and say so."""
+    root = tmp_path / "geonet"
+    shutil.copytree(real_data / GEONET, root, ignore=shutil.ignore_patterns("fleet.toml", "truth"))
+    for name, n_epochs in (("30400920.05o", 60), ("07590920.05o", 60)):
+        src = root / name
+        _cut(src, root / f"{name[:7]}a.05o", root / f"{name[:7]}b.05o", _body_index(src, _EPOCH2, n_epochs))
+    shutil.copy(real_data / NAGOYA / "rover.obs", root / "spare.obs")  # a receiver named by nobody
+    plan = plan_recording(
+        root, vehicles={"rover": Path("0759092a.05o")}, base=Path("3040092a.05o"), base_position=BASE_3040
+    )
+    joined_rover = root / "spliced" / "0759092a-spliced.05o"
+    joined_base = root / "spliced" / "3040092a-spliced.05o"
+    assert plan.splices == {
+        joined_rover: (root / "0759092a.05o", root / "0759092b.05o"),
+        joined_base: (root / "3040092a.05o", root / "3040092b.05o"),
+    }
+    assert [(v.id, v.obs) for v in plan.manifest.vehicles] == [("rover", joined_rover)]
+    assert plan.manifest.base is not None and plan.manifest.base.obs == joined_base
+    assert sorted(plan.summaries) == sorted([joined_rover, joined_base])
+    assert plan.summaries[joined_rover].epochs == plan.summaries[joined_base].epochs == 120
+    assert "spare.obs: not named with --vehicle" in plan.skipped
+
+
 @pytest.mark.parametrize("gap_s", [0.0, 120.0])
 def test_overlapping_or_distant_files_are_not_joined(real_data: Path, tmp_path: Path, gap_s: float) -> None:
     """The second half starting where the first ended (an overlap) or two minutes after: apart."""

@@ -146,7 +146,10 @@ def plan_recording(
             raise ConfigError(
                 f"--vehicle: {twice.name} is named twice (or is the base): one file per receiver"
             )
-        candidates = list(chosen.values())
+        # the other files too, read only to find the named ones' continuations (a base's next hour)
+        candidates = list(chosen.values()) + [
+            p for p in [r.path.resolve() for r in found if r.kind == "obs"] + list(logs) if p not in files
+        ]
     else:
         chosen = {}
         candidates = [r.path.resolve() for r in found if r.kind == "obs"] + list(logs)
@@ -161,10 +164,14 @@ def plan_recording(
     skipped += [f"{p.relative_to(root)}: {logs[p].unused_reason()}" for p in unused]  # only logs are left
     # one receiver's consecutive files (a CORS's hourly files, a logger's rotated logs) become one
     roles_given = {p: vid for vid, p in chosen.items()} | ({base_path: "base"} if base_path else {})
-    summaries, splices, moved = join_runs(root, summaries, roles_given, notes)
+    summaries, splices, moved = join_runs(root, summaries, roles_given, notes, only_named=bool(chosen))
     nav = list(dict.fromkeys(moved.get(p, p) for p in nav))  # a joined log's ephemerides: from it
     base_path = moved.get(base_path, base_path) if base_path is not None else None
     chosen = {vid: moved.get(p, p) for vid, p in chosen.items()}
+    if chosen:  # the files read only for continuations are not receivers of the recording
+        kept = {*chosen.values(), base_path}
+        skipped += [f"{p.relative_to(root)}: not named with --vehicle" for p in summaries if p not in kept]
+        summaries = {p: s for p, s in summaries.items() if p in kept}
     rovers = [p for p in summaries if p != base_path]
     if not rovers:
         raise RecordingError(f"{root}: no observation file (RINEX, UBX or RTCM 3) for a vehicle below it")

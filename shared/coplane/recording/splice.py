@@ -142,16 +142,22 @@ def join_runs(
     summaries: Mapping[Path, ObsSummary],
     roles: Mapping[Path, str],
     notes: list[str],
+    only_named: bool = False,
 ) -> tuple[dict[Path, ObsSummary], dict[Path, tuple[Path, ...]], dict[Path, Path]]:
-    """`summaries` with each run of one receiver's consecutive files replaced by the joined file, at its first part's place, under `root`/spliced; the joined files and their
-    parts; every part's joined file. A run whose parts the user named as different receivers
-    (`roles`) is left apart. Each join, or refusal, is said in `notes`."""
+    """`summaries` with each run of one receiver's consecutive files replaced by the joined file,
+    at its first part's place, under `root`/spliced; the joined files and their parts; every
+    part's joined file. A run whose parts the user named as different receivers
+    (`roles`) is left apart; with `only_named`, so is a run without a file of `roles` (the user named
+    the receivers: the others were read only to find their continuations). Each join, or refusal,
+    is said in `notes`."""
     splices: dict[Path, tuple[Path, ...]] = {}
     moved: dict[Path, Path] = {}
     for run in receiver_runs(list(summaries.values())):
         parts = tuple(s.path for s in run)
         names = ", ".join(str(p.relative_to(root)) for p in parts)
         named = sorted({roles[p] for p in parts if p in roles})
+        if only_named and not named:
+            continue
         if len(named) > 1:
             notes.append(
                 f"{names}: one receiver's consecutive files by their headers, named as {' and '.join(named)}: not joined"
@@ -168,7 +174,7 @@ def join_runs(
             f"{names}: one receiver's consecutive files by {_why_same(run[0])}, "
             f"joined as {joined.relative_to(root)}"
         )
-    notes += _far_apart(list(summaries.values()), root)
+    notes += _far_apart(list(summaries.values()), root, set(roles) if only_named else None)
     out: dict[Path, ObsSummary] = {}
     for p, s in summaries.items():
         j = moved.get(p)
@@ -179,13 +185,16 @@ def join_runs(
     return out, splices, moved
 
 
-def _far_apart(summaries: Sequence[ObsSummary], root: Path) -> list[str]:
+def _far_apart(summaries: Sequence[ObsSummary], root: Path, named: set[Path] | None = None) -> list[str]:
     """Notes on files whose headers say one receiver but whose epochs are more than `MAX_GAP_S`
-    apart: kept as separate receivers, which the user may not expect."""
+    apart: kept as separate receivers, which the user may not expect (with `named`, only where
+    one of the two is a file the user named)."""
     timed = _timed(summaries)
     out = []
     for k, b in enumerate(timed):
         a = next((a for a in reversed(timed[:k]) if same_receiver(a, b)), None)
+        if named is not None and a is not None and not {a.path, b.path} & named:
+            continue
         if a is not None and a.last is not None and b.first is not None and b.first - a.last > MAX_GAP_S:
             out.append(
                 f"{a.path.relative_to(root)}, {b.path.relative_to(root)}: one receiver by {_why_same(a)}, "
