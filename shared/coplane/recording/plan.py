@@ -88,7 +88,7 @@ class RecordingPlan:
     notes: list[str]
     # truth files to write: a surveyed point (`--truth ID=x,y,z`), or a trajectory converted from
     # another tool's file (`--truth ID=FILE.pos`)
-    static_truth: dict[str, list[TruthPoint]] = field(default_factory=dict)
+    truth_to_write: dict[str, list[TruthPoint]] = field(default_factory=dict)
     # joined files to write (`recording.splice`): the joined file -> its parts, in time order
     splices: dict[Path, tuple[Path, ...]] = field(default_factory=dict)
 
@@ -369,17 +369,18 @@ def coverage_notes(
 
 
 def write_plan(plan: RecordingPlan, force: bool = False) -> Path:
-    """Write the plan's static truth files and its fleet.toml; an existing file is replaced only
-    with `force` (ConfigError naming it otherwise). Returns the manifest's path."""
+    """Write the plan's truth files (surveyed points, converted trajectories), its joined files and
+    its fleet.toml; an existing file is replaced only with `force` (ConfigError naming it
+    otherwise). Returns the manifest's path."""
     root = plan.manifest.root
-    targets = [root / "truth" / f"{vid}.csv" for vid in plan.static_truth] + [
+    targets = [root / "truth" / f"{vid}.csv" for vid in plan.truth_to_write] + [
         *plan.splices,
         root / MANIFEST_NAME,
     ]
     existing = [p for p in targets if p.exists()]
     if existing and not force:
         raise ConfigError(f"{existing[-1]} exists; --force replaces it")
-    for vid, points in plan.static_truth.items():
+    for vid, points in plan.truth_to_write.items():
         write_truth(root / "truth" / f"{vid}.csv", points)
     for joined, parts in plan.splices.items():
         splice(parts, joined)

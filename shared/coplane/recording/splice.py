@@ -160,7 +160,8 @@ def join_runs(
             continue
         if len(named) > 1:
             notes.append(
-                f"{names}: one receiver's consecutive files by their headers, named as {' and '.join(named)}: not joined"
+                f"{names}: one receiver's consecutive files by {_why_same(run[0])}, named as "
+                f"{' and '.join(named)}: not joined"
             )
             continue
         joined = root / SPLICED_DIR / spliced_name(parts[0])
