@@ -174,6 +174,7 @@ def _dms(deg: str, minutes: str, seconds: str) -> float:
 
 
 def _geodetic(lat_deg: float, lon_deg: float, h: float) -> Vec:
+    """ECEF of a latitude / longitude (degrees) and ellipsoidal height; ValueError when out of range."""
     if not (abs(lat_deg) <= 90.0 and abs(lon_deg) <= 360.0 and math.isfinite(h)):
         raise ValueError(f"latitude {lat_deg}, longitude {lon_deg}, height {h} out of range")
     return geodetic_to_ecef(math.radians(lat_deg), math.radians(lon_deg), h)
