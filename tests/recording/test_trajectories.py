@@ -282,3 +282,43 @@ def test_init_refuses_a_trajectory_without_one_usable_point(real_data: Path, tmp
         match=r"--truth u1 .*broken.pos: no usable point \(1 bad rows, the first: .*broken.pos:2: ",
     ):
         plan_recording(root, vehicles={"u1": root / "rover.obs"}, truth={"u1": given})
+
+
+def test_rtklibs_own_files_read_alike_in_every_layout(real_data: Path, tmp_path: Path) -> None:
+    """RTKLIB itself (pyrtklib's postpos, DGPS of the Nagoya rover) writing ECEF with UTC times,
+    latitude / longitude with GPST calendar or week-and-seconds times, and d m s with JST times:
+    every file reads without a problem, to the same times, the same positions within what it
+    prints (0.1 mm in ECEF, 1e-9 degrees, 1e-5 arc seconds) and the same covariance within the
+    rounding of its standard deviations."""
+    import pyrtklib as rtk
+
+    from coplane.evaluate.rtklib_row import postpos_files, rtklib_options, run_postpos
+
+    rec = open_recording(real_data / NAGOYA)
+    vid = rec.manifest.vehicles[0].id
+    assert rec.manifest.base is not None
+    files = postpos_files(
+        [rec.manifest.vehicle(vid).obs, rec.manifest.base.obs, *rec.manifest.nav_files], tmp_path
+    )
+    layouts = {
+        "xyz, UTC": (rtk.SOLF_XYZ, 1, rtk.TIMES_UTC, 0),
+        "llh, GPST": (rtk.SOLF_LLH, 1, rtk.TIMES_GPST, 0),
+        "llh, week and seconds": (rtk.SOLF_LLH, 0, rtk.TIMES_GPST, 0),
+        "dms, JST": (rtk.SOLF_LLH, 1, rtk.TIMES_JST, 1),
+    }
+    read = {}
+    for name, (posf, timef, times, degf) in layouts.items():
+        opt, sopt = rtklib_options(rec, True, 10.0)
+        sopt.posf, sopt.timef, sopt.times, sopt.degf = posf, timef, times, degf
+        ret, _ = run_postpos(opt, sopt, files, tmp_path / f"{len(read)}.pos")
+        problems = Problems()
+        read[name] = {r.time: r for r in read_pos(tmp_path / f"{len(read)}.pos", problems)}
+        assert ret == 0 and not problems and len(read[name]) == 301, name
+    ref = read["xyz, UTC"]
+    for name, rows in read.items():
+        assert rows.keys() == ref.keys(), name
+        for t, r in rows.items():
+            assert np.linalg.norm(r.ecef - ref[t].ecef) < 1e-3, name
+            np.testing.assert_allclose(
+                r.covariance, ref[t].covariance, rtol=0, atol=2e-3 * np.abs(ref[t].covariance).max()
+            )
