@@ -108,7 +108,8 @@ class FgoConfig:
     # fewer (3 + one clock per system: a deep canyon's 3-5 satellites), have their sigma scaled by
     # this: a consistent NLOS subset passes unseen there, so its nominal sigma makes the window
     # overconfident in a position tens of metres off, which then holds good epochs back for many
-    # seconds (dense-urban training seeds). 1: their nominal sigma.
+    # seconds (dense-urban training seeds). 1: their nominal sigma. Measured and left off
+    # (docs/fgo.md, "A deep-canyon start").
     unverified_sigma_scale: float = 1.0
     # Innovation gate on pseudoranges against the predicted position (previous estimate + Doppler
     # displacement), per constellation after removing the median clock residual: what an EKF's
@@ -235,10 +236,9 @@ class FgoConfig:
     motion_sigma: float = 2.0
     # ... where the last known velocity is the newest Doppler velocity in the vehicle's window
     # (True) rather than the previous state's, else the difference of its last two estimates
-    # (False): after the first epoch of an outage that difference carries the smoother's correction
-    # of those estimates, which the fallback then extrapolates as motion for the whole outage (a
-    # height converging at 1.4 m/s ran on 10 m through a 10-s outage in the dense-urban training
-    # seeds). A receiver without any Doppler has only the difference (`no_doppler_velocity`).
+    # (False), which after the first epoch of an outage also holds the smoother's corrections of
+    # those estimates. Measured and left off (docs/fgo.md, "A deep-canyon start"). A receiver
+    # without any Doppler has only the difference (`no_doppler_velocity`).
     motion_last_doppler: bool = False
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
