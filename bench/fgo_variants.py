@@ -33,6 +33,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     # estimates (FgoConfig.motion_last_doppler); pseudoranges without redundancy loosened
     # (FgoConfig.unverified_sigma_scale)
     "last-doppler": {"motion_last_doppler": True},
+    "outage-horizontal": {"outage_horizontal": True},
     "unverified-2": {"unverified_sigma_scale": 2.0},
     "unverified-3": {"unverified_sigma_scale": 3.0},
     "unverified-5": {"unverified_sigma_scale": 5.0},

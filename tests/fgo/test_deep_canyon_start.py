@@ -13,6 +13,7 @@ from support.fgo_synthetic import SyntheticFleet, make_fleet
 from coplane.estimation.contract import EpochInput
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.engine import FusionEstimator
+from coplane.geo import up_vector
 from coplane.methods import get_method
 
 
@@ -89,3 +90,36 @@ def test_an_outage_can_extrapolate_the_last_doppler_velocity() -> None:
         np.testing.assert_allclose(m, last_doppler, atol=1e-12)
     np.testing.assert_allclose(moves[False][0], last_doppler, atol=1e-12)  # the previous state's Doppler
     assert all(np.linalg.norm(m - last_doppler) > 1e-4 for m in moves[False][1:])
+
+
+def test_an_outage_can_extrapolate_only_the_horizontal_velocity() -> None:
+    """The Doppler velocity before an outage 1.4 m/s upward (NLOS at a canyon's entrance): the
+    outage links extrapolate that climb, but with `outage_horizontal` none of it (the height is
+    left to the fallback's vertical sigma)."""
+    fleet = make_fleet(1, 9, seed=5, velocity_sigma=0.05)
+    epochs = _outage_from(fleet, 5)
+    before = epochs[4].vehicles["v01"]
+    assert before.velocity is not None and before.spp_position is not None
+    struck = before.velocity.velocity_mps + 1.4 * up_vector(before.spp_position)
+    epochs[4] = dataclasses.replace(
+        epochs[4],
+        vehicles={
+            "v01": dataclasses.replace(
+                before, velocity=dataclasses.replace(before.velocity, velocity_mps=struck)
+            )
+        },
+    )
+    ups: dict[bool, list[float]] = {}
+    for flag in (False, True):
+        est = FusionEstimator(dataclasses.replace(_robust(), outage_horizontal=flag))
+        ups[flag] = []
+        for epoch in epochs:
+            est.step(epoch)
+            blocks = est._state.window.by_vehicle["v01"]
+            for ln in blocks[-1].links:
+                if ln.kind == "motion":
+                    up = up_vector(est._state.position(blocks[-2].pos_key))
+                    ups[flag].append(float(np.asarray(ln.factor().measured()) @ up))
+    assert len(ups[True]) == len(ups[False]) == 4
+    assert all(u > 1.0 for u in ups[False])  # the climb, carried through the outage
+    np.testing.assert_allclose(ups[True], 0.0, atol=1e-4)  # up taken at the estimate since moved

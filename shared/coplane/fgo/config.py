@@ -240,6 +240,12 @@ class FgoConfig:
     # those estimates. Measured and left off (docs/fgo.md, "A deep-canyon start"). A receiver
     # without any Doppler has only the difference (`no_doppler_velocity`).
     motion_last_doppler: bool = False
+    # ... and the fallback extrapolates only the horizontal part of that velocity, the height held
+    # by `motion_sigma_up` (as `no_doppler_velocity = "horizontal"` does for receivers without
+    # Doppler): the Doppler velocity of the epoch before an outage may be NLOS-struck (1.38 m/s
+    # upward on a level road at a dense-urban training vehicle's canyon entrance, extrapolated
+    # 13 m in 10 s). Measured and left off (docs/fgo.md, "A deep-canyon start").
+    outage_horizontal: bool = False
     # ... or, if no velocity is known at all, zero with sigma max_speed * dt (m/s).
     max_speed: float = 50.0
     # A vehicle whose receiver reports no Doppler at all (an RTCM MSM4 stream, a pseudorange-only

@@ -114,6 +114,9 @@ def displacement(
         v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / dt0
         if no_doppler:
             v_last, var_h, var_up = _estimated_velocity(v_last, last, prev, dt0, mode, state, cfg)
+    if v_last is not None and cfg.outage_horizontal and not no_doppler:
+        u = up_vector(state.position(last.pos_key))
+        v_last = v_last - float(v_last @ u) * u  # the height is the fallback's vertical sigma's
     if three_state and cfg.motion_accel_psd is not None and len(hist) >= 2 and last.time - hist[-2].time > 0:
         return constant_velocity(hist, dt, state, cfg)
     if v_last is not None:
