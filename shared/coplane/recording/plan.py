@@ -135,6 +135,7 @@ def plan_recording(
             if base_path is not None
             else "--base-position without --base: which file is the base station?"
         )
+    every = [r.path.resolve() for r in found if r.kind == "obs"] + list(logs)
     if vehicles:
         chosen = {vid: inside(root, p, f"--vehicle {vid}") for vid, p in vehicles.items()}
         bad = [vid for vid in chosen if not is_vehicle_id(vid)]
@@ -147,12 +148,10 @@ def plan_recording(
                 f"--vehicle: {twice.name} is named twice (or is the base): one file per receiver"
             )
         # the other files too, read only to find the named ones' continuations (a base's next hour)
-        candidates = list(chosen.values()) + [
-            p for p in [r.path.resolve() for r in found if r.kind == "obs"] + list(logs) if p not in files
-        ]
+        candidates = files + [p for p in every if p not in files]
     else:
         chosen = {}
-        candidates = [r.path.resolve() for r in found if r.kind == "obs"] + list(logs)
+        candidates = every
     if base_path is not None and base_path not in candidates:
         candidates.append(base_path)
     # a file found (not named by the user) that cannot be read is skipped with its reason; a log

@@ -3,7 +3,7 @@
 Produces `Ephemeris` for GPS LNAV and BeiDou D1/D2 records and `IonoCoefficients` from the
 header (`IONOSPHERIC CORR` GPSA/GPSB/BDSA/BDSB, RINEX 2 `ION ALPHA`/`ION BETA`) or, in RINEX 4,
 from the Klobuchar `ION` records (GPS `LNAV`, BeiDou `D1D2`; the first readable one of a system).
-Records of other systems (R and S: 4 lines, E/J/I: 8 lines) are skipped. Records are found by
+Records of other systems (R and S: 4 lines, R from RINEX 3.05 on 5, E/J/I: 8 lines) are skipped. Records are found by
 their first line (a satellite id and a date), not by counting lines, so a broken record cannot
 shift the rest of the file; a record of a wanted system that is broken is skipped with
 `file:line` reason. RINEX 4 (what IGS broadcast files such as BRD400DLR are today) opens each

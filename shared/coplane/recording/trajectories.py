@@ -27,6 +27,7 @@ import numpy as np
 
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime, gps_minus_utc_s
+from coplane.recording.csvfiles import EARTH_RADIUS_BOUNDS_M
 from coplane.recording.model import TruthPoint
 from coplane.recording.problems import Problems, RecordingError
 from coplane.typing import Vec
@@ -34,7 +35,6 @@ from coplane.typing import Vec
 # RTKLIB solution quality flags (Q column)
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
 Q_NAMES = {Q_FIX: "fix", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps", Q_SINGLE: "single", Q_PPP: "ppp"}
-EARTH_RADIUS_BOUNDS_M = (6.0e6, 7.0e6)  # |ECEF| of a point near the surface (incl. aircraft)
 JST_MINUS_UTC_S = 9 * 3600  # RTKLIB's third time system, Japan Standard Time
 _CALENDAR = re.compile(r"\d{4}/\d{1,2}/\d{1,2}")
 
