@@ -26,7 +26,8 @@ from pydantic.json_schema import models_json_schema
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from coplane import __version__
-from coplane.evaluate.rtk_reference import use_rtk_truth, use_truth_files
+from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.truth import use_truth_files
 from coplane.gtime import GpsTime
 from coplane.recording.manifest import load_manifest
 from coplane.recording.reader import open_recording

@@ -11,7 +11,7 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import SettingsConfigDict
 
-from coplane.evaluate.rtk_reference import Truth
+from coplane.evaluate.truth import Truth
 from coplane.ids import VEHICLE_ID_PATTERN
 from coplane.runtime import LogLevel, ServiceSettings
 

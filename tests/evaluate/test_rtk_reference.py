@@ -21,16 +21,9 @@ from typer.testing import CliRunner
 from coplane.cli import app
 from coplane.errors import ConfigError
 from coplane.evaluate.real_data import solve_receiver, static_accuracy, static_table
-from coplane.evaluate.rtk_reference import (
-    TRUTHS,
-    RtkReference,
-    missing_truth_note,
-    parse_truth,
-    rtk_reference,
-    save_truth,
-    use_truth_files,
-)
+from coplane.evaluate.rtk_reference import RtkReference, rtk_reference
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD
+from coplane.evaluate.truth import TRUTHS, missing_truth_note, parse_truth, save_truth, use_truth_files
 from coplane.recording.plan import plan_recording, write_plan
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
@@ -160,10 +153,13 @@ def test_a_recording_without_truth_is_said_to_have_none(real_data: Path, tmp_pat
     """What `coplane eval` and `coplane fleet` print instead of an empty accuracy table."""
     klt = open_recording(real_data / "hk_klt_20210610_f9p_rover_hksc_base")
     note = missing_truth_note(klt)
-    assert note.startswith("no truth in the recording for klt1:") and "--truth rtk" in note
+    assert note.startswith("no truth for klt1:") and "--truth rtk" in note and "--truth ID=FILE" in note
     assert missing_truth_note(open_recording(real_data / "matrtklib_nagoya_static_20240624")) == ""
     # without a base there is no RTK to point at
     geonet = tmp_path / "geonet"
     shutil.copytree(real_data / "rtklib_geonet_0759_3040_20050402", geonet)
     rover = open_recording(write_plan(plan_recording(geonet, vehicles={"r": Path("07590920.05o")})))
-    assert missing_truth_note(rover) == "no truth in the recording for r: no errors computed for it"
+    note = missing_truth_note(rover)
+    assert (
+        note.startswith("no truth for r: no errors computed for it; `--truth ID=FILE`") and "rtk" not in note
+    )

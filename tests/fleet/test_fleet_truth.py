@@ -12,7 +12,8 @@ from coplane.api.app import _fleet_of
 from coplane.api.settings import ApiSettings
 from coplane.errors import ConfigError
 from coplane.evaluate.evaluation import evaluate
-from coplane.evaluate.rtk_reference import save_truth, use_rtk_truth
+from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.evaluate.truth import save_truth
 from coplane.fleet import FleetOptions, free_port, run_fleet
 from coplane.fleet.launcher import fleet_services
 from coplane.recording.reader import open_recording

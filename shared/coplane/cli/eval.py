@@ -60,17 +60,19 @@ def eval_(
         ),
     ] = None,
     truth: Annotated[
-        str,
+        list[str] | None,
         typer.Option(
-            help="Where the errors are measured against: 'recording' (its truth files) or 'rtk' (RTKLIB's"
-            " carrier-phase RTK against the base, where its forward and backward runs agree; for drives"
-            " with dual-frequency RINEX and a base but no surveyed trajectory).",
+            help="What the errors are measured against: 'recording' (its truth files, the default), 'rtk'"
+            " (RTKLIB's carrier-phase RTK to the base, where its forward and backward runs agree; for drives"
+            " with dual-frequency RINEX and a base but no surveyed trajectory), and/or ID=FILE (repeatable):"
+            " vehicle ID's reference trajectory from another tool, an RTKLIB .pos (its fixed rows, if it has"
+            " any), an Inertial Explorer text export or a truth CSV.",
         ),
-    ] = "recording",
+    ] = None,
 ) -> None:
     """Run the estimators in-process and write the paper's tables and figures."""
     from coplane.evaluate.evaluation import evaluate
-    from coplane.evaluate.rtk_reference import parse_truth
+    from coplane.evaluate.truth import parse_truth_choice
     from coplane.fgo.overrides import parse_fgo_overrides
     from coplane.recording.health import health_warnings, input_health
     from coplane.recording.reader import open_recording
@@ -79,7 +81,7 @@ def eval_(
     fgo_changes = parse_fgo_overrides(fgo or [])
     if fmt not in ("", "tum"):
         raise typer.BadParameter(f"unknown --format {fmt!r} (expected tum)")
-    truth_kind = parse_truth(truth)
+    truth_choice = parse_truth_choice(truth)
     road_map = None
     if map_file is not None:
         from coplane.store.roadmap_db import RoadMapDb
@@ -99,7 +101,7 @@ def eval_(
         jobs=jobs,
         road_map=road_map,
         fgo=fgo_changes,
-        truth=truth_kind,
+        truth=truth_choice,
     )
     if fmt == "tum":
         from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum

@@ -90,12 +90,14 @@ def fleet(
         ),
     ] = None,
     truth: Annotated[
-        str,
+        list[str] | None,
         typer.Option(
-            help="What the accuracy table and the API measure against: 'recording' (its truth files) or"
-            " 'rtk' (RTKLIB's carrier-phase RTK to the recording's base, where it holds).",
+            help="What the accuracy table and the API measure against: 'recording' (its truth files, the"
+            " default), 'rtk' (RTKLIB's carrier-phase RTK to the recording's base, where it holds), and/or"
+            " ID=FILE (repeatable): vehicle ID's reference trajectory from another tool (RTKLIB .pos,"
+            " Inertial Explorer text export, truth CSV).",
         ),
-    ] = "recording",
+    ] = None,
 ) -> None:
     """Replay a recording as a fleet of processes over Zenoh and print the accuracy table.
 
@@ -103,7 +105,7 @@ def fleet(
     """
     from tqdm import tqdm
 
-    from coplane.evaluate.rtk_reference import parse_truth
+    from coplane.evaluate.truth import parse_truth_choice
     from coplane.fleet import FleetOptions, FleetProcesses, run_fleet
     from coplane.runtime import STOP_GRACE_S, exit_code, stop_signals
 
@@ -132,7 +134,7 @@ def fleet(
         servers=servers,
         routers=routers,
         cluster_workers=cluster_workers,
-        truth=parse_truth(truth),
+        truth=parse_truth_choice(truth),
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

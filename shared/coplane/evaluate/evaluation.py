@@ -23,9 +23,9 @@ from coplane.evaluate.report import (
     write_solutions,
     write_tables,
 )
-from coplane.evaluate.rtk_reference import Truth, missing_truth_note, use_rtk_truth
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
 from coplane.evaluate.runner import MethodRun, run_method
+from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note
 from coplane.methods import get_method
 from coplane.recording.reader import Recording
 
@@ -60,23 +60,23 @@ def evaluate(
     jobs: int | None = None,
     road_map: RoadMap | None = None,
     fgo: dict[str, object] | None = None,
-    truth: Truth = "recording",
+    truth: Truth | TruthChoice = "recording",
 ) -> Evaluation:
     """Every method at rate 0; methods that use ranging also at each rate > 0 (paper 5.3). `fgo`:
     factor-graph settings changed for every FGO method (`--fgo`; the baselines have none).
-    `truth="rtk"`: every vehicle's truth is RTKLIB's RTK against the base, where it gives one
-    (`evaluate.rtk_reference`), for recordings with carrier phase but no surveyed trajectory."""
+    `truth`: what the errors are measured against (`evaluate.truth`): "rtk" makes every
+    vehicle's truth RTKLIB's RTK against the base, where it gives one, for recordings with carrier
+    phase but no surveyed trajectory; a TruthChoice's files replace the named vehicles' truth."""
     # validate names (and settings) first
     specs = [None if m == RTKLIB_METHOD else get_method(m, fgo=fgo) for m in methods]
     if dgnss and rec.manifest.base is None and any(s is not None for s in specs):
         # the runner would refuse too, but only after the methods before it had run
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")
     ev = Evaluation(recording=rec.manifest.name)
-    if truth == "rtk":
-        ev.notes["truth"] = use_rtk_truth(rec)
+    notes = [n for n in (apply_truth(rec, truth), missing_truth_note(rec)) if n]
+    if notes:
+        ev.notes["truth"] = "; ".join(notes)
         log.info("%s", ev.notes["truth"])
-    elif note := missing_truth_note(rec):
-        ev.notes["truth"] = note
     if fgo:  # in accuracy.json too: these are not the methods' defaults
         changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
         ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"

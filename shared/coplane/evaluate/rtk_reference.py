@@ -19,7 +19,6 @@ import math
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
@@ -27,23 +26,9 @@ from coplane.errors import ConfigError
 from coplane.evaluate.rtklib_row import postpos_files, rtklib_options, rtklib_unavailable, run_postpos
 from coplane.gtime import GpsTime
 from coplane.recording.compressed import file_format
-from coplane.recording.csvfiles import read_truth, write_truth
 from coplane.recording.reader import Recording
 from coplane.recording.trajectories import Q_FIX, Q_FLOAT
 from coplane.typing import Vec
-
-# What accuracy is measured against (`--truth` of `coplane eval`, `coplane fleet` and the API): the
-# recording's truth files, or RTKLIB's RTK reference (`use_rtk_truth`)
-Truth = Literal["recording", "rtk"]
-TRUTHS: tuple[Truth, ...] = ("recording", "rtk")
-
-
-def parse_truth(text: str) -> Truth:
-    """`text` (a `--truth` option) as a Truth; ConfigError naming the choices otherwise."""
-    for truth in TRUTHS:
-        if text == truth:
-            return truth
-    raise ConfigError(f"--truth must be one of {', '.join(TRUTHS)}, got {text!r}")
 
 
 @dataclass
@@ -135,48 +120,3 @@ def use_rtk_truth(rec: Recording) -> str:
             "(it needs carrier phase on two frequencies in the vehicles' and the base's RINEX)"
         )
     return "errors against RTKLIB's RTK, not a surveyed truth: " + "; ".join(notes)
-
-
-def missing_truth_note(rec: Recording) -> str:
-    """The line that says which vehicles have no truth in the recording (no errors for them) and,
-    with a base, how to get one; "" when every vehicle has truth."""
-    missing = [v.id for v in rec.manifest.vehicles if v.truth is None]
-    if not missing:
-        return ""
-    hint = (
-        "; `--truth rtk` measures against RTKLIB's carrier-phase RTK to the base where it holds"
-        if rec.manifest.base is not None
-        else ""
-    )
-    them = "it" if len(missing) == 1 else "them"
-    return f"no truth in the recording for {', '.join(missing)}: no errors computed for {them}{hint}"
-
-
-def save_truth(rec: Recording, directory: Path) -> Path:
-    """Every vehicle's truth as `<vehicle>.csv` (the recording format's truth files) in `directory`.
-
-    How `coplane fleet --truth rtk` hands the API the reference it made: RTKLIB's two runs per
-    vehicle take longer than the replay's start, so they are made once (`use_truth_files`).
-    """
-    directory.mkdir(parents=True, exist_ok=True)
-    for v in rec.manifest.vehicles:
-        write_truth(directory / f"{v.id}.csv", rec.truth(v.id))  # with their environment labels
-    return directory
-
-
-def use_truth_files(rec: Recording, directory: Path) -> str:
-    """Replace every vehicle's truth by `directory/<vehicle>.csv` where that file exists (`save_truth`);
-    the line that says what was used. Bad rows are reported, counted in `rec.problems` and skipped."""
-    if not directory.is_dir():
-        raise ConfigError(f"truth directory {directory} does not exist")
-    used = []
-    bad_before = rec.problems.total
-    for v in rec.manifest.vehicles:
-        path = directory / f"{v.id}.csv"
-        if path.is_file():
-            points = read_truth(path, rec.problems)
-            rec.use_truth(v.id, {p.time: p.ecef_m for p in points}, {p.time: p.environment for p in points})
-            used.append(f"{v.id}: {len(points)} epochs")
-    if bad := rec.problems.total - bad_before:
-        used.append(f"{bad} bad rows skipped")
-    return f"truth files in {directory} ({'; '.join(used) or 'none for these vehicles'})"

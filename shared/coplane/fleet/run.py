@@ -29,8 +29,8 @@ from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecu
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_solutions
-from coplane.evaluate.rtk_reference import Truth, missing_truth_note, parse_truth, save_truth, use_rtk_truth
 from coplane.evaluate.runner import MethodRun
+from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note, save_truth
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
     FleetProcesses,
@@ -80,7 +80,9 @@ class FleetOptions:
     servers: int = 1  # fusion servers sharing the fleet by region (docs/scale.md)
     routers: int = 1  # Zenoh routers in a mesh; servers and agents take them in turn
     cluster_workers: int = 1  # processes per fusion server solving its clusters (same estimates)
-    truth: Truth = "recording"  # or "rtk": RTKLIB's RTK reference (`evaluate.rtk_reference`), API too
+    # "rtk": RTKLIB's RTK reference; a TruthChoice's files: other tools' references (`evaluate.truth`)
+    # for the accuracy table and the API alike
+    truth: Truth | TruthChoice = "recording"
     # how long the replay waits for the API to listen: it loads its solutions log first (up to
     # ~30 s at the default size); after that the replay starts anyway, with a warning
     api_start_timeout_s: float = 60.0
@@ -130,7 +132,7 @@ class FleetResult:
     input_problems: dict[str, int] = field(default_factory=dict)  # what the recording's reader found
     input_health: InputHealth | None = None  # records kept vs problems (`--strict`)
     nmea_ports: dict[str, int] = field(default_factory=dict)  # vehicle -> NMEA TCP port (--nmea-port)
-    truth_note: str = ""  # what the truth was (`--truth rtk`), or which vehicles have none
+    truth_note: str = ""  # what the truth was (`--truth rtk|ID=FILE`), or which vehicles have none
 
 
 Progress = Callable[[int, int], None]  # (epochs solved so far, epochs in the replay)
@@ -160,8 +162,9 @@ def run_fleet(
     stop = stop or threading.Event()
     path = o.recording.resolve()
     rec = open_recording(path)
-    # a recording without a base or RTKLIB is refused here, before any process starts
-    truth_note = use_rtk_truth(rec) if parse_truth(o.truth) == "rtk" else ""
+    # a recording without a base or RTKLIB, or a reference file that cannot be read, is refused
+    # here, before any process starts
+    truth_note = apply_truth(rec, o.truth)
     fleet_name, vehicles = fleet_of(path)
     if not 1 <= o.servers <= MAX_FLEET_SERVERS:
         raise ConfigError(f"--servers must be in 1..{MAX_FLEET_SERVERS}, got {o.servers}")
@@ -279,7 +282,7 @@ def run_fleet(
                 input_problems=dict(rec.problems.counts),
                 input_health=input_health(rec),
                 nmea_ports=dict(nmea.ports) if nmea is not None else {},
-                truth_note=truth_note or missing_truth_note(rec),
+                truth_note="; ".join(n for n in (truth_note, missing_truth_note(rec)) if n),
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)

@@ -61,6 +61,7 @@ class Recording:
         self._logs = LogCache(self.problems, signals, uses)
         self._uwb: list[UwbRange] | None = None
         self._truth: dict[str, list[TruthPoint]] = {}
+        self._truth_file: dict[str, Path] = {}  # where a truth given later came from (`use_truth_points`)
         self._truth_at: dict[str, dict[GpsTime, tuple[float, float, float]]] = {}
         self._env_at: dict[str, dict[GpsTime, str]] = {}
         self._fleet: list[FleetEpoch] | None = None
@@ -188,6 +189,15 @@ class Recording:
         self._truth_at[vid] = rows
         self._env_at[vid] = {t: env.get(t, "") for t in rows}
 
+    def use_truth_points(self, vid: str, points: list[TruthPoint], source: Path) -> None:
+        """Replace the vehicle's truth with `points` read from `source`, another tool's reference
+        (`coplane eval --truth ID=FILE`): matched to nominal epochs as the recording's own are."""
+        self.manifest.vehicle(vid)  # KeyError for a vehicle the recording lacks
+        self._truth[vid] = list(points)
+        self._truth_file[vid] = source
+        self._truth_at.pop(vid, None)
+        self._env_at.pop(vid, None)
+
     def truth_at(self, vid: str) -> dict[GpsTime, tuple[float, float, float]]:
         """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
         if vid not in self._truth_at:
@@ -195,13 +205,14 @@ class Recording:
             env: dict[GpsTime, str] = {}
             tol = MATCH_FRACTION * self.manifest.interval_s
             unmatched: list[GpsTime] = []
+            source = self._truth_file.get(vid) or self.manifest.vehicle(vid).truth or ""
             for p in self.truth(vid):
                 t = self.nominal(p.time)
                 if abs(p.time - t) > tol:
                     unmatched.append(p.time)
                 elif t in out:
                     self.problems.add(
-                        self.manifest.vehicle(vid).truth or "",
+                        source,
                         None,
                         "duplicate-row",
                         f"truth row at {p.time} matches nominal epoch {t} already matched: skipped",
@@ -211,7 +222,7 @@ class Recording:
                     env[t] = p.environment
             if unmatched:
                 self.problems.add(
-                    self.manifest.vehicle(vid).truth or "",
+                    source,
                     None,
                     "unmatched-row",
                     f"{len(unmatched)} truth row(s) farther than {tol:g} s from any nominal epoch "

@@ -27,7 +27,7 @@ import numpy as np
 
 from coplane.geo import enu_rotation, geodetic_to_ecef
 from coplane.gtime import SECONDS_PER_WEEK, GpsTime, gps_minus_utc_s
-from coplane.recording.csvfiles import EARTH_RADIUS_BOUNDS_M
+from coplane.recording.csvfiles import EARTH_RADIUS_BOUNDS_M, read_truth
 from coplane.recording.model import TruthPoint
 from coplane.recording.problems import Problems, RecordingError
 from coplane.typing import Vec
@@ -59,7 +59,7 @@ class Trajectory:
 
     points: list[TruthPoint]
     qualities: Counter[int] = field(default_factory=Counter)
-    kind: str = "RTKLIB .pos"  # or "Inertial Explorer text"
+    kind: str = "RTKLIB .pos"  # or "Inertial Explorer text", "coplane truth CSV"
     left_out: int = 0
 
     def describe(self) -> str:
@@ -68,7 +68,8 @@ class Trajectory:
             flags = ", ".join(f"{Q_NAMES.get(q, f'Q={q}')} {k}" for q, k in sorted(self.qualities.items()))
         else:
             flags = ", ".join(f"Q{q} {k}" for q, k in sorted(self.qualities.items()))
-        text = f"{len(self.points)} points from an {self.kind} file ({flags or 'no quality column'})"
+        article = "a" if self.kind.startswith("coplane") else "an"  # "an RTKLIB", "an Inertial"
+        text = f"{len(self.points)} points from {article} {self.kind} file ({flags or 'no quality column'})"
         if self.left_out:
             text += f"; {self.left_out} rows without a fixed ambiguity left out"
         elif self.kind.startswith("RTKLIB") and Q_FIX not in self.qualities:
@@ -334,8 +335,8 @@ def _angle(tokens: list[str], col: tuple[int, int]) -> float:
 
 
 def read_trajectory(path: str | Path, problems: Problems) -> Trajectory:
-    """A reference trajectory from an RTKLIB .pos or an Inertial Explorer export (`sniff`), points
-    in increasing time.
+    """A reference trajectory from an RTKLIB .pos, an Inertial Explorer export or coplane's own
+    truth CSV (`sniff`), points in increasing time.
 
     An RTKLIB file with fixed solutions is an RTK or PPK reference: only its fixed rows are taken,
     as a float or code row can be metres off and would be scored as the truth. Its rows are sorted
@@ -345,8 +346,8 @@ def read_trajectory(path: str | Path, problems: Problems) -> Trajectory:
     kind = sniff(path)
     if kind == "ie":
         return Trajectory(*read_inertial_explorer(path, problems), kind="Inertial Explorer text")
-    if kind != "pos":
-        raise RecordingError(f"{path}: coplane's own truth CSV needs no conversion")
+    if kind == "csv":
+        return Trajectory(read_truth(path, problems), kind="coplane truth CSV")
     records = read_pos(path, problems)
     quality = Counter(r.quality for r in records)
     keep = [r for r in records if r.quality == Q_FIX] if Q_FIX in quality else records

@@ -1,0 +1,154 @@
+"""What accuracy is measured against: `--truth` of `coplane eval` and `coplane fleet`, and the API's.
+
+Three sources, per vehicle:
+- the recording's truth files (the default);
+- RTKLIB's carrier-phase RTK against the recording's base (`rtk`: `rtk_reference`), for a drive
+  with dual-frequency RINEX and no surveyed trajectory;
+- another tool's reference trajectory named for one vehicle (`ID=FILE`): an RTKLIB `.pos` (its
+  fixed rows, when it has any), an Inertial Explorer text export (UrbanNav's ground truth) or a
+  truth CSV (`recording.trajectories`). A user who has such a file does not have to write it into
+  the recording first (`recording init --truth` does that for good).
+
+A fleet hands whatever it measured against to its API as a directory of truth CSVs
+(`save_truth` / `use_truth_files`), so the API does not make it a second time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from coplane.errors import ConfigError
+from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.recording.csvfiles import read_truth, write_truth
+from coplane.recording.problems import RecordingError
+from coplane.recording.reader import Recording
+from coplane.recording.trajectories import read_trajectory
+
+# The source for every vehicle: the recording's truth files, or RTKLIB's RTK reference
+Truth = Literal["recording", "rtk"]
+TRUTHS: tuple[Truth, ...] = ("recording", "rtk")
+
+
+@dataclass(frozen=True)
+class TruthChoice:
+    """`source` for every vehicle, then `files` (vehicle -> reference trajectory file) in place of
+    it for the vehicles they name."""
+
+    source: Truth = "recording"
+    files: tuple[tuple[str, Path], ...] = ()
+
+
+def parse_truth(text: str) -> Truth:
+    """`text` (a `--truth` option) as a Truth; ConfigError naming the choices otherwise."""
+    for truth in TRUTHS:
+        if text == truth:
+            return truth
+    raise ConfigError(f"--truth must be one of {', '.join(TRUTHS)}, got {text!r}")
+
+
+def parse_truth_choice(values: Sequence[str] | None) -> TruthChoice:
+    """The `--truth` options of `coplane eval` / `coplane fleet`: at most one of the sources'
+    names, and any number of ID=FILE; ConfigError naming the bad value otherwise. Files are only
+    named here; they are read when applied to a recording (`apply_truth`)."""
+    sources: list[Truth] = []
+    files: dict[str, Path] = {}
+    for value in values or []:
+        ident, sep, name = value.partition("=")
+        if not sep:
+            sources.append(parse_truth(value))
+            continue
+        if not ident or not name:
+            raise ConfigError(f"--truth {value!r}: expected recording, rtk or ID=FILE")
+        if ident in files:
+            raise ConfigError(f"--truth: {ident!r} given twice")
+        files[ident] = Path(name)
+    if len(sources) > 1:
+        raise ConfigError(f"--truth: one source for every vehicle, got {', '.join(sources)}")
+    return TruthChoice(sources[0] if sources else "recording", tuple(files.items()))
+
+
+def apply_truth(rec: Recording, choice: Truth | TruthChoice) -> str:
+    """Make `choice` the truth of `rec`'s vehicles; the line that says what it is ("" for the
+    recording's own files). ConfigError, with the reason, when a reference cannot be made or read."""
+    if not isinstance(choice, TruthChoice):
+        choice = TruthChoice(choice)
+    notes = [use_rtk_truth(rec)] if choice.source == "rtk" else []
+    if choice.files:
+        notes.append(use_reference_files(rec, dict(choice.files)))
+    return "; ".join(notes)
+
+
+def use_reference_files(rec: Recording, files: Mapping[str, Path]) -> str:
+    """Replace each named vehicle's truth by its reference trajectory file (`recording.trajectories`:
+    RTKLIB .pos, Inertial Explorer text, truth CSV); the line that says what each gave. Bad rows
+    are counted in `rec.problems` and skipped; a vehicle the recording lacks, a file that cannot be
+    read or one without a usable point is a ConfigError naming it."""
+    known = [v.id for v in rec.manifest.vehicles]
+    notes = []
+    for vid, path in files.items():
+        if vid not in known:
+            raise ConfigError(f"--truth {vid}={path}: no such vehicle (vehicles: {', '.join(known)})")
+        bad_before, items_before = rec.problems.total, len(rec.problems.items)
+        try:
+            trajectory = read_trajectory(path, rec.problems)
+        except RecordingError as exc:
+            raise ConfigError(f"--truth {vid}={path}: {exc}") from exc
+        bad = rec.problems.total - bad_before
+        if not trajectory.points:
+            first = rec.problems.items[items_before:][:1]
+            detail = f", the first: {first[0]}" if first else ""
+            raise ConfigError(f"--truth {vid}={path}: no usable point ({bad} bad rows{detail})")
+        rec.use_truth_points(vid, trajectory.points, path)
+        skipped = f", {bad} bad rows skipped" if bad else ""
+        matched = len(rec.truth_at(vid))
+        notes.append(
+            f"{vid}: {trajectory.describe()} ({path.name}{skipped}), {matched} at the recording's epochs"
+        )
+    return "reference files: " + "; ".join(notes)
+
+
+def missing_truth_note(rec: Recording) -> str:
+    """The line that says which vehicles have no truth (no errors for them) and how to get one;
+    "" when every vehicle has truth."""
+    missing = [v.id for v in rec.manifest.vehicles if not rec.truth(v.id)]
+    if not missing:
+        return ""
+    hint = "; `--truth ID=FILE` measures against a reference trajectory (RTKLIB .pos, Inertial Explorer text)"
+    if rec.manifest.base is not None:
+        hint += ", `--truth rtk` against RTKLIB's carrier-phase RTK to the base where it holds"
+    them = "it" if len(missing) == 1 else "them"
+    return f"no truth for {', '.join(missing)}: no errors computed for {them}{hint}"
+
+
+def save_truth(rec: Recording, directory: Path) -> Path:
+    """Every vehicle's truth as `<vehicle>.csv` (the recording format's truth files) in `directory`.
+
+    How `coplane fleet --truth rtk|ID=FILE` hands the API the reference it made or read: RTKLIB's
+    two runs per vehicle take longer than the replay's start, so they are made once
+    (`use_truth_files`).
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    for v in rec.manifest.vehicles:
+        write_truth(directory / f"{v.id}.csv", rec.truth(v.id))  # with their environment labels
+    return directory
+
+
+def use_truth_files(rec: Recording, directory: Path) -> str:
+    """Replace every vehicle's truth by `directory/<vehicle>.csv` where that file exists (`save_truth`);
+    the line that says what was used. Bad rows are reported, counted in `rec.problems` and skipped."""
+    if not directory.is_dir():
+        raise ConfigError(f"truth directory {directory} does not exist")
+    used = []
+    bad_before = rec.problems.total
+    for v in rec.manifest.vehicles:
+        path = directory / f"{v.id}.csv"
+        if path.is_file():
+            points = read_truth(path, rec.problems)
+            rec.use_truth(v.id, {p.time: p.ecef_m for p in points}, {p.time: p.environment for p in points})
+            used.append(f"{v.id}: {len(points)} epochs")
+    if bad := rec.problems.total - bad_before:
+        used.append(f"{bad} bad rows skipped")
+    return f"truth files in {directory} ({'; '.join(used) or 'none for these vehicles'})"
