@@ -62,6 +62,10 @@ class VehicleSummary(_Out):
     plane_used: bool | None = None
     n_satellites: int | None = None
     n_pseudoranges: int | None = None
+    excluded_satellites: list[str] | None = Field(
+        default=None,
+        description="The satellites the estimator left out of this epoch (FDE, gate, dead reckoning)",
+    )
     n_ranges: int | None = None
     dgnss_age_s: float | None = Field(
         default=None, description="Age of the base corrections this state's SPP used (None: no DGNSS)"

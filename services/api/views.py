@@ -63,6 +63,7 @@ def _summary_fields(v: StoredVehicle, now: float) -> dict[str, object]:
         plane_used=s.plane_used,
         n_satellites=s.n_satellites,
         n_pseudoranges=s.n_pseudoranges,
+        excluded_satellites=list(s.excluded_satellites),
         n_ranges=s.n_ranges,
         dgnss_age_s=s.dgnss_age_s,
         error_h_m=v.error[0] if v.error else None,

@@ -247,6 +247,9 @@ class VehicleState(_Model):
     n_satellites: int = Field(default=0, ge=0)
     spp_ok: bool = False
     dgnss_age_s: float | None = None  # age of the base corrections this epoch's SPP used
+    # the node's pseudoranges the estimator left out (FDE, gate, cooperative check, dead
+    # reckoning): n_satellites - n_pseudoranges of them, by name
+    excluded_satellites: list[SatId] = Field(default_factory=list, max_length=MAX_SATELLITES)
 
 
 class SolutionMessage(_Model):

@@ -87,6 +87,11 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
     for row in rows:
         assert 0.0 < float(row["sigma_h_m"]) < 50.0 and 0.0 < float(row["sigma_v_m"]) < 50.0
         assert 0 <= int(row["n_pseudoranges"]) <= int(row["n_satellites"]) and row["gnss_fix"] in ("0", "1")
+        # the satellites left out, by name: as many as the node used and the estimator did not
+        excluded = row["excluded"].split()
+        assert len(excluded) == int(row["n_satellites"]) - int(row["n_pseudoranges"]) and excluded == sorted(
+            excluded
+        )
         assert int(row["n_ranges"]) >= 0
         assert row["plane"] == "used" or row["plane"].startswith(("unavailable: ", "available"))
         assert row["plane_source"] in ("fleet", "") and (

@@ -194,10 +194,10 @@ class DdCpEkf(BaselineEstimator):
                 for v in rows.groups[i][2]:
                     dd_per_vehicle[v] += 1
         for vid in sorted(meas):
-            n_pr = len(good[vid]) if keep else 0
-            if n_pr:
+            used = good[vid] if keep else good[vid].subset([])
+            if len(used):
                 filt.last_gnss[vid] = t
-            out.estimates[vid] = vehicle_estimate(filt, vid, t, n_pr)
+            out.estimates[vid] = vehicle_estimate(filt, vid, t, meas[vid], used)
         counts["dd_vehicles"] = len(dd_per_vehicle)
 
     def _dd_rows(self, rows: Rows, good: dict[str, VehicleMeasurements], counts: Counter[str]) -> None:

@@ -14,7 +14,7 @@ from coplane.baselines.fleet_filter import EkfConfig, FleetFilter
 from coplane.baselines.measurements import VehicleMeasurements, vehicle_measurements
 from coplane.baselines.rows import Rows
 from coplane.baselines.skeleton import BaselineEstimator, EpochOutcome
-from coplane.estimation.contract import VehicleEstimate
+from coplane.estimation.contract import VehicleEstimate, left_out
 from coplane.estimation.validate import ValidEpoch
 from coplane.gtime import GpsTime
 
@@ -48,8 +48,10 @@ def gate_pseudoranges(
 
 
 def vehicle_estimate(
-    filt: FleetFilter, vid: str, t: GpsTime, n_pr: int, n_ranges: int = 0
+    filt: FleetFilter, vid: str, t: GpsTime, given: VehicleMeasurements, used: VehicleMeasurements
 ) -> VehicleEstimate:
+    """The filter's state of `vid`, with `used` the pseudoranges of `given` it applied."""
+    n_pr = len(used)
     return VehicleEstimate(
         vehicle_id=vid,
         time=t,
@@ -57,9 +59,9 @@ def vehicle_estimate(
         covariance_m2=filt.position_cov(vid),
         clocks_s=filt.clocks_s(vid),
         n_pseudoranges=n_pr,
-        n_ranges=n_ranges,
         plane_used=False,
         has_gnss_fix=n_pr >= filt.config.min_fix_pseudoranges,
+        excluded_satellites=left_out(given.sats, used.sats),
     )
 
 
@@ -150,4 +152,4 @@ def ekf_update_vehicle(
         filt.last_gnss[vid] = t
     for i in keep:
         counts[rows.groups[i][1]] += 1
-    return vehicle_estimate(filt, vid, t, n_pr), good
+    return vehicle_estimate(filt, vid, t, m, good), good

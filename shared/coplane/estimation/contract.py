@@ -6,7 +6,7 @@ message, so the estimator can be fed from the bus, from `coplane eval` or from a
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -130,6 +130,15 @@ class VehicleEstimate:
     n_ranges: int = 0
     plane_used: bool = False
     has_gnss_fix: bool = True  # False: carried by velocity/plane/ranging only
+    # the node's well-formed pseudoranges the estimator left out of this epoch (its FDE or
+    # innovation gate, the cooperative check, a dead-reckoned epoch), sorted: `left_out`
+    excluded_satellites: tuple[str, ...] = ()
+
+
+def left_out(given: Sequence[str], kept: Sequence[str]) -> tuple[str, ...]:
+    """The satellites of `given` not in `kept`, sorted: what `VehicleEstimate.excluded_satellites`
+    reports, so that a user sees which satellites an epoch's estimate did without."""
+    return tuple(sorted(set(given) - set(kept)))
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ SOLUTION_COLUMNS = [
     "sigma_v_m",
     "n_satellites",  # used by the vehicle's SPP
     "n_pseudoranges",  # of those, kept by the estimator (the rest its FDE excluded)
+    "excluded",  # the ones it left out, space-separated (e.g. "C07 G12")
     "n_ranges",
     "gnss_fix",
     "plane",  # used, or the plane's status when not used (available, unavailable: reason), or none
@@ -112,6 +113,7 @@ def _why(run: MethodRun, vid: str, t: GpsTime, p: Vec, cov: Vec | None) -> list[
         *sigmas,
         count(run.satellites),
         count(run.pseudoranges_used),
+        " ".join(run.excluded.get(vid, {}).get(t, ())),
         count(run.ranges_used),
         "" if fix is None else str(int(fix)),
         state,

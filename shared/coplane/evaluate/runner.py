@@ -48,6 +48,7 @@ class MethodRun:
     # the satellites the vehicle's SPP used, and the pseudoranges the estimator kept of them
     satellites: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     pseudoranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
+    excluded: dict[str, dict[GpsTime, tuple[str, ...]]] = field(default_factory=lambda: defaultdict(dict))
     solve_times_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     n_epochs: int = 0
@@ -191,3 +192,4 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
         run.gnss_fix[v.vehicle_id][t] = v.has_gnss_fix
         run.satellites[v.vehicle_id][t] = v.n_satellites
         run.pseudoranges_used[v.vehicle_id][t] = v.n_pseudoranges
+        run.excluded[v.vehicle_id][t] = tuple(v.excluded_satellites)

@@ -101,4 +101,5 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
         bias_keys=bias_keys,
         common_cov=p.common_cov,
         fde_dropped=p.fde_dropped,
+        excluded=p.excluded,
     )

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate, VehicleSeed
+from coplane.estimation.contract import EpochInput, FleetSolution, VehicleEstimate, VehicleSeed, left_out
 from coplane.estimation.validate import ValidRange, out_of_order_reason, skipped_epoch, validate_epoch
 from coplane.fgo import factors as F
 from coplane.fgo.blocks import build_block
@@ -146,6 +146,8 @@ class FusionEstimator:
 
         rec = StepRecord(k, t, {}, [])
         for vid in sorted(preps):
+            # after every exclusion (FDE, cooperative check, dead reckoning): what the user sees
+            preps[vid].excluded = left_out(valid.vehicles[vid].pseudoranges.sats, preps[vid].prs.sats)
             blk = build_block(preps[vid], k, t, st.keys, cfg)
             if self._settle:
                 blk.settle()
@@ -336,6 +338,7 @@ class FusionEstimator:
                 n_ranges=n_ranges.get(vid, 0),
                 plane_used=blk.plane_used,
                 has_gnss_fix=blk.has_fix,
+                excluded_satellites=blk.excluded,
             )
         return estimates
 

@@ -70,6 +70,7 @@ class Prepared:
     common_cov: Mat | None = None
     kernel: bool = True  # its pseudoranges take the robust kernel (`FgoConfig.robust_warmup_epochs`)
     fde_dropped: bool = False  # every pseudorange dropped by FgoConfig.fde_snapshot_dead_reckon
+    excluded: tuple[str, ...] = ()  # the validated pseudoranges left out (`contract.left_out`)
 
 
 def prepare_vehicle(

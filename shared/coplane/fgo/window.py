@@ -86,6 +86,7 @@ class StateBlock:
     bias_keys: dict[str, int] = field(default_factory=dict)
     common_cov: Mat | None = None  # Prepared.common_cov: added to the reported covariance only
     fde_dropped: bool = False  # Prepared.fde_dropped: its pseudoranges all dropped, by rule
+    excluded: tuple[str, ...] = ()  # Prepared.excluded: reported with the estimate
     _graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property

@@ -191,6 +191,7 @@ class FusionStep:
                     n_satellites=sum(1 for s in msg.satellites if s.used),
                     spp_ok=msg.spp.ok,
                     dgnss_age_s=msg.spp.dgnss_age_s,
+                    excluded_satellites=list(est.excluded_satellites),
                 )
             )
         out = SolutionMessage(
