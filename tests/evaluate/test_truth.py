@@ -43,15 +43,17 @@ def _pos_file(path: Path, sim: Path, vid: str, up_m: float = 0.0, garbage: bool 
     return path
 
 
-def test_truth_options_parse_into_one_source_and_files() -> None:
+def test_truth_options_parse_into_one_source_and_references() -> None:
     assert parse_truth_choice(None) == TruthChoice("recording", ())
     assert parse_truth_choice(["rtk", "u1=a.pos", "u2=b.txt"]) == TruthChoice(
         "rtk", (("u1", Path("a.pos")), ("u2", Path("b.txt")))
     )
+    ((_, point),) = parse_truth_choice(["u1=35.0,137.0,50.0"]).references  # lat, lon, h
+    assert isinstance(point, tuple) and abs(float(np.linalg.norm(point)) - 6371e3) < 30e3
     for bad, match in (
         (["rtk", "recording"], "one source for every vehicle"),
         (["u1=a.pos", "u1=b.pos"], "'u1' given twice"),
-        (["=a.pos"], "expected recording, rtk or ID=FILE"),
+        (["=a.pos"], "expected recording, rtk, ID=FILE or ID=x,y,z"),
         (["RTK"], "must be one of recording, rtk"),
     ):
         with pytest.raises(ConfigError, match=match):
@@ -64,7 +66,7 @@ def test_a_reference_file_replaces_one_vehicles_truth(sim: Path, tmp_path: Path)
     own = evaluate(open_recording(sim), ["non-cp"]).stats["non-cp"]
     same = _pos_file(tmp_path / "same.pos", sim, "u1", garbage=True)
     rec = open_recording(sim)
-    ev = evaluate(rec, ["non-cp"], truth=TruthChoice(files=(("u1", same),)))
+    ev = evaluate(rec, ["non-cp"], truth=TruthChoice(references=(("u1", same),)))
     got = ev.stats["non-cp"]
     assert got["u1"].n_truth == own["u1"].n_truth and got["u1"].h_rmse_m == pytest.approx(
         own["u1"].h_rmse_m, abs=1e-4
@@ -75,7 +77,9 @@ def test_a_reference_file_replaces_one_vehicles_truth(sim: Path, tmp_path: Path)
     assert rec.problems.total == 1 and "same.pos:5" in str(rec.problems.items[0])
 
     up = _pos_file(tmp_path / "up.pos", sim, "u1", up_m=2.0)
-    moved = evaluate(open_recording(sim), ["non-cp"], truth=TruthChoice(files=(("u1", up),))).stats["non-cp"]
+    moved = evaluate(open_recording(sim), ["non-cp"], truth=TruthChoice(references=(("u1", up),))).stats[
+        "non-cp"
+    ]
     assert moved["u1"].v_bias_m == pytest.approx(own["u1"].v_bias_m - 2.0, abs=1e-3)
 
 
@@ -84,20 +88,22 @@ def test_a_reference_that_gives_nothing_stops_before_any_method(sim: Path, tmp_p
     empty = tmp_path / "empty.pos"
     empty.write_text(XYZ_HEADER + "\n2300 junk 1 2 3 1 12\n")
     for choice, match in (
-        (TruthChoice(files=(("u9", empty),)), "--truth u9=.*no such vehicle"),
+        (TruthChoice(references=(("u9", empty),)), "--truth u9=.*no such vehicle"),
         (
-            TruthChoice(files=(("u1", empty),)),
+            TruthChoice(references=(("u1", empty),)),
             "--truth u1=.*empty.pos: no usable point \\(1 bad rows, the first: .*empty.pos:2",
         ),
-        (TruthChoice(files=(("u1", tmp_path / "missing.pos"),)), "missing.pos: cannot read"),
-        (TruthChoice(files=(("u1", sim / "fleet.toml"),)), "not a trajectory coplane reads"),
+        (TruthChoice(references=(("u1", tmp_path / "missing.pos"),)), "missing.pos: cannot read"),
+        (TruthChoice(references=(("u1", sim / "fleet.toml"),)), "not a trajectory coplane reads"),
     ):
         with pytest.raises(ConfigError, match=match):
             apply_truth(rec, choice)
     # the fleet refuses it before a process starts
     with pytest.raises(ConfigError, match="no usable point"):
         run_fleet(
-            FleetOptions(recording=sim, api=False, insecure=True, truth=TruthChoice(files=(("u1", empty),)))
+            FleetOptions(
+                recording=sim, api=False, insecure=True, truth=TruthChoice(references=(("u1", empty),))
+            )
         )
 
 
@@ -108,7 +114,7 @@ def test_eval_takes_reference_files_on_the_command_line(sim: Path, tmp_path: Pat
         app, ["eval", str(sim), "--methods", "non-cp", "--truth", f"u2={up}", "--out", str(out)]
     )
     assert r.exit_code == 0, r.output
-    assert "reference files: u2: 12 points from an RTKLIB .pos file" in " ".join(r.output.split())
+    assert "references: u2: 12 points from an RTKLIB .pos file" in " ".join(r.output.split())
     acc = json.loads((out / "accuracy.json").read_text())
     assert acc
     bad = runner.invoke(app, ["eval", str(sim), "--methods", "non-cp", "--truth", "u2", "--out", str(out)])
@@ -124,7 +130,7 @@ def test_the_fleet_and_its_api_measure_against_a_reference_file(sim: Path, tmp_p
     from coplane.fleet.launcher import free_port
 
     up = _pos_file(tmp_path / "up.pos", sim, "u1", up_m=2.0)
-    choice = TruthChoice(files=(("u1", up),))
+    choice = TruthChoice(references=(("u1", up),))
     port, seen = free_port(), []
     res = run_fleet(
         FleetOptions(
@@ -140,9 +146,27 @@ def test_the_fleet_and_its_api_measure_against_a_reference_file(sim: Path, tmp_p
             httpx.get(f"http://127.0.0.1:{port}/accuracy", timeout=10).json()["entries"]
         ),
     )
-    assert "reference files: u1:" in res.truth_note
+    assert "references: u1:" in res.truth_note
     ref = evaluate(open_recording(sim), ["non-cp"], truth=choice).stats["non-cp"]["u1"]
     st = res.stats["u1"]
     assert (st.n_truth, st.h_rmse_m, st.v_bias_m) == (ref.n_truth, ref.h_rmse_m, ref.v_bias_m)
     api = next(e for e in seen if e["vehicle_id"] == "u1")
     assert api["v_bias_m"] == pytest.approx(st.v_bias_m, abs=1e-4)
+
+
+@pytest.mark.realdata
+def test_a_surveyed_point_is_the_truth_of_a_static_receiver(real_data: Path) -> None:
+    """`--truth ID=lat,lon,h` on a real static set: Nagoya's rover at its published position
+    gives the recording's own truth (made from the same point) to the millimetre."""
+    nagoya = real_data / "matrtklib_nagoya_static_20240624"
+    own = evaluate(open_recording(nagoya), ["non-cp"]).stats["non-cp"]["rover"]
+    choice = parse_truth_choice(["rover=35.13469901,136.97757549,104.8626"])
+    rec = open_recording(nagoya)
+    ev = evaluate(rec, ["non-cp"], truth=choice)
+    got = ev.stats["non-cp"]["rover"]
+    assert (
+        got.n_truth == own.n_truth == 301 and "rover: a surveyed point at its 301 epochs" in ev.notes["truth"]
+    )
+    assert got.h_rmse_m == pytest.approx(own.h_rmse_m, abs=1e-3) and got.v_rmse_m == pytest.approx(
+        own.v_rmse_m, abs=1e-3
+    )

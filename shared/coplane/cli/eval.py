@@ -66,7 +66,8 @@ def eval_(
             " (RTKLIB's carrier-phase RTK to the base, where its forward and backward runs agree; for drives"
             " with dual-frequency RINEX and a base but no surveyed trajectory), and/or ID=FILE (repeatable):"
             " vehicle ID's reference trajectory from another tool, an RTKLIB .pos (its fixed rows, if it has"
-            " any), an Inertial Explorer text export or a truth CSV.",
+            " any), an Inertial Explorer text export or a truth CSV; ID=x,y,z or ID=lat,lon,h: the surveyed"
+            " point a static receiver stood on.",
         ),
     ] = None,
 ) -> None:

@@ -95,7 +95,8 @@ def fleet(
             help="What the accuracy table and the API measure against: 'recording' (its truth files, the"
             " default), 'rtk' (RTKLIB's carrier-phase RTK to the recording's base, where it holds), and/or"
             " ID=FILE (repeatable): vehicle ID's reference trajectory from another tool (RTKLIB .pos,"
-            " Inertial Explorer text export, truth CSV).",
+            " Inertial Explorer text export, truth CSV), or ID=x,y,z / ID=lat,lon,h: a static receiver's"
+            " surveyed point.",
         ),
     ] = None,
 ) -> None:

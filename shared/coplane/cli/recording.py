@@ -49,20 +49,6 @@ def _pairs(values: list[str] | None, option: str) -> dict[str, str]:
     return out
 
 
-def _truth(value: str) -> Path | tuple[float, float, float]:
-    """A `--truth` value: three numbers are a surveyed point (ECEF or lat,lon,h), else a file."""
-    from coplane.recording.plan import parse_position
-
-    if value.count(",") == 2 and value.strip() != "header":
-        try:
-            point = parse_position(value)
-        except ConfigError:
-            return Path(value)
-        assert point != "header"
-        return point
-    return Path(value)
-
-
 @recording_app.command("init")
 def init(
     directory: Annotated[
@@ -122,7 +108,7 @@ def init(
 
     from coplane.recording.health import ephemeris_gap
     from coplane.recording.manifest import MANIFEST_NAME, manifest_dict
-    from coplane.recording.plan import parse_position, plan_recording, write_plan
+    from coplane.recording.plan import parse_position, parse_truth_value, plan_recording, write_plan
     from coplane.recording.reader import open_recording
 
     target = directory / MANIFEST_NAME
@@ -137,7 +123,7 @@ def init(
         interval_s=interval,
         name=name,
         uwb=uwb,
-        truth={k: _truth(v) for k, v in _pairs(truth, "--truth").items()},
+        truth={k: parse_truth_value(v) for k, v in _pairs(truth, "--truth").items()},
     )
     root = plan.manifest.root
     print_receivers(f"observation files in {root}", root, plan.summaries, plan.roles)

@@ -6,8 +6,9 @@ Three sources, per vehicle:
   with dual-frequency RINEX and no surveyed trajectory;
 - another tool's reference trajectory named for one vehicle (`ID=FILE`): an RTKLIB `.pos` (its
   fixed rows, when it has any), an Inertial Explorer text export (UrbanNav's ground truth) or a
-  truth CSV (`recording.trajectories`). A user who has such a file does not have to write it into
-  the recording first (`recording init --truth` does that for good).
+  truth CSV (`recording.trajectories`); or the surveyed point a static receiver stood on
+  (`ID=x,y,z` or `ID=lat,lon,h`). A user who has one does not have to write it into the recording
+  first (`recording init --truth` takes the same values and does that for good).
 
 A fleet hands whatever it measured against to its API as a directory of truth CSVs
 (`save_truth` / `use_truth_files`), so the API does not make it a second time.
@@ -23,6 +24,7 @@ from typing import Literal
 from coplane.errors import ConfigError
 from coplane.evaluate.rtk_reference import use_rtk_truth
 from coplane.recording.csvfiles import read_truth, write_truth
+from coplane.recording.plan import parse_truth_value
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import Recording
 from coplane.recording.trajectories import read_trajectory
@@ -32,13 +34,17 @@ Truth = Literal["recording", "rtk"]
 TRUTHS: tuple[Truth, ...] = ("recording", "rtk")
 
 
+# a vehicle's reference of its own: a trajectory file, or the ECEF point a static receiver stood on
+Reference = Path | tuple[float, float, float]
+
+
 @dataclass(frozen=True)
 class TruthChoice:
-    """`source` for every vehicle, then `files` (vehicle -> reference trajectory file) in place of
-    it for the vehicles they name."""
+    """`source` for every vehicle, then `references` (vehicle -> trajectory file or surveyed
+    point) in place of it for the vehicles they name."""
 
     source: Truth = "recording"
-    files: tuple[tuple[str, Path], ...] = ()
+    references: tuple[tuple[str, Reference], ...] = ()
 
 
 def parse_truth(text: str) -> Truth:
@@ -51,23 +57,24 @@ def parse_truth(text: str) -> Truth:
 
 def parse_truth_choice(values: Sequence[str] | None) -> TruthChoice:
     """The `--truth` options of `coplane eval` / `coplane fleet`: at most one of the sources'
-    names, and any number of ID=FILE; ConfigError naming the bad value otherwise. Files are only
-    named here; they are read when applied to a recording (`apply_truth`)."""
+    names, and any number of ID=FILE or ID=POINT (`recording.plan.parse_truth_value`);
+    ConfigError naming the bad value otherwise. Files are only named here; they are read when
+    applied to a recording (`apply_truth`)."""
     sources: list[Truth] = []
-    files: dict[str, Path] = {}
+    refs: dict[str, Reference] = {}
     for value in values or []:
         ident, sep, name = value.partition("=")
         if not sep:
             sources.append(parse_truth(value))
             continue
         if not ident or not name:
-            raise ConfigError(f"--truth {value!r}: expected recording, rtk or ID=FILE")
-        if ident in files:
+            raise ConfigError(f"--truth {value!r}: expected recording, rtk, ID=FILE or ID=x,y,z")
+        if ident in refs:
             raise ConfigError(f"--truth: {ident!r} given twice")
-        files[ident] = Path(name)
+        refs[ident] = parse_truth_value(name)
     if len(sources) > 1:
         raise ConfigError(f"--truth: one source for every vehicle, got {', '.join(sources)}")
-    return TruthChoice(sources[0] if sources else "recording", tuple(files.items()))
+    return TruthChoice(sources[0] if sources else "recording", tuple(refs.items()))
 
 
 def apply_truth(rec: Recording, choice: Truth | TruthChoice) -> str:
@@ -76,21 +83,28 @@ def apply_truth(rec: Recording, choice: Truth | TruthChoice) -> str:
     if not isinstance(choice, TruthChoice):
         choice = TruthChoice(choice)
     notes = [use_rtk_truth(rec)] if choice.source == "rtk" else []
-    if choice.files:
-        notes.append(use_reference_files(rec, dict(choice.files)))
+    if choice.references:
+        notes.append(use_references(rec, dict(choice.references)))
     return "; ".join(notes)
 
 
-def use_reference_files(rec: Recording, files: Mapping[str, Path]) -> str:
-    """Replace each named vehicle's truth by its reference trajectory file (`recording.trajectories`:
-    RTKLIB .pos, Inertial Explorer text, truth CSV); the line that says what each gave. Bad rows
-    are counted in `rec.problems` and skipped; a vehicle the recording lacks, a file that cannot be
+def use_references(rec: Recording, references: Mapping[str, Reference]) -> str:
+    """Replace each named vehicle's truth by its reference: a trajectory file
+    (`recording.trajectories`: RTKLIB .pos, Inertial Explorer text, truth CSV) or a surveyed point,
+    taken at every epoch the vehicle logged; the line that says what each gave. Bad rows are
+    counted in `rec.problems` and skipped; a vehicle the recording lacks, a file that cannot be
     read or one without a usable point is a ConfigError naming it."""
     known = [v.id for v in rec.manifest.vehicles]
     notes = []
-    for vid, path in files.items():
+    for vid, path in references.items():
         if vid not in known:
-            raise ConfigError(f"--truth {vid}={path}: no such vehicle (vehicles: {', '.join(known)})")
+            where = path if isinstance(path, Path) else ",".join(f"{x:.3f}" for x in path)
+            raise ConfigError(f"--truth {vid}={where}: no such vehicle (vehicles: {', '.join(known)})")
+        if not isinstance(path, Path):  # a static receiver's surveyed point
+            epochs = sorted({rec.nominal(e.time) for e in rec.vehicle_epochs(vid)})
+            rec.use_truth(vid, dict.fromkeys(epochs, path))
+            notes.append(f"{vid}: a surveyed point at its {len(epochs)} epochs")
+            continue
         bad_before, items_before = rec.problems.total, len(rec.problems.items)
         try:
             trajectory = read_trajectory(path, rec.problems)
@@ -107,7 +121,7 @@ def use_reference_files(rec: Recording, files: Mapping[str, Path]) -> str:
         notes.append(
             f"{vid}: {trajectory.describe()} ({path.name}{skipped}), {matched} at the recording's epochs"
         )
-    return "reference files: " + "; ".join(notes)
+    return "references: " + "; ".join(notes)
 
 
 def missing_truth_note(rec: Recording) -> str:

@@ -67,6 +67,19 @@ def parse_position(text: str) -> tuple[float, float, float] | Literal["header"]:
     )
 
 
+def parse_truth_value(text: str) -> Path | tuple[float, float, float]:
+    """A `--truth ID=VALUE` value: three numbers are a surveyed point (ECEF or lat,lon,h, as
+    `parse_position` tells them apart), anything else a reference trajectory file."""
+    if text.count(",") == 2 and text.strip() != "header":
+        try:
+            point = parse_position(text)
+        except ConfigError:
+            return Path(text)
+        assert point != "header"
+        return point
+    return Path(text)
+
+
 def header_antenna_position(h: ObsHeader, path: Path) -> tuple[float, float, float]:
     """The antenna reference point from a header: APPROX POSITION XYZ (the marker) moved by
     ANTENNA: DELTA H/E/N (up, east, north), as RINEX defines them."""
