@@ -40,6 +40,19 @@ def test_spp_writes_rtklib_pos_and_prints_accuracy(real_data: Path, tmp_path: Pa
     assert np.linalg.norm(p - q) < 3.0
 
 
+def test_spp_measured_against_its_own_pos_file_has_no_error(real_data: Path, tmp_path: Path) -> None:
+    """`coplane spp --truth rover=FILE` with the .pos it wrote: RTKLIB's layout read back by
+    `recording.trajectories` gives every fix back to the file's 0.1 mm, so the errors are zero."""
+    nagoya = str(real_data / "matrtklib_nagoya_static_20240624")
+    out = tmp_path / "rover.pos"
+    assert runner.invoke(app, ["spp", nagoya, "--out", str(out)]).exit_code == 0
+    r = runner.invoke(app, ["spp", nagoya, "--out", str(tmp_path / "again.pos"), "--truth", f"rover={out}"])
+    assert r.exit_code == 0, r.output
+    assert "rover: 301 points from an RTKLIB .pos file (single 301)" in " ".join(r.output.split())
+    row = next(ln.split("│") for ln in r.output.splitlines() if "│ rover" in ln)
+    assert [c.strip() for c in row[5:7]] == ["0.00", "0.00"], row  # H and V RMSE
+
+
 def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     r = runner.invoke(app, ["spp", str(tmp_path / "nope"), "--out", str(tmp_path / "x.pos")])
     assert r.exit_code == 2 and "error" in r.output

@@ -38,12 +38,23 @@ def spp(
     ] = False,
     fde: Annotated[bool, typer.Option(help="RAIM fault detection and exclusion.")] = True,
     strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
+    truth: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="What the accuracy is measured against, as with `coplane eval`: 'recording' (the default),"
+            " 'rtk', ID=FILE (a reference trajectory) or ID=x,y,z / ID=lat,lon,h (a surveyed point).",
+        ),
+    ] = None,
 ) -> None:
     """Single point positioning of each vehicle; writes .pos and prints availability and accuracy."""
     from coplane.evaluate.spp_run import spp_to_pos
+    from coplane.evaluate.truth import parse_truth_choice
     from coplane.recording.health import health_warnings
 
-    report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=progress_bars())
+    choice = parse_truth_choice(truth)
+    report = spp_to_pos(recording, out, vehicle, dgnss=dgnss, fde=fde, progress=progress_bars(), truth=choice)
+    if report.truth_note:
+        typer.echo(report.truth_note, err=True)
     table = Table(title=f"SPP {'DGNSS' if report.dgnss else 'standalone'}: {report.recording}")
     label_column(table, COLUMNS[0], [v.vehicle for v in report.vehicles])
     for col in COLUMNS[1:]:

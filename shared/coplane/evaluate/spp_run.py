@@ -18,6 +18,7 @@ from tqdm import tqdm
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats, accuracy
 from coplane.evaluate.solution_files import write_pos
+from coplane.evaluate.truth import Truth, TruthChoice, apply_truth
 from coplane.gnss.epoch_solver import (
     EpochResult,
     EpochSolverOptions,
@@ -114,6 +115,7 @@ class SppReport:
     vehicles: list[VehicleSppSummary]
     problems: Counter[str]  # input problems found while reading, by kind
     health: InputHealth  # records kept against problems, for --strict
+    truth_note: str = ""  # what the accuracy was measured against, when not the recording's truth
 
     @property
     def problems_total(self) -> int:
@@ -127,13 +129,16 @@ def spp_to_pos(
     dgnss: bool = False,
     fde: bool = True,
     progress: bool = False,
+    truth: Truth | TruthChoice = "recording",
 ) -> SppReport:
     """SPP of each vehicle; `out` is the .pos file, or with several vehicles `<stem>_<id>.pos` each.
 
-    `fde` turns RAIM fault detection and exclusion on. Raises a `CoplaneError` for a recording that
-    cannot be used, an unknown vehicle, or DGNSS without a base station.
+    `fde` turns RAIM fault detection and exclusion on; `truth`: what the accuracy is measured
+    against (`evaluate.truth`). Raises a `CoplaneError` for a recording that cannot be used, an
+    unknown vehicle, DGNSS without a base station, or a truth that cannot be made or read.
     """
     rec = open_recording(recording)
+    truth_note = apply_truth(rec, truth)
     opts = EpochSolverOptions()
     opts = replace(opts, spp=replace(opts.spp, raim="fde" if fde else "off"))
     runs = run_spp(rec, vehicles, dgnss=dgnss, options=opts, progress=progress)
@@ -154,7 +159,9 @@ def spp_to_pos(
             mode="dgps" if dgnss else "single",
         )
         log.info("wrote %s", target)
-        truth = rec.truth_at(vid)
-        st = accuracy(fixes, {t: np.asarray(p) for t, p in truth.items()}) if truth else None
+        ref = rec.truth_at(vid)
+        st = accuracy(fixes, {t: np.asarray(p) for t, p in ref.items()}) if ref else None
         summaries.append(VehicleSppSummary(vid, target, run.n_epochs, len(fixes), st, run.no_solution))
-    return SppReport(rec.manifest.name, dgnss, summaries, Counter(rec.problems.counts), input_health(rec))
+    return SppReport(
+        rec.manifest.name, dgnss, summaries, Counter(rec.problems.counts), input_health(rec), truth_note
+    )
