@@ -111,6 +111,11 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
             row["plane"] != "used" or row["plane_source"] == "fleet"
         )
     assert any(int(row["n_ranges"]) > 0 for row in rows)
+    # and over the drive: the satellites each method left out most, per vehicle (exclusions.md)
+    table = (out / "exclusions.md").read_text().splitlines()
+    pc_u1 = next(ln for ln in table if ln.startswith("| pc | u1 |")).split("|")
+    left_out = sum(len(row["excluded"].split()) for row in rows[:30])  # u1's rows come first
+    assert int(pc_u1[3]) == 30 and int(pc_u1[5]) == left_out, (pc_u1, left_out)
     assert any(row["plane"] == "used" for row in rows), {row["plane"] for row in rows}
     pngs = {p.name for p in out.glob("*.png")}
     assert {

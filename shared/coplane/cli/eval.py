@@ -118,7 +118,7 @@ def eval_(
         console.print(f"{r.label}: {r.n_epochs} epochs in {r.wall_time_s:.1f} s")
     console.print(
         f"wrote {out}/accuracy.md, accuracy_by_environment.md (pooled, with p99 and max),"
-        f" {len(ev.figures)} figures and solutions/"
+        f" exclusions.md (the satellites each estimate left out), {len(ev.figures)} figures and solutions/"
     )
     print_problems(rec.problems.counts)
     fixes = sum(len(p) for r in ev.runs for p in r.positions.values())

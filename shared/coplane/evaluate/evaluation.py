@@ -20,6 +20,7 @@ from coplane.evaluate.report import (
     environment_stats,
     run_stats,
     write_environment_tables,
+    write_exclusions,
     write_solutions,
     write_tables,
 )
@@ -128,6 +129,7 @@ def evaluate(
             },
         )
         write_environment_tables(ev.by_environment, out_dir)
+        write_exclusions([r for r in ev.runs if r.interruption == 0], out_dir)
         ev.figures = write_figures(ev, rec, shown, out_dir)
     ev.shown = list(vehicles or [v.id for v in rec.manifest.vehicles if rec.truth_at(v.id)])
     return ev

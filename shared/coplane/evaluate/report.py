@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -213,4 +214,35 @@ def write_environment_tables(by_env: dict[str, dict[str, PooledStats]], out_dir:
     )
     path = out_dir / "accuracy_by_environment.md"
     path.write_text(environment_table(by_env) + "\n")
+    return path
+
+
+def exclusion_table(runs: Sequence[MethodRun], top: int = 5) -> str:
+    """Per method and vehicle, which satellites the estimator left out and how often: the epochs
+    with any left out, the total, and the `top` satellites left out most. Why an epoch's estimate
+    rests on fewer satellites than its agent used is per epoch in the solution CSVs ("excluded");
+    a satellite that tops this table over a whole drive is a reflector's or a bad signal's mark."""
+    lines = [
+        "| Method | vehicle | epochs | epochs with satellites left out | satellites left out | most often (times) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for run in runs:
+        for vid in sorted(run.excluded):
+            per_epoch = run.excluded[vid]
+            counts = Counter(s for sats in per_epoch.values() for s in sats)
+            most = ", ".join(
+                f"{s} ({n})" for s, n in sorted(counts.items(), key=lambda x: (-x[1], x[0]))[:top]
+            )
+            lines.append(
+                f"| {run.label} | {vid} | {len(per_epoch)} | {sum(1 for x in per_epoch.values() if x)} | "
+                f"{sum(counts.values())} | {most or '-'} |"
+            )
+    return "\n".join(lines)
+
+
+def write_exclusions(runs: Sequence[MethodRun], out_dir: Path) -> Path:
+    """exclusions.md beside accuracy.md (`exclusion_table`)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "exclusions.md"
+    path.write_text(exclusion_table(runs) + "\n")
     return path
