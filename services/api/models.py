@@ -66,6 +66,12 @@ class VehicleSummary(_Out):
         default=None,
         description="The satellites the estimator left out of this epoch (FDE, gate, dead reckoning)",
     )
+    raim_excluded: list[str] | None = Field(
+        default=None,
+        description="The satellites the vehicle agent's RAIM excluded before the estimator saw them",
+    )
+    hdop: float | None = Field(default=None, description="HDOP of the satellites the agent's fix used")
+    vdop: float | None = Field(default=None, description="VDOP of the satellites the agent's fix used")
     n_ranges: int | None = None
     dgnss_age_s: float | None = Field(
         default=None, description="Age of the base corrections this state's SPP used (None: no DGNSS)"

@@ -250,6 +250,11 @@ class VehicleState(_Model):
     # the node's pseudoranges the estimator left out (FDE, gate, cooperative check, dead
     # reckoning): n_satellites - n_pseudoranges of them, by name
     excluded_satellites: list[SatId] = Field(default_factory=list, max_length=MAX_SATELLITES)
+    # the agent's side of the same question: what its SPP's RAIM excluded, and the geometry of the
+    # satellites it used (a VDOP of 8 says why a height is poor before any error is known)
+    raim_excluded: list[SatId] = Field(default_factory=list, max_length=MAX_SATELLITES)
+    hdop: float | None = Field(default=None, ge=0.0, le=1e6)
+    vdop: float | None = Field(default=None, ge=0.0, le=1e6)
 
 
 class SolutionMessage(_Model):

@@ -174,6 +174,7 @@ def test_vehicles_equal_the_last_solution(run: Run) -> None:
         assert tuple(v["position_ecef_m"]) == vs.position_ecef_m  # JSON floats round-trip exactly
         assert v["seq"] == last.seq and v["plane_status"] == vs.plane_status
         assert v["excluded_satellites"] == vs.excluded_satellites  # the estimator's, by name
+        assert (v["raim_excluded"], v["vdop"]) == (vs.raim_excluded, vs.vdop)  # the agent's
         assert v["online"] is False  # the agents have finished: their tokens are gone
         d = run.get(f"/vehicles/{vs.vehicle_id}").json()
         assert d["covariance_m2"] == vs.covariance_m2

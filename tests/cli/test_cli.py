@@ -102,15 +102,16 @@ def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:
         assert 0 <= int(row["n_pseudoranges"]) <= int(row["n_satellites"]) and row["gnss_fix"] in ("0", "1")
         # the satellites left out, by name: as many as the node used and the estimator did not
         excluded = row["excluded"].split()
-        assert len(excluded) == int(row["n_satellites"]) - int(row["n_pseudoranges"]) and excluded == sorted(
-            excluded
-        )
+        assert len(excluded) == int(row["n_satellites"]) - int(row["n_pseudoranges"])
+        assert excluded == sorted(excluded)
+        assert row["vdop"] == "" or float(row["vdop"]) > 0.0  # empty where the agent had no fix
         assert int(row["n_ranges"]) >= 0
         assert row["plane"] == "used" or row["plane"].startswith(("unavailable: ", "available"))
         assert row["plane_source"] in ("fleet", "") and (
             row["plane"] != "used" or row["plane_source"] == "fleet"
         )
     assert any(int(row["n_ranges"]) > 0 for row in rows)
+    assert any(row["vdop"] for row in rows) and {row["raim_excluded"] for row in rows} != {""}
     # and over the drive: the satellites each method left out most, per vehicle (exclusions.md)
     table = (out / "exclusions.md").read_text().splitlines()
     pc_u1 = next(ln for ln in table if ln.startswith("| pc | u1 |")).split("|")

@@ -41,6 +41,9 @@ SOLUTION_COLUMNS = [
     "gnss_fix",
     "plane",  # used, or the plane's status when not used (available, unavailable: reason), or none
     "plane_source",  # fleet, self or map
+    "raim_excluded",  # what the agent's RAIM excluded before the estimator saw the epoch
+    "hdop",  # of the satellites the agent's fix used
+    "vdop",
 ]
 
 
@@ -110,6 +113,7 @@ def _why(run: MethodRun, vid: str, t: GpsTime, p: Vec, cov: Vec | None) -> list[
     else:
         state = plane.status if plane.status != "unavailable" else f"unavailable: {plane.reason or '-'}"
     source = plane.source or "" if plane is not None and plane.status != "unavailable" else ""
+    hdop, vdop = run.dops.get(vid, {}).get(t, (None, None))
     return [
         *sigmas,
         count(run.satellites),
@@ -119,6 +123,9 @@ def _why(run: MethodRun, vid: str, t: GpsTime, p: Vec, cov: Vec | None) -> list[
         "" if fix is None else str(int(fix)),
         state,
         source,
+        " ".join(run.raim_excluded.get(vid, {}).get(t, ())),
+        "" if hdop is None else f"{hdop:.2f}",
+        "" if vdop is None else f"{vdop:.2f}",
     ]
 
 

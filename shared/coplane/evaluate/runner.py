@@ -49,6 +49,13 @@ class MethodRun:
     satellites: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     pseudoranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     excluded: dict[str, dict[GpsTime, tuple[str, ...]]] = field(default_factory=lambda: defaultdict(dict))
+    # the agent's RAIM exclusions and its fix's HDOP / VDOP (None: no fix), per vehicle and epoch
+    raim_excluded: dict[str, dict[GpsTime, tuple[str, ...]]] = field(
+        default_factory=lambda: defaultdict(dict)
+    )
+    dops: dict[str, dict[GpsTime, tuple[float | None, float | None]]] = field(
+        default_factory=lambda: defaultdict(dict)
+    )
     solve_times_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     n_epochs: int = 0
@@ -193,3 +200,5 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
         run.satellites[v.vehicle_id][t] = v.n_satellites
         run.pseudoranges_used[v.vehicle_id][t] = v.n_pseudoranges
         run.excluded[v.vehicle_id][t] = tuple(v.excluded_satellites)
+        run.raim_excluded[v.vehicle_id][t] = tuple(v.raim_excluded)
+        run.dops[v.vehicle_id][t] = (v.hdop, v.vdop)

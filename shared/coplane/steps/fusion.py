@@ -192,6 +192,9 @@ class FusionStep:
                     spp_ok=msg.spp.ok,
                     dgnss_age_s=msg.spp.dgnss_age_s,
                     excluded_satellites=list(est.excluded_satellites),
+                    raim_excluded=list(msg.spp.excluded),
+                    hdop=msg.spp.hdop,
+                    vdop=msg.spp.vdop,
                 )
             )
         out = SolutionMessage(
