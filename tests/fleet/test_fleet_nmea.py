@@ -1,5 +1,5 @@
 """NMEA 0183 output (issue 15): an NMEA client (pynmeagps' reader) on each vehicle's port receives a
-valid GGA and RMC for every vehicle and epoch, checksums correct, positions equal to the
+valid GGA, GST and RMC for every vehicle and epoch, checksums correct, positions equal to the
 solution at NMEA precision."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from support.e2e_fleet import agents_done, live_fleet, wait_until
 
 from coplane.fleet import fleet_of
 from coplane.fleet.nmea import NmeaServer
-from coplane.geo import ecef_to_geodetic
+from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
 from coplane.sim.generate import simulate
 
@@ -51,6 +51,7 @@ def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
             wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
             time.sleep(1.0)
             positions = {v: dict(p) for v, p in lf.collector.run.positions.items()}
+            covariances = {v: dict(c) for v, c in lf.collector.run.covariances.items()}
     finally:
         server.close()  # the clients see the end of their streams
     for r in readers:
@@ -67,4 +68,20 @@ def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
             # 7 decimals of minutes: 1/6e8 deg, about 0.2 mm
             assert abs(m.lat - math.degrees(lat)) < 2e-9 and abs(m.lon - math.degrees(lon)) < 2e-9
             assert abs(m.alt - h) <= 5e-4 and m.quality in (2, 6)
+            # the agent's fix: its HDOP and corrections' age, empty where its SPP gave none
+            assert m.HDOP == "" or (0.0 < m.HDOP < 50.0 and 0.0 <= m.diffAge < 60.0), (m.HDOP, m.diffAge)
+        assert sum(m.HDOP != "" for m in gga) > len(gga) // 2
+        # the covariance as GST: 1-sigma north / east / up and the horizontal ellipse
+        gst = [m for m in got[vid] if m.msgID == "GST"]
+        assert len(gst) == len(sol)
+        for m, t in zip(gst, sorted(sol), strict=True):
+            lat, lon, _ = ecef_to_geodetic(np.asarray(sol[t]))
+            r = enu_rotation(lat, lon)
+            enu = r @ covariances[vid][t] @ r.T
+            assert m.time == gpst_to_utc(t).time()
+            assert (m.stdLat, m.stdLong, m.stdAlt) == pytest.approx(
+                np.sqrt(np.diag(enu))[[1, 0, 2]], abs=6e-4
+            )
+            assert m.stdMajor**2 + m.stdMinor**2 == pytest.approx(enu[0, 0] + enu[1, 1], rel=1e-2)
+            assert m.stdMinor <= m.stdMajor and 0.0 <= m.orient < 180.0
         assert all(r.status in ("A", "V") and r.date == gpst_to_utc(min(sol)).date() for r in rmc)

@@ -85,7 +85,7 @@ def fleet(
         int | None,
         typer.Option(
             "--nmea-port",
-            help="NMEA 0183 GGA + RMC over TCP on 127.0.0.1: the first vehicle on this port, the next ones "
+            help="NMEA 0183 GGA + GST + RMC over TCP on 127.0.0.1: the first vehicle on this port, the next ones "
             "on the following ports (0: any free ports; printed at start).",
         ),
     ] = None,
@@ -141,7 +141,7 @@ def fleet(
 
     def show_nmea(ports: dict[str, int]) -> None:
         err_console.print(
-            "NMEA 0183 (GGA + RMC): " + ", ".join(f"{v} tcp://127.0.0.1:{p}" for v, p in ports.items())
+            "NMEA 0183 (GGA + GST + RMC): " + ", ".join(f"{v} tcp://127.0.0.1:{p}" for v, p in ports.items())
         )
 
     def progress(done: int, total: int) -> None:

@@ -1,4 +1,4 @@
-"""NMEA 0183 output of the fleet's solutions: GGA + RMC per vehicle over TCP (`coplane fleet
+"""NMEA 0183 output of the fleet's solutions: GGA + GST + RMC per vehicle over TCP (`coplane fleet
 --nmea-port P`), for tools that read a receiver's NMEA (mapping apps, loggers, OpenCPN-style
 viewers). Sentences are built and checksummed by pynmeagps.
 
@@ -7,8 +7,14 @@ order on P, P+1, ... (printed at start). What the fields hold:
 * time: UTC (GPS time minus the leap seconds, coplane.gtime.gpst_to_utc), centiseconds;
 * lat/lon: 7 decimals of minutes (pynmeagps' high-precision mode, about 0.2 mm);
 * GGA quality: 2 when the vehicle's fix used DGNSS corrections, 1 standalone, 6 (estimated) for an
-  epoch the graph carried without a GNSS fix; numSV: satellites used; HDOP: empty (the graph's
-  covariance is not a DOP);
+  epoch the graph carried without a GNSS fix; numSV: satellites used; HDOP: of the satellites the
+  vehicle agent's own fix used (empty without one); age of differential corrections: the age of
+  the base's corrections that fix used (empty standalone);
+* GST: the fused solution's reported covariance as 1-sigma latitude / longitude / altitude errors
+  (m) and its horizontal error ellipse (semi-major, semi-minor, orientation in degrees from true
+  north), the fields receivers fill from their own covariance and tools such as ROS's NMEA driver
+  read as the fix's uncertainty; the range-residual RMS is empty (the graph has no single one); no
+  GST without a covariance;
 * altitude: the ellipsoidal height with geoid separation 0 (coplane has no geoid model; alt + sep
   is the ellipsoidal height, as NMEA defines it);
 * RMC speed (knots) and course: from this vehicle's previous solution (empty on its first).
@@ -29,7 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 from pynmeagps import GET, NMEAMessage
 
-from coplane.geo import ecef_to_enu, ecef_to_geodetic
+from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
 from coplane.messages import SolutionMessage, VehicleState
 from coplane.steps.wire import gps_time
@@ -44,7 +50,7 @@ def _hemi(value: float, pos: str, neg: str) -> tuple[float, str]:
 
 
 class NmeaFormatter:
-    """Per vehicle: GGA + RMC bytes for each solution (keeps the previous fix for speed/course)."""
+    """Per vehicle: GGA + GST + RMC bytes for each solution (keeps the previous fix for speed/course)."""
 
     def __init__(self, dgnss: bool) -> None:
         self.dgnss = dgnss
@@ -69,8 +75,9 @@ class NmeaFormatter:
         quality = (2 if self.dgnss else 1) if v.has_gnss_fix else 6
         gga = NMEAMessage(
             "GN", "GGA", GET, hpnmeamode=True, time=when, lat=lat, NS=ns, lon=lon, EW=ew,
-            quality=quality, numSV=v.n_satellites, HDOP="", alt=round(h, 3), altUnit="M",
-            sep=0.0, sepUnit="M", diffAge="", diffStation="",
+            quality=quality, numSV=v.n_satellites, HDOP="" if v.hdop is None else round(v.hdop, 2),
+            alt=round(h, 3), altUnit="M", sep=0.0, sepUnit="M",
+            diffAge="" if v.dgnss_age_s is None else round(v.dgnss_age_s, 1), diffStation="",
         )  # fmt: skip
         spd: float | str = ""
         cog: float | str = ""
@@ -81,12 +88,30 @@ class NmeaFormatter:
             spd = round(math.hypot(enu[0], enu[1]) / dt_s * KNOTS_PER_MPS, 3)
             cog = round(math.degrees(math.atan2(enu[0], enu[1])) % 360.0, 2)
         self.previous[v.vehicle_id] = (t_s, p)
+        gst = self._gst(v, p, lat_r, lon_r, when)
         rmc = NMEAMessage(
             "GN", "RMC", GET, hpnmeamode=True, time=when, status="A" if v.has_gnss_fix else "V",
             lat=lat, NS=ns, lon=lon, EW=ew, spd=spd, cog=cog, date=utc.date(), mv="", mvEW="",
             posMode=("D" if self.dgnss else "A") if v.has_gnss_fix else "E", navStatus="V",
         )  # fmt: skip
-        return bytes(gga.serialize()) + bytes(rmc.serialize())
+        return bytes(gga.serialize()) + gst + bytes(rmc.serialize())
+
+    @staticmethod
+    def _gst(v: VehicleState, p: np.ndarray, lat_r: float, lon_r: float, when: dt.time) -> bytes:
+        """The GST sentence of the solution's covariance (b"" without one)."""
+        if v.covariance_m2 is None:
+            return b""
+        r = enu_rotation(lat_r, lon_r)
+        enu = r @ np.array(v.covariance_m2, dtype=float).reshape(3, 3) @ r.T
+        vals, vecs = np.linalg.eigh(enu[:2, :2])  # ascending: the major axis is the last
+        major = vecs[:, 1]
+        orient = math.degrees(math.atan2(major[0], major[1])) % 180.0  # from north, clockwise
+        sd = [math.sqrt(max(x, 0.0)) for x in (vals[1], vals[0], enu[1, 1], enu[0, 0], enu[2, 2])]
+        gst = NMEAMessage(
+            "GN", "GST", GET, time=when, rangeRms="", stdMajor=round(sd[0], 3), stdMinor=round(sd[1], 3),
+            orient=round(orient, 1), stdLat=round(sd[2], 3), stdLong=round(sd[3], 3), stdAlt=round(sd[4], 3),
+        )  # fmt: skip
+        return bytes(gst.serialize())
 
 
 class NmeaServer:
