@@ -33,6 +33,7 @@ from coplane.bus import (
 )
 from coplane.bus.trust import GateSet
 from coplane.gtime import GpsTime
+from coplane.live.nmea_out import NmeaServer
 from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
 from coplane.recording.reader import open_recording
@@ -117,6 +118,11 @@ class VehicleAgent:
         self.unplaced = 0  # regions: epochs not sent, no position to place them in a region yet
         self.home_server: str | None = None  # the server whose solution last answered this vehicle
         self.warn = RateLimitedLog(log)  # forged or bad floods must not flood the log
+        # the vehicle's own fused position for the car's other systems (`live.nmea_out`)
+        self.nmea: NmeaServer | None = None
+        if settings.nmea_port is not None:
+            self.nmea = NmeaServer([vid], settings.nmea_port, dgnss=setup.use_dgnss)
+            log.info("NMEA 0183 out", extra={"vehicle": vid, "port": self.nmea.ports[vid]})
 
     def node(self) -> BusNode:
         """This agent's place on the bus: its node key out, the fleet solution in, its token."""
@@ -227,11 +233,20 @@ class VehicleAgent:
             return None
         self.step.ingest(taken)
         self.ingested += 1
+        if self.nmea is not None:
+            self.nmea.publish(taken)
         return taken
 
     def run(self) -> int:
         """Replay the whole schedule (or, with --gnss, follow the live streams until they end or
         the agent is stopped); returns the number of node messages published."""
+        try:
+            return self._run()
+        finally:
+            if self.nmea is not None:
+                self.nmea.close()  # its clients see the end of their streams
+
+    def _run(self) -> int:
         if self.live:
             from .live import run_live
 

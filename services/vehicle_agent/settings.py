@@ -61,6 +61,13 @@ class AgentSettings(ServiceSettings, RegionOptions):
     )
     resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
+    nmea_port: int | None = Field(
+        default=None,
+        ge=0,
+        le=65535,
+        description="Serve this vehicle's fused solutions as NMEA 0183 GGA + GST + RMC over TCP on "
+        "127.0.0.1 at this port (0: any free port, logged at start); default: no NMEA",
+    )
     log_level: LogLevel = "INFO"
 
 

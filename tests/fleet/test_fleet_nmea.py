@@ -16,9 +16,9 @@ from pynmeagps import NMEAReader
 from support.e2e_fleet import agents_done, live_fleet, wait_until
 
 from coplane.fleet import fleet_of
-from coplane.fleet.nmea import NmeaServer
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
+from coplane.live.nmea_out import NmeaServer
 from coplane.sim.generate import simulate
 
 pytestmark = pytest.mark.slow
@@ -85,3 +85,36 @@ def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
             assert m.stdMajor**2 + m.stdMinor**2 == pytest.approx(enu[0, 0] + enu[1, 1], rel=1e-2)
             assert m.stdMinor <= m.stdMajor and 0.0 <= m.orient < 180.0
         assert all(r.status in ("A", "V") and r.date == gpst_to_utc(min(sol)).date() for r in rmc)
+
+
+def test_an_agent_serves_its_own_vehicle_as_nmea(tmp_path: Path) -> None:
+    """`coplane agent --nmea-port P`: the car's other systems read its fused position from its own
+    agent, GGA + GST + RMC, at the positions the fleet solved (the epochs after the client
+    connected)."""
+    from coplane.fleet.launcher import free_port
+
+    rec = simulate("urban-loop", tmp_path / "r", vehicles=2, duration_s=20, seed=4)
+    port, got = free_port(), []
+    with live_fleet(
+        rec, "pc", log_dir=tmp_path / "logs", secure=False, agent_args={"u1": ["--nmea_port", str(port)]}
+    ) as lf:
+        wait_until(lambda: _connectable(port), 30, "the agent's NMEA port")
+        reader = threading.Thread(target=_read_all, args=(port, got), daemon=True)
+        reader.start()
+        wait_until(lambda: agents_done(lf.procs), 240, "agents to finish")
+        reader.join(15)  # the agent closes its NMEA server when it finishes
+        positions = dict(lf.collector.run.positions["u1"])
+    gga = [m for m in got if m.msgID == "GGA"]
+    assert len(gga) >= 10 and len([m for m in got if m.msgID == "GST"]) == len(gga)
+    by_time = {gpst_to_utc(t).time(): p for t, p in positions.items()}
+    for m in gga:
+        lat, lon, _ = ecef_to_geodetic(np.asarray(by_time[m.time]))
+        assert abs(m.lat - math.degrees(lat)) < 2e-9 and abs(m.lon - math.degrees(lon)) < 2e-9
+
+
+def _connectable(port: int) -> bool:
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=1).close()
+        return True
+    except OSError:
+        return False

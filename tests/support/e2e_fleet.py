@@ -14,7 +14,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,12 +60,14 @@ def live_fleet(
     listeners: Sequence[Callable[[SolutionMessage], None]] = (),
     servers: int = 1,
     region_args: Sequence[str] = (),
+    agent_args: Mapping[str, Sequence[str]] | None = None,
 ) -> Iterator[LiveFleet]:
     """Router, fusion server and one agent per vehicle in `agents` (default: every vehicle of the
     recording; certificates are made for all of them) as processes. `secure`: mutual TLS and access
     control (see the module docstring); False: plain TCP. The collector is the read-only monitor and
     knows the recording's vehicles, as `coplane fleet`'s does. `servers` > 1: that many fusion
-    servers by region, each server and agent also given `region_args` (e.g. a smaller region)."""
+    servers by region, each server and agent also given `region_args` (e.g. a smaller region).
+    `agent_args`: more arguments for the named vehicles' agents."""
     fleet, vehicles = fleet_of(recording)
     port = free_port()
     connect = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
@@ -103,6 +105,8 @@ def live_fleet(
                 spec.args += list(extra_fusion_args)
             if servers > 1 and spec.name.startswith(("fusion-server", "agent-")):
                 spec.args += list(region_args)
+            if spec.name.startswith("agent-"):
+                spec.args += list((agent_args or {}).get(spec.name.removeprefix("agent-"), ()))
         for spec in specs:
             procs.start(spec)
         yield LiveFleet(procs, collector, connect, specs, fleet, security)

@@ -49,6 +49,14 @@ def agent(
     max_correction_age: Annotated[
         float, typer.Option(help="Drop base corrections older than this many seconds.")
     ] = 30.0,
+    nmea_port: Annotated[
+        int | None,
+        typer.Option(
+            "--nmea-port",
+            help="Serve this vehicle's fused solutions as NMEA 0183 GGA + GST + RMC over TCP on 127.0.0.1 at"
+            " this port (0: any free port; logged at start).",
+        ),
+    ] = None,
 ) -> None:
     """Run one vehicle agent until its receiver stream ends or Ctrl-C."""
     from coplane.bus.security import BusSecurity, use_security, vehicle_identity
@@ -78,6 +86,7 @@ def agent(
         connect=[connect],
         fleet=fleet,
         max_correction_age_s=max_correction_age,
+        nmea_port=nmea_port,
     )
     setup_logging(f"agent-{vehicle_id}", settings.log_level)
     stop = stop_event()

@@ -42,7 +42,7 @@ from coplane.fleet.launcher import (
     router_spec,
     wait_for_port,
 )
-from coplane.fleet.nmea import NmeaServer
+from coplane.live.nmea_out import NmeaServer
 from coplane.messages import DiagnosticsMessage
 from coplane.methods import get_method
 from coplane.recording.health import InputHealth, input_health

@@ -40,7 +40,7 @@ from coplane.gtime import gpst_to_utc
 from coplane.messages import SolutionMessage, VehicleState
 from coplane.steps.wire import gps_time
 
-log = logging.getLogger("coplane.fleet.nmea")
+log = logging.getLogger("coplane.live.nmea_out")
 KNOTS_PER_MPS = 3600.0 / 1852.0
 SEND_TIMEOUT_S = 0.2
 
