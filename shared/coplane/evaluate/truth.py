@@ -1,4 +1,4 @@
-"""What accuracy is measured against: `--truth` of `coplane eval` and `coplane fleet`, and the API's.
+"""What accuracy is measured against: `--truth` of `coplane eval`, `fleet` and `spp`, and the API's.
 
 Three sources, per vehicle:
 - the recording's truth files (the default);
@@ -96,30 +96,30 @@ def use_references(rec: Recording, references: Mapping[str, Reference]) -> str:
     read or one without a usable point is a ConfigError naming it."""
     known = [v.id for v in rec.manifest.vehicles]
     notes = []
-    for vid, path in references.items():
+    for vid, ref in references.items():
         if vid not in known:
-            where = path if isinstance(path, Path) else ",".join(f"{x:.3f}" for x in path)
+            where = ref if isinstance(ref, Path) else ",".join(f"{x:.3f}" for x in ref)
             raise ConfigError(f"--truth {vid}={where}: no such vehicle (vehicles: {', '.join(known)})")
-        if not isinstance(path, Path):  # a static receiver's surveyed point
+        if not isinstance(ref, Path):  # a static receiver's surveyed point
             epochs = sorted({rec.nominal(e.time) for e in rec.vehicle_epochs(vid)})
-            rec.use_truth(vid, dict.fromkeys(epochs, path))
+            rec.use_truth(vid, dict.fromkeys(epochs, ref))
             notes.append(f"{vid}: a surveyed point at its {len(epochs)} epochs")
             continue
         bad_before, items_before = rec.problems.total, len(rec.problems.items)
         try:
-            trajectory = read_trajectory(path, rec.problems)
+            trajectory = read_trajectory(ref, rec.problems)
         except RecordingError as exc:
-            raise ConfigError(f"--truth {vid}={path}: {exc}") from exc
+            raise ConfigError(f"--truth {vid}={ref}: {exc}") from exc
         bad = rec.problems.total - bad_before
         if not trajectory.points:
             first = rec.problems.items[items_before:][:1]
             detail = f", the first: {first[0]}" if first else ""
-            raise ConfigError(f"--truth {vid}={path}: no usable point ({bad} bad rows{detail})")
-        rec.use_truth_points(vid, trajectory.points, path)
+            raise ConfigError(f"--truth {vid}={ref}: no usable point ({bad} bad rows{detail})")
+        rec.use_truth_points(vid, trajectory.points, ref)
         skipped = f", {bad} bad rows skipped" if bad else ""
         matched = len(rec.truth_at(vid))
         notes.append(
-            f"{vid}: {trajectory.describe()} ({path.name}{skipped}), {matched} at the recording's epochs"
+            f"{vid}: {trajectory.describe()} ({ref.name}{skipped}), {matched} at the recording's epochs"
         )
     return "references: " + "; ".join(notes)
 
