@@ -113,6 +113,14 @@ class TrackPoint(_Out):
     covariance_m2: list[float] | None = None
     plane_status: PlaneStatusName | None = None
     error_h_m: float | None = None
+    error_v_m: float | None = Field(default=None, description="Signed vertical error vs truth")
+    n_satellites: int = Field(default=0, description="Pseudoranges the vehicle agent used")
+    n_pseudoranges: int = Field(default=0, description="Of those, the ones the estimator kept")
+    excluded_satellites: list[str] = Field(
+        default_factory=list, description="The ones the estimator left out"
+    )
+    raim_excluded: list[str] = Field(default_factory=list, description="The ones the agent's RAIM excluded")
+    vdop: float | None = Field(default=None, description="VDOP of the satellites the agent's fix used")
 
 
 class Track(_Out):

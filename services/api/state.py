@@ -87,6 +87,14 @@ class StoredPoint:
     cov: tuple[float, ...] | None
     plane_status: str | None
     error_h: float | None
+    # why the point is as good as it is: satellites the agent used and the estimator kept, those
+    # each left out (empty tuples shared, as most epochs leave none out), the fix's VDOP
+    n_satellites: int = 0
+    n_pseudoranges: int = 0
+    excluded: tuple[str, ...] = ()
+    raim_excluded: tuple[str, ...] = ()
+    vdop: float | None = None
+    error_v: float | None = None
 
 
 @dataclass
@@ -278,7 +286,21 @@ class FleetState:
         v.plane_t = t
         cov = tuple(vs.covariance_m2) if vs.covariance_m2 is not None else None
         v.track.append(
-            StoredPoint(t, vs.position_ecef_m, llh, enu, cov, vs.plane_status, err[0] if err else None)
+            StoredPoint(
+                t,
+                vs.position_ecef_m,
+                llh,
+                enu,
+                cov,
+                vs.plane_status,
+                err[0] if err else None,
+                vs.n_satellites,
+                vs.n_pseudoranges,
+                tuple(vs.excluded_satellites) if vs.excluded_satellites else (),
+                tuple(vs.raim_excluded) if vs.raim_excluded else (),
+                vs.vdop,
+                err[1] if err else None,
+            )
         )
 
     def on_diagnostics(self, d: DiagnosticsMessage, server: str = "") -> bool:

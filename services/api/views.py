@@ -141,6 +141,12 @@ def track(st: FleetState, vid: str, since: float | None = None, limit: int | Non
                 covariance_m2=list(p.cov) if p.cov is not None else None,
                 plane_status=p.plane_status,  # type: ignore[arg-type]
                 error_h_m=p.error_h,
+                error_v_m=p.error_v,
+                n_satellites=p.n_satellites,
+                n_pseudoranges=p.n_pseudoranges,
+                excluded_satellites=list(p.excluded),
+                raim_excluded=list(p.raim_excluded),
+                vdop=p.vdop,
             )
             for p in pts
         ],

@@ -199,6 +199,18 @@ def test_tracks_equal_the_solution_csvs(run: Run) -> None:
                 rel=1e-5,
                 abs=1e-9,
             )
+            # why, per epoch, as the CSV has it
+            assert (p["n_satellites"], p["n_pseudoranges"]) == (
+                int(row["n_satellites"]),
+                int(row["n_pseudoranges"]),
+            )
+            assert (" ".join(p["excluded_satellites"]), " ".join(p["raim_excluded"])) == (
+                row["excluded"],
+                row["raim_excluded"],
+            )
+            assert (p["vdop"] is None) == (row["vdop"] == "") and (
+                p["vdop"] is None or f"{p['vdop']:.2f}" == row["vdop"]
+            )
         since = pts[-4]["gps_s"]
         assert len(run.get(f"/vehicles/{vid}/track", since=since).json()["points"]) == 3
         gj = run.get(f"/vehicles/{vid}/track", format="geojson").json()
