@@ -118,3 +118,13 @@ def _connectable(port: int) -> bool:
         return True
     except OSError:
         return False
+
+
+def test_a_taken_port_is_a_clear_error() -> None:
+    """`--nmea-port` on a port another program holds: a ConfigError naming it, not a traceback."""
+    from coplane.errors import ConfigError
+
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        with pytest.raises(ConfigError, match=f"NMEA output for u1: cannot listen on 127.0.0.1:{port} "):
+            NmeaServer(["u1"], port, dgnss=False)

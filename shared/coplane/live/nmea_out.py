@@ -35,6 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 from pynmeagps import GET, NMEAMessage
 
+from coplane.errors import ConfigError
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
 from coplane.messages import SolutionMessage, VehicleState
@@ -127,14 +128,17 @@ class NmeaServer:
         self.counts: Counter[str] = Counter()
         self.lock = threading.Lock()
         self.closed = threading.Event()
-        try:
-            for i, vid in enumerate(vehicles):
-                s = socket.create_server((host, first_port + i if first_port else 0))
-                self.listeners[vid] = s
-                self.ports[vid] = int(s.getsockname()[1])
-        except OSError:
-            self.close()
-            raise
+        for i, vid in enumerate(vehicles):
+            port = first_port + i if first_port else 0
+            try:
+                s = socket.create_server((host, port))
+            except OSError as exc:  # e.g. the port is taken: say which, not a traceback
+                self.close()
+                raise ConfigError(
+                    f"NMEA output for {vid}: cannot listen on {host}:{port} ({exc.strerror or exc})"
+                ) from exc
+            self.listeners[vid] = s
+            self.ports[vid] = int(s.getsockname()[1])
         self.threads = [
             threading.Thread(target=self._accept, args=(vid, s), daemon=True, name=f"nmea-{vid}")
             for vid, s in self.listeners.items()
