@@ -141,6 +141,7 @@ def test_the_fleet_and_its_api_measure_against_a_reference_file(sim: Path, tmp_p
             map=Path("none"),
             port=0,
             truth=choice,
+            out=tmp_path / "out",
         ),
         serve=lambda _: seen.extend(
             httpx.get(f"http://127.0.0.1:{port}/accuracy", timeout=10).json()["entries"]
@@ -152,6 +153,9 @@ def test_the_fleet_and_its_api_measure_against_a_reference_file(sim: Path, tmp_p
     assert (st.n_truth, st.h_rmse_m, st.v_bias_m) == (ref.n_truth, ref.h_rmse_m, ref.v_bias_m)
     api = next(e for e in seen if e["vehicle_id"] == "u1")
     assert api["v_bias_m"] == pytest.approx(st.v_bias_m, abs=1e-4)
+    # --out: the solution CSVs and exclusions.md, as `coplane eval` writes them
+    assert (tmp_path / "out" / "solutions" / "non-cp" / "u1.csv").is_file()
+    assert (tmp_path / "out" / "exclusions.md").read_text().splitlines()[2].startswith("| non-cp | u1 | 12 |")
 
 
 @pytest.mark.realdata

@@ -28,7 +28,7 @@ from coplane.bus.certs import init_certs
 from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecure
 from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
-from coplane.evaluate.report import run_stats, write_solutions
+from coplane.evaluate.report import run_stats, write_exclusions, write_solutions
 from coplane.evaluate.runner import MethodRun
 from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note, save_truth
 from coplane.fleet.collector import Collector
@@ -286,6 +286,7 @@ def run_fleet(
             )
             if o.out is not None:
                 write_solutions(collector.run, o.out)
+                write_exclusions([collector.run], o.out)
                 result.solutions_dir = o.out / "solutions" / collector.run.label
             if serve is not None and not stop.is_set():
                 serve(result)
