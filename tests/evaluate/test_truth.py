@@ -5,6 +5,7 @@ a file that gives nothing stops the run before any method runs."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -174,3 +175,31 @@ def test_a_surveyed_point_is_the_truth_of_a_static_receiver(real_data: Path) -> 
     assert got.h_rmse_m == pytest.approx(own.h_rmse_m, abs=1e-3) and got.v_rmse_m == pytest.approx(
         own.v_rmse_m, abs=1e-3
     )
+
+
+def test_a_reference_at_twenty_times_the_rate_is_taken_at_each_epoch(sim: Path, tmp_path: Path) -> None:
+    """An INS-like reference at 20 Hz against the 1 Hz recording: each epoch's truth is the row
+    at it, not the first row within 0.1 s (one 0.05 s early, a metre at road speed), and the rows
+    between the epochs are not problems. The errors are the recording's own."""
+    rows = open_recording(sim).truth("u1")
+    lines = [XYZ_HEADER]
+    for a, b in itertools.pairwise(rows):
+        pa, pb = np.asarray(a.ecef_m), np.asarray(b.ecef_m)
+        for k in range(20):
+            x, y, z = pa + (pb - pa) * k / 20.0
+            t = a.time + 0.05 * k
+            lines.append(f"{t.week} {t.tow:10.3f} {x:14.4f} {y:14.4f} {z:14.4f} 1 12")
+    last = rows[-1]
+    lines.append(
+        f"{last.time.week} {last.time.tow:10.3f} {last.ecef_m[0]:14.4f} {last.ecef_m[1]:14.4f} {last.ecef_m[2]:14.4f} 1 12"
+    )
+    dense = tmp_path / "ins20hz.pos"
+    dense.write_text("\n".join(lines) + "\n")
+    own = evaluate(open_recording(sim), ["non-cp"]).stats["non-cp"]["u1"]
+    rec = open_recording(sim)
+    got = evaluate(rec, ["non-cp"], truth=TruthChoice(references=(("u1", dense),))).stats["non-cp"]["u1"]
+    assert got.n_truth == own.n_truth == 12
+    assert got.h_rmse_m == pytest.approx(own.h_rmse_m, abs=1e-4) and got.v_bias_m == pytest.approx(
+        own.v_bias_m, abs=1e-4
+    )
+    assert rec.problems.total == 0, dict(rec.problems.counts)

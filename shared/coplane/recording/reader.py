@@ -16,6 +16,8 @@ taken from the file's own ephemeris messages, else from the recording's navigati
 
 from __future__ import annotations
 
+import itertools
+import statistics
 from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -199,28 +201,43 @@ class Recording:
         self._env_at.pop(vid, None)
 
     def truth_at(self, vid: str) -> dict[GpsTime, tuple[float, float, float]]:
-        """Truth keyed by nominal epoch time (rows farther than 0.1 x interval from one are dropped)."""
+        """Truth keyed by nominal epoch time: at each epoch the row nearest to it, within 0.1 x
+        interval (farther rows are dropped).
+
+        A reference at a higher rate than the recording (an INS at 10-200 Hz) has several rows
+        within that reach of one epoch; the nearest is its truth, not the first, which would be
+        up to 0.1 s early, metres at road speed. Rows between the epochs of such a reference are
+        what it is, not a problem; in a reference at the recording's rate they are reported once.
+        """
         if vid not in self._truth_at:
-            out: dict[GpsTime, tuple[float, float, float]] = {}
-            env: dict[GpsTime, str] = {}
             tol = MATCH_FRACTION * self.manifest.interval_s
-            unmatched: list[GpsTime] = []
             source = self._truth_file.get(vid) or self.manifest.vehicle(vid).truth or ""
-            for p in self.truth(vid):
+            rows = self.truth(vid)
+            spacing = [b.time - a.time for a, b in itertools.pairwise(rows)]
+            denser = bool(spacing) and statistics.median(spacing) < 0.5 * self.manifest.interval_s
+            best: dict[GpsTime, TruthPoint] = {}
+            unmatched: list[GpsTime] = []
+            for p in rows:
                 t = self.nominal(p.time)
-                if abs(p.time - t) > tol:
+                off = abs(p.time - t)
+                if off > tol:
                     unmatched.append(p.time)
-                elif t in out:
+                    continue
+                held = best.get(t)
+                nearer = held is None or off < abs(held.time - t)
+                if held is not None and (held.time == p.time or not denser):
+                    # a second row at one time, or in one epoch's reach of a reference at the
+                    # recording's rate, is a fault; a denser reference has several by nature
+                    dropped = held if nearer else p
                     self.problems.add(
                         source,
                         None,
                         "duplicate-row",
-                        f"truth row at {p.time} matches nominal epoch {t} already matched: skipped",
+                        f"truth row at {dropped.time} matches nominal epoch {t} already matched: skipped",
                     )
-                else:
-                    out[t] = p.ecef_m
-                    env[t] = p.environment
-            if unmatched:
+                if nearer:
+                    best[t] = p
+            if unmatched and not denser:
                 self.problems.add(
                     source,
                     None,
@@ -228,8 +245,8 @@ class Recording:
                     f"{len(unmatched)} truth row(s) farther than {tol:g} s from any nominal epoch "
                     f"(first at {unmatched[0]}): not used",
                 )
-            self._truth_at[vid] = out
-            self._env_at[vid] = env
+            self._truth_at[vid] = {t: best[t].ecef_m for t in sorted(best)}
+            self._env_at[vid] = {t: best[t].environment for t in sorted(best)}
         return self._truth_at[vid]
 
     def environment_at(self, vid: str) -> dict[GpsTime, str]:
