@@ -169,6 +169,7 @@ def test_vehicles_equal_the_last_solution(run: Run) -> None:
     assert body["epoch"] == last.epoch.model_dump()
     got = {v["vehicle_id"]: v for v in body["vehicles"]}
     assert sorted(got) == sorted(run.vehicles)
+    assert any(vs.vdop is not None for vs in last.vehicles)  # the fields compared below are filled
     for vs in last.vehicles:
         v = got[vs.vehicle_id]
         assert tuple(v["position_ecef_m"]) == vs.position_ecef_m  # JSON floats round-trip exactly

@@ -65,6 +65,30 @@ def test_truth_at_nominal_times() -> None:
     assert rec.problems.counts["unmatched-row"] == 1  # 116402.5, reported once for the file
 
 
+def test_truth_at_an_epoch_is_the_nearest_row() -> None:
+    """`Recording.truth_at` with a reference given later (`coplane eval --truth ID=FILE`): at the
+    recording's rate, a second row in one epoch's reach is a fault, counted, and the nearer row
+    is the truth; a reference ten times denser has such rows by nature, not counted."""
+    from coplane.recording.model import TruthPoint
+
+    def p(s: float, x: float) -> TruthPoint:
+        return TruthPoint(t(s), (x, 3562839.0, 3650158.0))
+
+    rec = open_recording(FLEET)
+    rec.use_truth_points("u1", [p(0.0, 1.0), p(0.95, 2.0), p(1.02, 3.0), p(2.0, 4.0)], Path("ref.pos"))
+    assert {k: v[0] for k, v in rec.truth_at("u1").items()} == {t(0): 1.0, t(1): 3.0, t(2): 4.0}
+    assert rec.problems.counts["duplicate-row"] == 1
+    dense = open_recording(FLEET)
+    dense.use_truth_points("u1", [p(0.1 * k, float(k)) for k in range(31)], Path("ins.pos"))
+    assert {k: v[0] for k, v in dense.truth_at("u1").items()} == {
+        t(0): 0.0,
+        t(1): 10.0,
+        t(2): 20.0,
+        t(3): 30.0,
+    }
+    assert dense.problems.counts["duplicate-row"] == 0 and dense.problems.counts["unmatched-row"] == 0
+
+
 def test_everything_read_once_and_problems_counted_once() -> None:
     rec = open_recording(FLEET)
     assert rec.nav is rec.nav
