@@ -7,6 +7,7 @@ conversion: the commands warn, and with `--strict` exit non-zero so a pipeline s
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 from coplane.gtime import GpsTime
@@ -49,14 +50,42 @@ def nav_gap(rec: Recording) -> str | None:
 
 def ephemeris_gap(rec: Recording, first: GpsTime, last: GpsTime) -> str | None:
     """`nav_gap` for observations spanning `first` .. `last`, when a caller knows the span
-    already (`coplane recording init` has read every file once): the navigation files only."""
+    already (`coplane recording init` has read every file once): the navigation files only.
+
+    It names the days the ephemerides are from, most first, and how far the nearest is: a
+    navigation file often holds a stray record of another week (KLT's HKSC file has one GPS
+    ephemeris 30 weeks older than the rest), so its first and last toe would span the
+    observations and say nothing of why none serves them."""
     toes = [e.toe for ephs in rec.nav.ephemerides.values() for e in ephs]
     if not toes:
         return None
-    if any(min(abs(t - toe) for toe in toes) <= EPHEMERIS_REACH_S for t in (first, last)):
+    nearest = min(abs(t - toe) for toe in toes for t in (first, last))
+    if nearest <= EPHEMERIS_REACH_S:
         return None
+    days = Counter(_day(toe) for toe in toes).most_common()
+    listed = ", ".join(f"{d} ({n})" for d, n in days[:3])
+    if len(days) > 3:
+        listed += f" and {len(days) - 3} other day(s)"
     files = ", ".join(str(f) for f in rec.manifest.nav_files)
-    return f"the ephemerides in {files} are for {min(toes)} .. {max(toes)}; the observations span {first} .. {last}"
+    span = f"{_day(first)} {_clock(first)} .. " + ("" if _day(last) == _day(first) else f"{_day(last)} ")
+    return (
+        f"the ephemerides in {files} are from {listed} (GPS time; how many each day), the nearest "
+        f"{_duration(nearest)} from the observations, which are from {span}{_clock(last)}"
+    )
+
+
+def _day(t: GpsTime) -> str:
+    y, m, d, *_ = t.to_calendar()
+    return f"{y:04d}-{m:02d}-{d:02d}"
+
+
+def _clock(t: GpsTime) -> str:
+    *_, hh, mm, ss = t.to_calendar()
+    return f"{hh:02d}:{mm:02d}:{int(ss):02d}"
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds / 86400.0:.1f} days" if seconds >= 2 * 86400.0 else f"{seconds / 3600.0:.1f} h"
 
 
 def health_warnings(health: InputHealth, fixes: int) -> list[str]:
