@@ -289,6 +289,15 @@ def _dof_without(fit: _Fit, group: list[SatMeasurement]) -> int:
     return len(left) - 3 - len({m.system for m in left})
 
 
+def _too_few(n: int, epoch: PreparedEpoch) -> str:
+    """Why an epoch has no fix with `n` < 4 satellites: a receiver that tracks enough of them but
+    has no ephemeris for them (a navigation file of another day) is told apart from a poor sky."""
+    no_eph = sum(1 for _, why in epoch.dropped if why == "no usable ephemeris")
+    if no_eph and n + no_eph >= 4:
+        return f"too few satellites with an ephemeris: {n} < 4 ({no_eph} tracked without one)"
+    return f"too few satellites: {n} < 4"
+
+
 def solve_spp(
     epoch: PreparedEpoch,
     nav: NavData,
@@ -313,7 +322,7 @@ def solve_spp(
         idx.append(i)
     sats = [epoch.sats[i] for i in idx]
     if len(sats) < 4:
-        return SppSolution(epoch.time, False, f"too few satellites: {len(sats)} < 4")
+        return SppSolution(epoch.time, False, _too_few(len(sats), epoch))
     excluded: list[str] = []
     x0 = initial_position
     atmos: FitAtmosphere | None = None
