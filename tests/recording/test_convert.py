@@ -143,3 +143,43 @@ def test_other_msm_levels(sources: dict[str, Path], tmp_path: Path, msm: int) ->
         convert_recording(sources["whole"], "ubx", tmp_path / "u", msm=5)
     with pytest.raises(RecordingError, match="MSM3: the RTCM 3 MSM level is 4 to 7"):
         convert_recording(sources["whole"], "rtcm3", tmp_path / "u", msm=3)
+
+
+def test_a_stray_ephemeris_does_not_move_the_base_by_weeks(real_data: Path, tmp_path: Path) -> None:
+    """KLT's HKSC navigation file holds one GPS ephemeris of 2020 among those of 2021-06-10. The
+    RTCM 3 base that `convert` writes has no week of its own: it is placed near the recording's
+    navigation data, once near that stray record, 30 weeks early, so the read-back base lost every
+    satellite (`missing sats` 5740) and a DGNSS run on it had no base epoch. Now every
+    observation reads back at its own time, and the CLI warns when one does not."""
+    src = real_data / "hk_klt_20210610_f9p_rover_hksc_base"
+    res = convert_recording(src, "ubx", tmp_path / "ubx")
+    assert [(d.name, d.epochs_read, d.satellites_missing) for d in res.differences] == [
+        ("klt1", 205, 0),
+        ("base", 205, 0),
+    ]
+    back = open_recording(tmp_path / "ubx")
+    assert [e.time for e in back.base_epochs()] == [e.time for e in open_recording(src).base_epochs()]
+    app = typer.Typer()
+    app.command()(convert)
+    out = CliRunner().invoke(app, [str(src), "--to", "ubx", "--out", str(tmp_path / "cli")]).output
+    assert "warning" not in out, out
+
+
+def test_cli_warns_when_observations_do_not_read_back(
+    sources: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A receiver whose read-back file lacks satellites or epochs is named in a warning."""
+    import coplane.recording.convert as conv
+
+    real = conv.convert_recording
+
+    def lossy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        res = real(*args, **kwargs)
+        res.differences[-1].satellites_missing = 12
+        return res
+
+    monkeypatch.setattr(conv, "convert_recording", lossy)
+    app = typer.Typer()
+    app.command()(convert)
+    out = CliRunner().invoke(app, [str(sources["sim"]), "--to", "ubx", "--out", str(tmp_path / "c")]).output
+    assert "warning: base: 12 satellite observation(s) of the source, and 0 epoch(s)" in " ".join(out.split())

@@ -53,6 +53,13 @@ def convert(
             f"{d.max_cn0_dbhz:.3f}",
         )
     console.print(table)
+    for d in res.differences:
+        if d.satellites_missing or d.epochs_read < d.epochs_source:
+            console.print(
+                f"[yellow]warning:[/yellow] {d.name}: {d.satellites_missing} satellite observation(s) of the "
+                f"source, and {d.epochs_source - d.epochs_read} epoch(s), are not in the file read back "
+                "at their time: a user of it loses them"
+            )
     for s in res.skipped:
         console.print(f"[yellow]not written:[/yellow] {s}")
     console.print(f"wrote {res.out}/fleet.toml ({res.problems} input problem(s) reading it back)")

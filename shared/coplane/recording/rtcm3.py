@@ -34,9 +34,10 @@ Time (docs/recording-format.md, "UBX and RTCM 3 obs files"):
   the tag and leaves P alone (d * range rate: up to 0.4 m). Without a Doppler, D = 0 is used.
 * BeiDou MSM and 1042 times are BDT (GPST - 14 s, BDT week = GPS week - 1356), converted here.
 * MSM has no week: each epoch takes the week that puts it nearest the previous epoch (the first
-  one: nearest the reference instant). The reference is the caller's (`reference`), else the
-  first 1042 (13-bit BDT week: unambiguous until 2163), else the first 1019 resolved against
-  today's date, else today's date. 1019's 10-bit week is resolved to the 1024-week cycle nearest
+  one: nearest the reference instant). The reference is the caller's (`reference`: the
+  recording's navigation, `Recording._reference`), else the median toe of the 1042s (13-bit BDT
+  week: unambiguous until 2163), else of the 1019s resolved against today's date, else today's
+  date; the median, so that a stray ephemeris of another week does not move the log. 1019's 10-bit week is resolved to the 1024-week cycle nearest
   the reference (RTKLIB's rule in real time), so a log is read right for +-512 weeks (9.8 years).
 
 MSM reading and writing stay one file: each field's scaling is written once and used both ways,
@@ -47,6 +48,7 @@ table and week rules shared with UBX in broadcast.py.
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -427,15 +429,17 @@ class RtcmReader:
         return out
 
     def reference(self, ephs: list[tuple[int, Any]], given: GpsTime | None) -> GpsTime:
+        """`given`, else the median toe of the log's 1042s, else of its 1019s (their weeks
+        resolved against today), else today. The median: one stray ephemeris of another week
+        must not move every epoch of the log by weeks (`Recording._reference`)."""
         if given is not None:
             return given
-        for _, msg in ephs:
-            if msg.identity == "1042":
-                return bdt_to_gpst(int(msg.DF489), float(msg.DF505))
+        bds = [bdt_to_gpst(int(msg.DF489), float(msg.DF505)) for _, msg in ephs if msg.identity == "1042"]
+        if bds:
+            return statistics.median_low(bds)
         now = today()
-        for _, msg in ephs:
-            return GpsTime(resolve_week(int(msg.DF076), 10, now.week), float(msg.DF093))
-        return now
+        gps = [GpsTime(resolve_week(int(m.DF076), 10, now.week), float(m.DF093)) for _, m in ephs]
+        return statistics.median_low(gps) if gps else now
 
     def nav(self, ephs: list[tuple[int, Any]], reference: GpsTime) -> NavData:
         nav = NavData()
