@@ -211,6 +211,10 @@ def test_show_and_the_wrong_days_ephemerides(real_data: Path, tmp_path: Path) ->
     assert r.exit_code == 0 and "klt1: antenna 1.8 m above the road; truth none" in r.output, r.output
     assert "base: hksc1610.obs at 22.3" in r.output
     assert "klt1: 4.2 km from the base at its first SPP fix" in r.output  # DGNSS over 4 km
+    # the ephemerides' days: the file's one GPS record of 2020 is named as such
+    assert "64 ephemerides from 2021-06-10 (48), 2021-06-09 (15), 2020-11-10 (1)" in " ".join(
+        r.output.split()
+    )
     mixed = tmp_path / "mixed"
     mixed.mkdir()
     shutil.copy(real_data / GEONET / "07590920.05o", mixed)

@@ -165,7 +165,7 @@ def show(
     from coplane.geo import ecef_to_geodetic
     from coplane.gnss.epoch_solver import first_fix
     from coplane.recording.discover import summarise
-    from coplane.recording.health import input_health
+    from coplane.recording.health import ephemeris_days, input_health
     from coplane.recording.plan import coverage_notes
     from coplane.recording.reader import open_recording
 
@@ -184,8 +184,8 @@ def show(
     for sat, ephs in rec.nav.ephemerides.items():
         systems.setdefault(sat[0], []).extend(e.toe for e in ephs)
     nav = ", ".join(
-        f"{sys} {len({s for s in rec.nav.ephemerides if s[0] == sys})} satellites ({len(toes)} ephemerides, "
-        f"toe {min(toes)} .. {max(toes)})"
+        f"{sys} {len({s for s in rec.nav.ephemerides if s[0] == sys})} satellites ({len(toes)} ephemerides "
+        f"from {ephemeris_days(toes)}, toe {min(toes)} .. {max(toes)})"
         for sys, toes in sorted(systems.items())
     )
     console.print(f"navigation: {nav}; ionosphere: {', '.join(sorted(rec.nav.iono)) or 'none'}")

@@ -8,6 +8,7 @@ conversion: the commands warn, and with `--strict` exit non-zero so a pipeline s
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from coplane.gtime import GpsTime
@@ -62,16 +63,22 @@ def ephemeris_gap(rec: Recording, first: GpsTime, last: GpsTime) -> str | None:
     nearest = min(abs(t - toe) for toe in toes for t in (first, last))
     if nearest <= EPHEMERIS_REACH_S:
         return None
-    days = Counter(_day(toe) for toe in toes).most_common()
-    listed = ", ".join(f"{d} ({n})" for d, n in days[:3])
-    if len(days) > 3:
-        listed += f" and {len(days) - 3} other day(s)"
+    listed = ephemeris_days(toes)
     files = ", ".join(str(f) for f in rec.manifest.nav_files)
     span = f"{_day(first)} {_clock(first)} .. " + ("" if _day(last) == _day(first) else f"{_day(last)} ")
     return (
         f"the ephemerides in {files} are from {listed} (GPS time; how many each day), the nearest "
         f"{_duration(nearest)} from the observations, which are from {span}{_clock(last)}"
     )
+
+
+def ephemeris_days(toes: Sequence[GpsTime], most: int = 3) -> str:
+    """The days (GPS time) ephemerides are from, with how many each, most first: '2021-06-10
+    (134), 2021-06-09 (25), 2020-11-10 (1)'. A first and last toe would span the stray record of
+    another week that navigation files often hold, and seem to cover months."""
+    days = Counter(_day(toe) for toe in toes).most_common()
+    listed = ", ".join(f"{d} ({n})" for d, n in days[:most])
+    return listed + (f" and {len(days) - most} other day(s)" if len(days) > most else "")
 
 
 def _day(t: GpsTime) -> str:
