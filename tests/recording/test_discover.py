@@ -129,13 +129,29 @@ def test_dry_run_prints_the_manifest_and_writes_nothing(real_data: Path, tmp_pat
 def test_bad_requests_name_what_is_wrong(real_data: Path, tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
+    with pytest.raises(RecordingError, match=r"no observation file \(RINEX, UBX or RTCM 3\) below it$"):
+        plan_recording(empty)
+    obs_only = tmp_path / "obs_only"
+    obs_only.mkdir()
+    shutil.copy(real_data / GEONET / "07590920.05o", obs_only)
     with pytest.raises(RecordingError, match="no GPS or BeiDou navigation file"):
+        plan_recording(obs_only)
+    # what is there instead of observations: a phone's log by its kind, other files by name
+    phone = tmp_path / "phone"
+    shutil.copytree(real_data / "gsdc2022_pixel_sample_csv", phone)
+    with pytest.raises(RecordingError, match=r"device_gnss.csv is an Android GNSS measurement log"):
+        plan_recording(phone)
+    (empty / "notes.txt").write_text("hello\n")
+    with pytest.raises(RecordingError, match=r"found notes.txt: none is RINEX"):
         plan_recording(empty)
     nav_only = tmp_path / "nav_only"
     nav_only.mkdir()
     shutil.copy(real_data / GEONET / "07590920.05n", nav_only)
-    with pytest.raises(RecordingError, match=r"no observation file .* for a vehicle"):
+    with pytest.raises(RecordingError, match=r"no observation file \(RINEX, UBX or RTCM 3\) below it$"):
         plan_recording(nav_only)
+    shutil.copy(real_data / GEONET / "30400920.05o", nav_only)
+    with pytest.raises(RecordingError, match=r"no observation file .* for a vehicle"):  # the base's only
+        plan_recording(nav_only, base=Path("30400920.05o"), base_position=parse_position(BASE_3040))
     rec = _copy(real_data, GEONET, tmp_path)
     with pytest.raises(ConfigError, match="--base needs --base-position"):
         plan_recording(rec, base=Path("30400920.05o"))

@@ -12,7 +12,7 @@ import itertools
 import math
 import re
 import statistics
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -29,6 +29,7 @@ MAX_FILES = 2000  # a directory tree larger than this is not a drive's folder: r
 # where `recording init` writes one receiver's consecutive files joined (recording/splice.py): not
 # looked in, or the joined files would be found beside their parts
 SPLICED_DIR = "spliced"
+NAV_SYSTEMS = ("G", "C", "M")  # navigation files of these systems are merged (M: mixed)
 
 
 @dataclass(frozen=True)
@@ -194,3 +195,60 @@ def receiver_files(root: Path) -> list[ReceiverFile]:
                     f"{root}: more than {MAX_FILES} files below it; point at one drive's folder"
                 )
     return [r for r in (sniff(p) for p in sorted(paths)) if r is not None]
+
+
+def no_observations(root: Path, found: Sequence[ReceiverFile]) -> str:
+    """The error for a folder without any observation file, saying what is there instead: an
+    Android GNSS log is named as one (a phone's log is a common first try, and a bare "no
+    observation file" beside it reads like a bug), other files by name."""
+    known = {r.path for r in found}
+    others = sorted(
+        p
+        for p in root.rglob("*")
+        if p.is_file() and p not in known and not any(x.startswith(".") for x in p.relative_to(root).parts)
+    )
+    msg = f"{root}: no observation file (RINEX, UBX or RTCM 3) below it"
+    android = next((p for p in others if _android_log(p)), None)
+    if android is not None:
+        return (
+            f"{msg}; {android.relative_to(root)} is an Android GNSS measurement log (GnssLogger, or a "
+            "Smartphone Decimeter Challenge device_gnss.csv), which coplane does not read: log RINEX "
+            "with GnssLogger, or convert the log to RINEX (e.g. Rokubun's android_rinex)"
+        )
+    if others:
+        names = ", ".join(str(p.relative_to(root)) for p in others[:5])
+        more = f" and {len(others) - 5} more" if len(others) > 5 else ""
+        return f"{msg}; found {names}{more}: none is RINEX (by its first line), .ubx or .rtcm3"
+    return msg
+
+
+def _android_log(path: Path) -> bool:
+    """Whether `path` reads like Android's raw GNSS measurements (GnssLogger's Raw rows, GSDC's
+    device_gnss.csv): their header names the raw fields no receiver format has."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(8192).decode("utf-8", "replace")
+    except OSError:
+        return False
+    return "ReceivedSvTimeNanos" in head or "RawPseudorangeMeters" in head
+
+
+def navigation_files(
+    root: Path, found: Sequence[ReceiverFile], logs: Mapping[Path, LogSummary], skipped: list[str]
+) -> list[Path]:
+    """The navigation files to merge (GPS / BeiDou RINEX first, then the logs with ephemerides: a
+    satellite's first record wins); the other files found go to `skipped`."""
+    nav = [r.path for r in found if r.kind == "nav" and r.system in NAV_SYSTEMS]
+    nav += [p for p, log in logs.items() if log.ephemerides]
+    for r in found:
+        if r.kind == "nav" and r.system not in NAV_SYSTEMS:
+            skipped.append(f"{r.path.relative_to(root)}: {r.system} navigation (coplane uses GPS and BeiDou)")
+        elif r.kind == "other":
+            why = "cannot be decompressed" if r.system == "unreadable" else "RINEX of another type"
+            skipped.append(f"{r.path.relative_to(root)}: {why}")
+    if not nav:
+        raise RecordingError(
+            f"{root}: no GPS or BeiDou navigation file (RINEX, or a UBX / RTCM 3 log with ephemerides) "
+            "below it; add one (e.g. the day's BRDC file, or the receiver's own navigation log)"
+        )
+    return nav

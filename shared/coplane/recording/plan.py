@@ -27,7 +27,8 @@ from coplane.recording.csvfiles import write_truth
 from coplane.recording.discover import (
     LogSummary,
     ObsSummary,
-    ReceiverFile,
+    navigation_files,
+    no_observations,
     receiver_files,
     summarise_log,
     summarise_obs,
@@ -40,7 +41,6 @@ from coplane.recording.splice import join_runs, splice
 from coplane.recording.trajectories import read_trajectory, sniff
 
 # the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
-NAV_SYSTEMS = ("G", "C", "M")
 EARTH_RADIUS_RANGE_M = (6.30e6, 6.42e6)  # |ECEF| of a point near the surface
 DEFAULT_ANTENNA_HEIGHT_M = 1.5  # a car's roof, when the user does not say
 
@@ -140,7 +140,9 @@ def plan_recording(
     logs = {
         r.path.resolve(): summarise_log(r.path.resolve()) for r in found if r.kind == "log"
     }  # each read once
-    nav = _navigation(root, found, logs, skipped)
+    if not any(r.kind in ("obs", "log") for r in found):  # before the navigation: say what is there
+        raise RecordingError(no_observations(root, found))
+    nav = navigation_files(root, found, logs, skipped)
     base_path = inside(root, base, "--base") if base is not None else None
     if (base_path is None) != (base_position is None):
         raise ConfigError(
@@ -217,27 +219,6 @@ def plan_recording(
     uwb_spec = UwbSpec(inside(root, uwb, "--uwb")) if uwb is not None else None
     manifest = Manifest(root, name or root.name, interval, tuple(nav), specs, base_spec, uwb_spec)
     return RecordingPlan(manifest, summaries, roles, skipped, notes, static, splices)
-
-
-def _navigation(
-    root: Path, found: Sequence[ReceiverFile], logs: Mapping[Path, LogSummary], skipped: list[str]
-) -> list[Path]:
-    """The navigation files to merge (GPS / BeiDou RINEX first, then the logs with ephemerides: a
-    satellite's first record wins); the other files found go to `skipped`."""
-    nav = [r.path for r in found if r.kind == "nav" and r.system in NAV_SYSTEMS]
-    nav += [p for p, log in logs.items() if log.ephemerides]
-    for r in found:
-        if r.kind == "nav" and r.system not in NAV_SYSTEMS:
-            skipped.append(f"{r.path.relative_to(root)}: {r.system} navigation (coplane uses GPS and BeiDou)")
-        elif r.kind == "other":
-            why = "cannot be decompressed" if r.system == "unreadable" else "RINEX of another type"
-            skipped.append(f"{r.path.relative_to(root)}: {why}")
-    if not nav:
-        raise RecordingError(
-            f"{root}: no GPS or BeiDou navigation file (RINEX, or a UBX / RTCM 3 log with ephemerides) "
-            "below it; add one (e.g. the day's BRDC file, or the receiver's own navigation log)"
-        )
-    return nav
 
 
 def _summaries(
