@@ -185,8 +185,7 @@ def receiver_files(root: Path) -> list[ReceiverFile]:
         raise RecordingError(f"{root}: not a directory")
     paths = []
     for p in root.rglob("*"):  # counted as found: a whole disk is refused early, not walked
-        parts = p.relative_to(root).parts
-        if any(part.startswith(".") for part in parts) or parts[0] == SPLICED_DIR:
+        if not _looked_in(root, p):
             continue
         if p.is_file():
             paths.append(p)
@@ -197,16 +196,18 @@ def receiver_files(root: Path) -> list[ReceiverFile]:
     return [r for r in (sniff(p) for p in sorted(paths)) if r is not None]
 
 
+def _looked_in(root: Path, p: Path) -> bool:
+    """Hidden folders and the joined files of `SPLICED_DIR` are not the user's files."""
+    parts = p.relative_to(root).parts
+    return not (any(part.startswith(".") for part in parts) or parts[0] == SPLICED_DIR)
+
+
 def no_observations(root: Path, found: Sequence[ReceiverFile]) -> str:
     """The error for a folder without any observation file, saying what is there instead: an
     Android GNSS log is named as one (a phone's log is a common first try, and a bare "no
     observation file" beside it reads like a bug), other files by name."""
     known = {r.path for r in found}
-    others = sorted(
-        p
-        for p in root.rglob("*")
-        if p.is_file() and p not in known and not any(x.startswith(".") for x in p.relative_to(root).parts)
-    )
+    others = sorted(p for p in root.rglob("*") if p.is_file() and p not in known and _looked_in(root, p))
     msg = f"{root}: no observation file (RINEX, UBX or RTCM 3) below it"
     android = next((p for p in others if _android_log(p)), None)
     if android is not None:
