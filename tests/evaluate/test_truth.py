@@ -74,7 +74,10 @@ def test_a_reference_file_replaces_one_vehicles_truth(sim: Path, tmp_path: Path)
     )
     assert got["u2"] == own["u2"]
     note = ev.notes["truth"]
-    assert "u1: 12 points from an RTKLIB .pos file (fix 12) (same.pos, 1 bad rows skipped)" in note, note
+    assert (
+        "u1: 12 points from an RTKLIB .pos file (fix 12) (same.pos, 1 bad rows skipped), at 12 of its 12 epochs"
+        in note
+    ), note
     assert rec.problems.total == 1 and "same.pos:5" in str(rec.problems.items[0])
 
     up = _pos_file(tmp_path / "up.pos", sim, "u1", up_m=2.0)
@@ -82,6 +85,19 @@ def test_a_reference_file_replaces_one_vehicles_truth(sim: Path, tmp_path: Path)
         "non-cp"
     ]
     assert moved["u1"].v_bias_m == pytest.approx(own["u1"].v_bias_m - 2.0, abs=1e-3)
+
+
+def test_a_reference_of_another_week_is_said_to_cover_nothing(sim: Path, tmp_path: Path) -> None:
+    """A reference a week off (another drive's file) leaves every error blank: the note says it
+    covers none of the vehicle's epochs and gives both spans, so the empty table is explained."""
+    same = _pos_file(tmp_path / "same.pos", sim, "u1").read_text().splitlines()
+    shifted = [same[0]] + [f"{int(r.split()[0]) + 1} {r.split(' ', 1)[1]}" for r in same[1:]]
+    later = tmp_path / "later.pos"
+    later.write_text("\n".join(shifted) + "\n")
+    ev = evaluate(open_recording(sim), ["non-cp"], truth=TruthChoice(references=(("u1", later),)))
+    note = " ".join(ev.notes["truth"].split())
+    assert "(later.pos), at 0 of its 12 epochs: the reference is from " in note, note
+    assert ev.stats["non-cp"]["u1"].n_solved == 0  # no epoch with both: the blank row the note explains
 
 
 def test_a_reference_that_gives_nothing_stops_before_any_method(sim: Path, tmp_path: Path) -> None:

@@ -272,3 +272,29 @@ def test_receiver_logs_as_coplane_convert_writes_them(tmp_path: Path, fmt: str) 
     path = write_plan(plan)
     rec = open_recording(path)
     assert rec.nav.ephemerides and len(rec.vehicle_epochs("u1")) == 30
+
+
+def test_a_reference_of_another_day_is_noted(real_data: Path, tmp_path: Path) -> None:
+    """UrbanNav's ground truth (2021-05-17) given for the KLT drive (2021-06-10): init converts it
+    and says that it covers none of the vehicle's epochs, with both spans, instead of a recording
+    whose errors would then be computed on nothing without a word."""
+    klt = real_data / "hk_klt_20210610_f9p_rover_hksc_base"
+    rec = tmp_path / "klt"
+    rec.mkdir()
+    for name in ("20210610.klt1.ublox.f9p.obs", "hksc1610.nav"):
+        shutil.copy(klt / name, rec)
+    truth = real_data / "urbannav_hk_medium_urban1_20210517_kinematic_NONAV" / "UrbanNav_TST_GT_raw.txt"
+    plan = plan_recording(rec, vehicles={"klt1": Path("20210610.klt1.ublox.f9p.obs")}, truth={"klt1": truth})
+    assert (
+        "klt1: its truth covers 0 of its 205 epochs: the trajectory is from 2021-05-17 02:33:13 .. "
+        "02:46:19, the observations from 2021-06-10 03:35:54 .. 03:39:18 (GPS time)"
+    ) in plan.notes, plan.notes
+    # a reference over the drive's own epochs (an RTKLIB .pos, week and seconds, ECEF): no such note
+    times = summarise_obs(rec / "20210610.klt1.ublox.f9p.obs").times
+    pos = tmp_path / "klt1.pos"
+    rows = "".join(f"{t.week} {t.tow:.3f} -2417841.641 5384776.618 2408312.560 1 11\n" for t in times)
+    pos.write_text("%  GPST  x-ecef(m)  y-ecef(m)  z-ecef(m)  Q  ns\n" + rows)
+    own = plan_recording(rec, vehicles={"klt1": Path("20210610.klt1.ublox.f9p.obs")}, truth={"klt1": pos})
+    assert [n for n in own.notes if "klt1: truth/klt1.csv converted" in n] and not [
+        n for n in own.notes if "covers" in n
+    ], own.notes

@@ -24,6 +24,7 @@ from typing import Literal
 from coplane.errors import ConfigError
 from coplane.evaluate.rtk_reference import use_rtk_truth
 from coplane.recording.csvfiles import read_truth, write_truth
+from coplane.recording.health import time_span
 from coplane.recording.plan import parse_truth_value
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import Recording
@@ -117,11 +118,25 @@ def use_references(rec: Recording, references: Mapping[str, Reference]) -> str:
             raise ConfigError(f"--truth {vid}={ref}: no usable point ({bad} bad rows{detail})")
         rec.use_truth_points(vid, trajectory.points, ref)
         skipped = f", {bad} bad rows skipped" if bad else ""
-        matched = len(rec.truth_at(vid))
-        notes.append(
-            f"{vid}: {trajectory.describe()} ({ref.name}{skipped}), {matched} at the recording's epochs"
-        )
+        notes.append(f"{vid}: {trajectory.describe()} ({ref.name}{skipped}), {_coverage(rec, vid)}")
     return "references: " + "; ".join(notes)
+
+
+def _coverage(rec: Recording, vid: str) -> str:
+    """How many of the vehicle's epochs the reference gives a truth for, and both spans when it
+    is under half: another drive's or day's file would otherwise leave every error blank, and the
+    table's empty rows would read like a failed solver."""
+    epochs = sorted({rec.nominal(e.time) for e in rec.vehicle_epochs(vid)})
+    truth = rec.truth_at(vid)
+    matched = sum(1 for t in epochs if t in truth)
+    text = f"at {matched} of its {len(epochs)} epochs"
+    if epochs and truth and matched < 0.5 * len(epochs):
+        times = sorted(truth)
+        text += (
+            f": the reference is from {time_span(times[0], times[-1])}, the observations from "
+            f"{time_span(epochs[0], epochs[-1])} (GPS time)"
+        )
+    return text
 
 
 def missing_truth_note(rec: Recording) -> str:

@@ -65,11 +65,17 @@ def ephemeris_gap(rec: Recording, first: GpsTime, last: GpsTime) -> str | None:
         return None
     listed = ephemeris_days(toes)
     files = ", ".join(str(f) for f in rec.manifest.nav_files)
-    span = f"{_day(first)} {_clock(first)} .. " + ("" if _day(last) == _day(first) else f"{_day(last)} ")
     return (
         f"the ephemerides in {files} are from {listed} (GPS time; how many each day), the nearest "
-        f"{_duration(nearest)} from the observations, which are from {span}{_clock(last)}"
+        f"{_duration(nearest)} from the observations, which are from {time_span(first, last)}"
     )
+
+
+def time_span(first: GpsTime, last: GpsTime) -> str:
+    """'2021-05-17 02:33:13 .. 02:46:19' (GPS time; the second date only when it differs): what a
+    user compares with a log's name or a calendar, where week and seconds say little."""
+    tail = _clock(last) if _day(last) == _day(first) else f"{_day(last)} {_clock(last)}"
+    return f"{_day(first)} {_clock(first)} .. {tail}"
 
 
 def ephemeris_days(toes: Sequence[GpsTime], most: int = 3) -> str:

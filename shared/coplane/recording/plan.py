@@ -34,6 +34,7 @@ from coplane.recording.discover import (
     summarise_obs,
     vehicle_ids,
 )
+from coplane.recording.health import time_span
 from coplane.recording.manifest import MANIFEST_NAME, write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
 from coplane.recording.problems import Problems, RecordingError
@@ -301,6 +302,7 @@ def _truths(
             files[vid], written[vid] = default, trajectory.points
             bad = f"; {bad} (skipped)" if bad else ""
             notes.append(f"{vid}: truth/{vid}.csv converted from {path.name}: {trajectory.describe()}{bad}")
+            notes += _truth_coverage(vid, trajectory.points, summaries[obs], interval)
         elif value is not None:  # a surveyed point: the vehicle stood there at every epoch it logged
             files[vid] = default
             epochs = sorted({t.round_to(interval) for t in summaries[obs].times})
@@ -330,6 +332,21 @@ def _fleet_interval(vehicles: Sequence[ObsSummary]) -> float:
         listed = ", ".join(f"{n} {v} s" for n, v in rates.items())
         raise ConfigError(f"the vehicles log at different intervals ({listed}); give --interval")
     return known.pop()
+
+
+def _truth_coverage(vid: str, points: Sequence[TruthPoint], obs: ObsSummary, interval: float) -> list[str]:
+    """A note when a reference trajectory misses most of the vehicle's epochs (another drive's
+    file, another day's): errors would be computed on few epochs, or none, without a word."""
+    epochs = {t.round_to(interval) for t in obs.times}
+    covered = len(epochs & {p.time.round_to(interval) for p in points})
+    if not epochs or covered >= 0.5 * len(epochs):
+        return []
+    times = sorted(p.time for p in points)
+    return [
+        f"{vid}: its truth covers {covered} of its {len(epochs)} epochs: the trajectory is from "
+        f"{time_span(times[0], times[-1])}, the observations from {time_span(min(epochs), max(epochs))} "
+        "(GPS time)"
+    ]
 
 
 def coverage_notes(
