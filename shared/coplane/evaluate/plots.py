@@ -12,6 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
 
 from coplane.evaluate.metrics import AccuracyStats, enu_errors
 from coplane.evaluate.runner import MethodRun
@@ -21,6 +22,18 @@ from coplane.gtime import GpsTime
 
 def _truth_arrays(truth: Mapping[GpsTime, np.ndarray]) -> dict[GpsTime, np.ndarray]:
     return {t: np.asarray(p, dtype=float) for t, p in truth.items()}
+
+
+NO_ERRORS = "no epoch with both a solution and a truth"
+
+
+def _legend(ax: Axes, empty: str, fontsize: float | None = None) -> None:
+    """The legend of what was drawn; on a figure with nothing drawn, `empty` says why (a truth of
+    another day, a run that solved nothing) instead of matplotlib warning about the legend."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=fontsize)
+    else:
+        ax.text(0.5, 0.5, empty, ha="center", va="center", transform=ax.transAxes)
 
 
 def plot_cdfs(
@@ -42,7 +55,7 @@ def plot_cdfs(
         ax.set_ylabel("CDF")
         ax.set_title(f"{name.capitalize()} error CDF, vehicle {vehicle}")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
+        _legend(ax, NO_ERRORS, fontsize=8)
         p = out_dir / f"cdf_{comp}_{vehicle}.png"
         fig.tight_layout()
         fig.savefig(p, dpi=110)
@@ -72,7 +85,7 @@ def plot_error_vs_time(
     ax.set_ylabel("horizontal error (m)")
     ax.set_title(f"Horizontal error vs time, vehicle {vehicle}")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
+    _legend(ax, NO_ERRORS, fontsize=7)
     p = out_dir / f"error_time_{vehicle}.png"
     fig.tight_layout()
     fig.savefig(p, dpi=110)
@@ -93,7 +106,7 @@ def plot_rmse_vs_interruption(
         ax.set_xlabel("ranging interruption rate (%)")
         ax.set_ylabel(f"{what} RMSE (m)")
         ax.grid(True, alpha=0.3)
-        ax.legend()
+        _legend(ax, NO_ERRORS)
     fig.suptitle(f"RMSE vs ranging interruption, vehicle {vehicle}")
     p = out_dir / f"rmse_vs_interruption_{vehicle}.png"
     fig.tight_layout()
@@ -132,7 +145,7 @@ def plot_plane_map(
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_title(f"Plane availability along the route ({run.label})")
-    ax.legend(fontsize=8)
+    _legend(ax, "no plane at an epoch with a position", fontsize=8)
     ax.grid(True, alpha=0.3)
     p = out_dir / "plane_map.png"
     fig.tight_layout()
