@@ -57,8 +57,11 @@ def test_bad_manifest_names_the_key_or_path(name: str, message: str) -> None:
 
 
 def test_not_a_recording(tmp_path: Path) -> None:
-    with pytest.raises(RecordingError, match=r"fleet\.toml"):
+    with pytest.raises(RecordingError, match=r"no fleet\.toml .*`coplane recording init"):
         load_manifest(tmp_path)
+    # a path that does not exist is a typo, not a folder that needs a manifest
+    with pytest.raises(RecordingError, match=r"nope: no such directory$"):
+        load_manifest(tmp_path / "nope")
 
 
 def test_symlink_leaving_the_recording_is_rejected(tmp_path: Path) -> None:

@@ -78,6 +78,8 @@ class _Ctx:
 def _root_and_toml(root: Path) -> tuple[Path, Path]:
     root = Path(root)
     toml_path = root if root.name == MANIFEST_NAME or root.suffix == ".toml" else root / MANIFEST_NAME
+    if not toml_path.parent.is_dir():  # a typo in the path: init cannot help there
+        raise RecordingError(f"{toml_path.parent}: no such directory")
     if not toml_path.is_file():
         raise RecordingError(
             f"{toml_path}: no {MANIFEST_NAME} (not a fleet recording; for a folder of RINEX files, "
