@@ -110,3 +110,21 @@ def gps_minus_utc_s(t: GpsTime) -> int:
 def gpst_to_utc(t: GpsTime) -> _dt.datetime:
     """UTC of a GPS-time instant (naive datetime, microseconds): what NMEA and most tools print."""
     return GPS_EPOCH + _dt.timedelta(weeks=t.week, seconds=t.tow - gps_minus_utc_s(t))
+
+
+def calendar_day(t: GpsTime) -> str:
+    """'2021-06-10': the GPS-time date of `t`."""
+    y, m, d, *_ = t.to_calendar()
+    return f"{y:04d}-{m:02d}-{d:02d}"
+
+
+def calendar_span(first: GpsTime, last: GpsTime) -> str:
+    """'2021-05-17 02:33:13 .. 02:46:19' (GPS time; the second date only when it differs): what a
+    user compares with a log's name or a calendar, where week and seconds say little."""
+
+    def clock(t: GpsTime) -> str:
+        *_, hh, mm, ss = t.to_calendar()
+        return f"{hh:02d}:{mm:02d}:{int(ss):02d}"
+
+    tail = clock(last) if calendar_day(last) == calendar_day(first) else f"{calendar_day(last)} {clock(last)}"
+    return f"{calendar_day(first)} {clock(first)} .. {tail}"

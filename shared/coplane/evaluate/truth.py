@@ -23,8 +23,8 @@ from typing import Literal
 
 from coplane.errors import ConfigError
 from coplane.evaluate.rtk_reference import use_rtk_truth
+from coplane.gtime import calendar_span
 from coplane.recording.csvfiles import read_truth, write_truth
-from coplane.recording.health import time_span
 from coplane.recording.plan import parse_truth_value
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import Recording
@@ -133,8 +133,8 @@ def _coverage(rec: Recording, vid: str) -> str:
     if epochs and truth and matched < 0.5 * len(epochs):
         times = sorted(truth)
         text += (
-            f": the reference is from {time_span(times[0], times[-1])}, the observations from "
-            f"{time_span(epochs[0], epochs[-1])} (GPS time)"
+            f": the reference is from {calendar_span(times[0], times[-1])}, the observations from "
+            f"{calendar_span(epochs[0], epochs[-1])} (GPS time)"
         )
     return text
 

@@ -11,7 +11,7 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from coplane.gtime import GpsTime
+from coplane.gtime import GpsTime, calendar_day, calendar_span
 from coplane.recording.reader import Recording
 
 MAX_PROBLEM_SHARE = 0.05  # above this share of records with a problem, the input is suspect
@@ -67,34 +67,17 @@ def ephemeris_gap(rec: Recording, first: GpsTime, last: GpsTime) -> str | None:
     files = ", ".join(str(f) for f in rec.manifest.nav_files)
     return (
         f"the ephemerides in {files} are from {listed} (GPS time; how many each day), the nearest "
-        f"{_duration(nearest)} from the observations, which are from {time_span(first, last)}"
+        f"{_duration(nearest)} from the observations, which are from {calendar_span(first, last)}"
     )
-
-
-def time_span(first: GpsTime, last: GpsTime) -> str:
-    """'2021-05-17 02:33:13 .. 02:46:19' (GPS time; the second date only when it differs): what a
-    user compares with a log's name or a calendar, where week and seconds say little."""
-    tail = _clock(last) if _day(last) == _day(first) else f"{_day(last)} {_clock(last)}"
-    return f"{_day(first)} {_clock(first)} .. {tail}"
 
 
 def ephemeris_days(toes: Sequence[GpsTime], most: int = 3) -> str:
     """The days (GPS time) ephemerides are from, with how many each, most first: '2021-06-10
     (134), 2021-06-09 (25), 2020-11-10 (1)'. A first and last toe would span the stray record of
     another week that navigation files often hold, and seem to cover months."""
-    days = Counter(_day(toe) for toe in toes).most_common()
+    days = Counter(calendar_day(toe) for toe in toes).most_common()
     listed = ", ".join(f"{d} ({n})" for d, n in days[:most])
     return listed + (f" and {len(days) - most} other day(s)" if len(days) > most else "")
-
-
-def _day(t: GpsTime) -> str:
-    y, m, d, *_ = t.to_calendar()
-    return f"{y:04d}-{m:02d}-{d:02d}"
-
-
-def _clock(t: GpsTime) -> str:
-    *_, hh, mm, ss = t.to_calendar()
-    return f"{hh:02d}:{mm:02d}:{int(ss):02d}"
 
 
 def _duration(seconds: float) -> str:

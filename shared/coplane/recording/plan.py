@@ -22,6 +22,7 @@ import numpy as np
 
 from coplane.errors import ConfigError
 from coplane.geo import enu_to_ecef, geodetic_to_ecef
+from coplane.gtime import calendar_span
 from coplane.ids import is_vehicle_id
 from coplane.recording.csvfiles import write_truth
 from coplane.recording.discover import (
@@ -34,7 +35,6 @@ from coplane.recording.discover import (
     summarise_obs,
     vehicle_ids,
 )
-from coplane.recording.health import time_span
 from coplane.recording.manifest import MANIFEST_NAME, write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
 from coplane.recording.problems import Problems, RecordingError
@@ -344,7 +344,7 @@ def _truth_coverage(vid: str, points: Sequence[TruthPoint], obs: ObsSummary, int
     times = sorted(p.time for p in points)
     return [
         f"{vid}: its truth covers {covered} of its {len(epochs)} epochs: the trajectory is from "
-        f"{time_span(times[0], times[-1])}, the observations from {time_span(min(epochs), max(epochs))} "
+        f"{calendar_span(times[0], times[-1])}, the observations from {calendar_span(min(epochs), max(epochs))} "
         "(GPS time)"
     ]
 
