@@ -37,8 +37,9 @@ Time (docs/recording-format.md, "UBX and RTCM 3 obs files"):
   one: nearest the reference instant). The reference is the caller's (`reference`: the
   recording's navigation, `Recording._reference`), else the median toe of the 1042s (13-bit BDT
   week: unambiguous until 2163), else of the 1019s resolved against today's date, else today's
-  date; the median, so that a stray ephemeris of another week does not move the log. 1019's 10-bit week is resolved to the 1024-week cycle nearest
-  the reference (RTKLIB's rule in real time), so a log is read right for +-512 weeks (9.8 years).
+  date; the median, so that a stray ephemeris of another week does not move the log. 1019's
+  10-bit week is resolved to the 1024-week cycle nearest the reference (RTKLIB's rule in real
+  time), so a log is read right for +-512 weeks (9.8 years).
 
 MSM reading and writing stay one file: each field's scaling is written once and used both ways,
 and the round-trip tests check the pair. Ephemeris messages live in rtcm3_ephemeris.py, the URA
