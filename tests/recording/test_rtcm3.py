@@ -223,3 +223,24 @@ def test_hostile_stream_counts_damage_and_keeps_good_frames(tmp_path: Path) -> N
     assert [e.time for e in got] == [src[i].time for i in range(len(src)) if i not in damaged]
     assert p.counts["garbled-frame"] >= len(damaged) * 0.5
     assert "bad.rtcm3:byte " in str(p.items[0])
+
+
+def test_the_week_reference_is_the_median_toe_and_skips_what_does_not_make_one() -> None:
+    """MSM has no week, so a log's epochs are placed near a reference from its ephemerides: the
+    median of the 1042s' toes, so that a stray one of another week moves nothing, and a message
+    whose fields make no toe (a damaged one) is skipped there, not raised (it is named when the
+    ephemerides are decoded)."""
+    from types import SimpleNamespace
+
+    from coplane.recording.rtcm3 import RtcmReader
+
+    rd = RtcmReader("x.rtcm3", Problems(), dict(DEFAULT_SIGNALS), ("G", "C"))
+
+    def b1042(week: int, toe: float) -> tuple[int, SimpleNamespace]:
+        return 0, SimpleNamespace(identity="1042", DF489=week, DF505=toe)
+
+    good = [b1042(805, 3600.0 * h) for h in range(5)]  # BDT week 805 = GPS week 2161
+    stray = b1042(775, 0.0)  # 30 weeks older, first in the log
+    broken = (0, SimpleNamespace(identity="1042"))  # no fields
+    assert rd.reference([stray, *good, broken], None) == bdt_to_gpst(805, 3600.0)  # the lower median of 6
+    assert rd.reference([broken], None).week >= 2161  # nothing usable: today

@@ -435,11 +435,11 @@ class RtcmReader:
         must not move every epoch of the log by weeks (`Recording._reference`)."""
         if given is not None:
             return given
-        bds = [bdt_to_gpst(int(msg.DF489), float(msg.DF505)) for _, msg in ephs if msg.identity == "1042"]
+        now = today()
+        bds = [t for _, m in ephs if m.identity == "1042" and (t := _toe(m, now)) is not None]
         if bds:
             return statistics.median_low(bds)
-        now = today()
-        gps = [GpsTime(resolve_week(int(m.DF076), 10, now.week), float(m.DF093)) for _, m in ephs]
+        gps = [t for _, m in ephs if (t := _toe(m, now)) is not None]
         return statistics.median_low(gps) if gps else now
 
     def nav(self, ephs: list[tuple[int, Any]], reference: GpsTime) -> NavData:
@@ -450,6 +450,17 @@ class RtcmReader:
             except (ValueError, AttributeError) as exc:
                 self._p(offset, "malformed-record", f"ephemeris {msg.identity} does not decode: {exc}")
         return nav
+
+
+def _toe(msg: Any, now: GpsTime) -> GpsTime | None:
+    """A 1042's or a 1019's toe (a 1019's 10-bit week resolved near `now`); None for a message
+    whose fields do not make one (it is named when the ephemerides are decoded, `nav`)."""
+    try:
+        if msg.identity == "1042":
+            return bdt_to_gpst(int(msg.DF489), float(msg.DF505))
+        return GpsTime(resolve_week(int(msg.DF076), 10, now.week), float(msg.DF093))
+    except (AttributeError, TypeError, ValueError, OverflowError):
+        return None
 
 
 def _load(path: Path) -> bytes:
