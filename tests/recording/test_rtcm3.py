@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import random
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from pyrtcm import RTCMReader
@@ -22,6 +23,7 @@ from coplane.recording.rtcm3 import (
     FREQ_HZ,
     LIGHT_MS,
     PSEUDORANGE_LSB_M,
+    RtcmReader,
     lock_indicator,
     msm_frames,
     read_rtcm3,
@@ -230,10 +232,6 @@ def test_the_week_reference_is_the_median_toe_and_skips_what_does_not_make_one()
     median of the 1042s' toes, so that a stray one of another week moves nothing, and a message
     whose fields make no toe (a damaged one) is skipped there, not raised (it is named when the
     ephemerides are decoded)."""
-    from types import SimpleNamespace
-
-    from coplane.recording.rtcm3 import RtcmReader
-
     rd = RtcmReader("x.rtcm3", Problems(), dict(DEFAULT_SIGNALS), ("G", "C"))
 
     def b1042(week: int, toe: float) -> tuple[int, SimpleNamespace]:
