@@ -53,3 +53,19 @@ def test_a_standalone_drive_builds_no_map_and_says_why(tmp_path: Path) -> None:
     assert "without a base station" in said, r.output
     with RoadMapDb(out, readonly=True) as db:
         assert db.load().stats()["passes"] == 0
+
+
+def test_eval_refuses_a_map_no_method_reads_and_map_methods_without_one(tmp_path: Path) -> None:
+    """Both stop before any method runs: a map beside only map-less methods would give tables that
+    silently ignore it, and `pc,pc-map` without a map used to fail only after `pc` had run."""
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=1, duration_s=5, seed=3)
+    out = tmp_path / "map.sqlite"
+    RoadMapDb(out).close()  # an empty map: enough, the refusal comes before it is read
+    ev = tmp_path / "ev"
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "pc", "--map", str(out), "--out", str(ev)])
+    said = " ".join(r.output.split())
+    assert r.exit_code != 0 and "none of the methods reads one" in said, r.output
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "pc,pc-map,pc-self-map", "--out", str(ev)])
+    said = " ".join(r.output.split())
+    assert r.exit_code != 0 and "pc-map, pc-self-map take their planes from a road-surface map" in said
+    assert not (ev / "solutions").exists()  # nothing ran

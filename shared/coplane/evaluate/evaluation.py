@@ -25,9 +25,9 @@ from coplane.evaluate.report import (
     write_tables,
 )
 from coplane.evaluate.rtklib_row import RTKLIB_METHOD, evaluation_row
-from coplane.evaluate.runner import MethodRun, run_method
+from coplane.evaluate.runner import MethodRun, require_map, run_method
 from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note
-from coplane.methods import get_method
+from coplane.methods import MethodSpec, get_method
 from coplane.recording.reader import Recording
 
 log = logging.getLogger(__name__)
@@ -47,6 +47,19 @@ class Evaluation:
     recording: str = ""  # the recording's name, for titles
     # the vehicles to tabulate: those asked for, else all that have truth
     shown: list[str] = field(default_factory=list)
+
+
+def _check_map(specs: Sequence[MethodSpec | None], road_map: RoadMap | None) -> None:
+    """Map methods without a map, or a map no method reads, stop the run before anything runs:
+    the first would fail only after the methods before it had run, the second would write tables
+    that silently ignore the map the user meant to evaluate."""
+    methods = [s for s in specs if s is not None]
+    require_map(methods, road_map)
+    if road_map is not None and not any(s.plane_map for s in methods):
+        raise ConfigError(
+            "a road-surface map was given, but none of the methods reads one: add pc-map or"
+            " pc-self-map to the methods, or leave the map out"
+        )
 
 
 def evaluate(
@@ -70,6 +83,7 @@ def evaluate(
     phase but no surveyed trajectory; a TruthChoice's files replace the named vehicles' truth."""
     # validate names (and settings) first
     specs = [None if m == RTKLIB_METHOD else get_method(m, fgo=fgo) for m in methods]
+    _check_map(specs, road_map)
     if dgnss and rec.manifest.base is None and any(s is not None for s in specs):
         # the runner would refuse too, but only after the methods before it had run
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time as _time
 from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -75,6 +75,16 @@ def lockstep_schedule(rec: Recording, vehicles: list[str]) -> list[tuple[GpsTime
     return sorted(per.items(), key=lambda kv: kv[0])
 
 
+def require_map(specs: Sequence[MethodSpec], road_map: RoadMap | None) -> None:
+    """The map methods among `specs` cannot run without a road-surface map: say so, naming them."""
+    names = [s.name for s in specs if s.plane_map]
+    if names and road_map is None:
+        raise ConfigError(
+            f"{', '.join(names)} {'takes its' if len(names) == 1 else 'take their'} planes from a"
+            " road-surface map: give one (--map MAP; `coplane map build` makes it)"
+        )
+
+
 def run_method(
     rec: Recording,
     method: MethodSpec | str,
@@ -107,11 +117,7 @@ def run_method(
         road_map=road_map,
         front_end=front_end,
     )
-    if setup.method.plane_map and road_map is None:
-        raise ConfigError(
-            f"method {setup.method.name!r} takes its planes from a road-surface map: give one"
-            " (--map MAP; `coplane map build` makes it)"
-        )
+    require_map([setup.method], road_map)
     ids = vehicles or [v.id for v in rec.manifest.vehicles]
     steps = {vid: setup.vehicle_step(rec, vid) for vid in ids}
     fusion = setup.fusion_step()
