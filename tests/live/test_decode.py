@@ -5,12 +5,14 @@ and the valid frames around them still used")."""
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import threading
 from pathlib import Path
 
 import pytest
 
+from coplane.gtime import GpsTime
 from coplane.live.decode import GnssStreamDecoder
 from coplane.live.sources import FileSource
 from coplane.recording.convert import convert_recording
@@ -185,6 +187,25 @@ def test_joining_an_rtcm_stream_mid_epoch_drops_the_partial_epoch(logs: dict[str
     got = dec.feed(joined, final=True)
     assert problems.counts["partial-first-epoch"] == 1
     assert [e.time for e in got] == [e.time for e in epochs[1:]]
+
+
+def test_a_stray_ephemeris_does_not_move_an_rtcm_stream_by_weeks(logs: dict[str, Path]) -> None:
+    """A stream of MSMs only takes its first week from the ephemerides the agent already holds.
+    One of them 30 weeks off (a stray record in a navigation file: KLT's HKSC file has one) used
+    to move every epoch by 30 weeks when it was the newest; the median of the satellites' newest
+    toes (`NavData.reference_time`) ignores it."""
+    epochs, nav = _reference("rtcm3", logs["rtcm3"])
+    known = NavData()
+    known.merge(nav)
+    sat = sorted(known.ephemerides)[0]
+    last = known.ephemerides[sat][-1]
+    known.add(dataclasses.replace(last, toe=GpsTime(last.toe.week + 30, last.toe.tow)))
+    msms = b"".join(
+        f for f in _frames(logs["rtcm3"].read_bytes(), "rtcm3") if f[3:5] in (b"\x43\x50", b"\x46\x70")
+    )
+    problems = Problems()
+    got = GnssStreamDecoder("rtcm3", "rtcm3+tcp://base:1", known, problems).feed(msms, final=True)
+    assert [e.time for e in got] == [e.time for e in epochs]
 
 
 @pytest.mark.parametrize("fmt", FORMATS)

@@ -6,8 +6,9 @@ give the same epochs and ephemerides. Ephemerides go into the `NavData` the vehi
 as they complete; bad frames are counted in `problems` (by kind) and cost only themselves.
 
 Epoch time is the receiver's own tag: RAWX rcvTow + week (rollover resolved by the receiver);
-MSM time of week resolved to the week nearest the previous epoch (first: the ephemerides' week,
-else the clock), so a stream that crosses a week boundary keeps counting.
+MSM time of week resolved to the week nearest the previous epoch (first: a BeiDou 1042's week,
+else that of the ephemerides already held, `NavData.reference_time`, else the clock), so a stream
+that crosses a week boundary keeps counting.
 """
 
 from __future__ import annotations
@@ -182,7 +183,7 @@ class GnssStreamDecoder:
     def _close_epoch(self) -> ObsEpoch | None:
         msms, self._pending = self._pending, []
         if self.reference is None:
-            self._set_reference(self._nav_reference() or today())
+            self._set_reference(self.nav.reference_time() or today())
         ref = self.last or self.reference or today()
         t = nearest_week(msms[0].tow_ms / 1000.0, ref)
         if self.last is not None and t <= self.last:
@@ -197,11 +198,6 @@ class GnssStreamDecoder:
     def _flush(self) -> list[ObsEpoch]:
         ep = self._close()
         return [ep] if ep is not None else []
-
-    def _nav_reference(self) -> GpsTime | None:
-        """The newest ephemeris' time: the week of a stream's first MSM (which carries none)."""
-        toes = [e[-1].toe for e in self.nav.ephemerides.values() if e]
-        return max(toes) if toes else None
 
     def _rtcm_other(self, offset: int, msg: Any) -> None:
         ident = msg.identity

@@ -7,6 +7,7 @@ frozen dataclasses (no I/O), so the estimator and the services share one vocabul
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -95,6 +96,15 @@ class NavData:
     @property
     def satellites(self) -> list[SatId]:
         return sorted(self.ephemerides)
+
+    def reference_time(self) -> GpsTime | None:
+        """When this navigation data was broadcast: the median of each satellite's newest toe, to
+        place observations that carry only a time of week (RTCM 3 MSM). The median, not the
+        newest or the first: a navigation file may hold a stray record of another week (KLT's HKSC
+        file has a GPS ephemeris 30 weeks older than the rest), and one such record placed a base
+        station's epochs 30 weeks early. None without ephemerides."""
+        newest = [ephs[-1].toe for ephs in self.ephemerides.values() if ephs]
+        return statistics.median_low(newest) if newest else None
 
 
 @dataclass(frozen=True, slots=True)

@@ -113,16 +113,13 @@ class Recording:
         return self._obs[key]
 
     def _reference(self) -> GpsTime | None:
-        """An instant near the recording (its ephemerides' median toe) to place RTCM 3 epochs'
-        weeks; None if the navigation data cannot be read (the RTCM file's own ephemerides or the
-        date then decide). The median, not the first: a navigation file may hold a stray record
-        of another week (KLT's HKSC file has a GPS ephemeris 30 weeks older than the rest), and
-        the base station's epochs were placed 30 weeks early by it."""
+        """An instant near the recording (`NavData.reference_time`) to place RTCM 3 epochs' weeks;
+        None if the navigation data cannot be read (the RTCM file's own ephemerides or the date
+        then decide)."""
         try:
-            toes = [e.toe for ephs in self.nav.ephemerides.values() for e in ephs]
+            return self.nav.reference_time()
         except RecordingError:
             return None
-        return statistics.median_low(toes) if toes else None
 
     def _dedupe(self, path: Path, epochs: list[ObsEpoch]) -> list[ObsEpoch]:
         """Keep the first of several epochs that round to one nominal time (reported)."""
