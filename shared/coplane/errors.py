@@ -2,7 +2,8 @@
 
 Library code raises a subclass of `CoplaneError` for anything a user can fix (a bad recording, an
 unknown method, an invalid option). The command line catches this one root, prints its message and
-exits with its `exit_code`; any other exception is a bug and keeps its traceback.
+exits with its `exit_code`; it does the same for an OS error on a path (coplane.cli). Any other
+exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations

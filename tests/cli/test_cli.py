@@ -70,6 +70,12 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "error" in r.output and "nope" in r.output
     r = runner.invoke(app, ["fleet", "--pace", "warp", "--no-api"])
     assert r.exit_code == 2 and "lockstep or realtime" in r.output
+    # a path the OS refuses is named with the reason, without a traceback
+    (tmp_path / "afile").write_text("")
+    r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "afile" / "rec"), "--duration", "1"])
+    said = "".join(r.output.split())  # rich folds a long path anywhere
+    assert r.exit_code == 2 and f"error:{tmp_path / 'afile'}" in said and "Notadirectory" in said, r.output
+    assert "Traceback" not in r.output
 
 
 def test_eval_writes_tables_figures_and_solution_csvs(tmp_path: Path) -> None:

@@ -2,7 +2,8 @@
 
 Each command parses its options, calls a library function and renders what it returns. A
 `CoplaneError` from any of them is caught here, once: the user sees its message and the process
-exits with its `exit_code`; any other exception is a bug and keeps its traceback.
+exits with its `exit_code`. So does an OS error on a path (no such folder, no permission, a full
+disk): the path and the reason are printed. Any other exception is a bug and keeps its traceback.
 
 Ctrl-C (SIGINT) and SIGTERM end any command cleanly, through the `with` blocks on the way out
 (worker processes joined, files closed), with exit code 130 or 143. `coplane fleet` handles both
@@ -11,6 +12,7 @@ signals itself, to stop its processes together (coplane.cli.fleet).
 
 from __future__ import annotations
 
+import errno
 import logging
 import signal
 import threading
@@ -43,6 +45,21 @@ def _raise_terminated(_signum: int, _frame: Any) -> None:
     raise _Terminated
 
 
+# The OS errors that name a path the user can fix; any other OSError keeps its traceback.
+_PATH_ERRORS = frozenset(
+    {
+        errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.EACCES, errno.EPERM, errno.EROFS,
+        errno.ENOSPC, errno.EDQUOT, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP,
+    }
+)  # fmt: skip
+
+
+def _path_error(exc: OSError) -> str:
+    """'cannot write /proc/x: No such file or directory', naming both paths of a rename."""
+    where = f"{exc.filename} -> {exc.filename2}" if exc.filename2 else str(exc.filename)
+    return f"{where}: {exc.strerror or exc}"
+
+
 class _CoplaneGroup(TyperGroup):
     """The command group; its `invoke` runs every subcommand, so one handler covers them all."""
 
@@ -54,6 +71,13 @@ class _CoplaneGroup(TyperGroup):
         except CoplaneError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # "[base]" is text, not a style
             raise typer.Exit(exc.exit_code) from exc
+        except OSError as exc:
+            if exc.errno not in _PATH_ERRORS or exc.filename is None:
+                raise
+            # a path the user gave that cannot be read or written (no such folder, no permission,
+            # a full disk): the user's environment, not a bug, so the path and the reason suffice
+            err_console.print(f"[red]error:[/red] {escape(_path_error(exc))}")
+            raise typer.Exit(CoplaneError.exit_code) from exc
         except KeyboardInterrupt as exc:
             err_console.print("interrupted")
             raise typer.Exit(128 + signal.SIGINT) from exc
