@@ -13,6 +13,7 @@ import pytest
 from support import rtklib_ref as rr
 from typer.testing import CliRunner
 
+from coplane.errors import ConfigError
 from coplane.evaluate.metrics import enu_errors
 from coplane.evaluate.spp_run import run_spp
 from coplane.gnss.epoch_solver import EpochSolverOptions
@@ -237,3 +238,22 @@ def test_a_relative_output_directory_gives_a_readable_recording(
     simulate("open-sky", "sim", vehicles=2, duration_s=3.0, seed=1)
     rec = open_recording(tmp_path / "sim")
     assert len(list(rec.fleet_epochs())) == 3 and rec.problems.total == 0
+
+
+def test_an_earlier_simulation_is_replaced_whole_and_another_folder_refused(tmp_path: Path) -> None:
+    """A 1-vehicle run over a 2-vehicle one leaves no u2 files behind (for `recording init` to
+    take for the same drive); a file the simulator does not write stays; a folder holding anything
+    else is refused, naming what it holds, before anything is written."""
+    out = tmp_path / "sim"
+    simulate("open-sky", out, vehicles=2, duration_s=3.0, seed=1)
+    (out / "notes.md").write_text("mine\n")
+    simulate("open-sky", out, vehicles=1, duration_s=3.0, seed=2)
+    assert sorted(p.name for p in (out / "vehicles").iterdir()) == ["u1.obs"]
+    assert sorted(p.name for p in (out / "truth").iterdir()) == ["u1.csv"]
+    assert not (out / "uwb.csv").exists() and (out / "notes.md").read_text() == "mine\n"
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "rover.obs").write_text("not ours\n")
+    with pytest.raises(ConfigError, match=r"holds rover\.obs and no earlier simulated recording"):
+        simulate("open-sky", other, vehicles=1, duration_s=3.0, seed=1)
+    assert sorted(p.name for p in other.iterdir()) == ["rover.obs"]

@@ -45,9 +45,11 @@ def simulate_command(
 ) -> None:
     """Simulate a fleet drive (GNSS, UWB, truth) and write it as a fleet recording."""
     from coplane.sim import run_simulation, write_recording
+    from coplane.sim.write import check_out_dir
 
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r}; known: {', '.join(sorted(SCENARIOS))}")
+    check_out_dir(out.resolve())  # before the minutes of simulation, not after them
     t0 = time.perf_counter()
     try:
         result = run_simulation(

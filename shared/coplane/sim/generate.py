@@ -26,7 +26,7 @@ from coplane.sim.road import RoadRaise
 from coplane.sim.scenarios import DEFAULT_SCENARIO, Scenario, get_scenario
 from coplane.sim.uwb import UwbSimulator
 from coplane.sim.world import build_world
-from coplane.sim.write import write_recording
+from coplane.sim.write import check_out_dir, write_recording
 
 
 def run_simulation(
@@ -101,7 +101,9 @@ def simulate(
     doppler: bool = True,
 ) -> Path:
     """Simulate a fleet and write the recording; returns its directory. `doppler` False: the
-    receivers log no Doppler (`write_recording`)."""
+    receivers log no Doppler (`write_recording`). A folder it may not write into is refused before
+    the simulation runs (`check_out_dir`)."""
+    check_out_dir(Path(out_dir).resolve())
     result = run_simulation(scenario, vehicles, duration_s, seed, progress, start_offset_s=start_offset_s)
     return write_recording(result, out_dir, doppler)
 
