@@ -28,6 +28,7 @@ import typer
 from typer.testing import CliRunner
 
 from coplane.cli.convert import convert
+from coplane.errors import ConfigError
 from coplane.recording.convert import convert_recording
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.reader import open_recording
@@ -126,6 +127,28 @@ def test_cli_convert(sources: dict[str, Path], tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "resolution: RTCM 3 MSM7" in res.output and "fleet.toml" in res.output
     assert open_recording(tmp_path / "c").vehicle_epochs("u1")
+
+
+def test_a_conversion_replaces_an_earlier_one_and_refuses_other_folders(
+    sources: dict[str, Path], tmp_path: Path
+) -> None:
+    """RTCM 3 over an earlier UBX conversion: none of the UBX files stays for `recording init` to
+    take as more vehicles; a file the conversion did not write stays; a folder of other files is
+    refused before anything is written."""
+    out = tmp_path / "c"
+    convert_recording(sources["sim"], "ubx", out)
+    (out / "notes.md").write_text("mine\n")
+    convert_recording(sources["sim"], "rtcm3", out)
+    written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert not [w for w in written if w.endswith(".ubx")], written
+    assert "notes.md" in written and "vehicles/u1.rtcm3" in written
+    assert open_recording(out).vehicle_epochs("u1")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "rover.obs").write_text("not ours\n")
+    with pytest.raises(ConfigError, match=r"holds rover\.obs and no recording this command wrote"):
+        convert_recording(sources["sim"], "ubx", other)
+    assert [p.name for p in other.iterdir()] == ["rover.obs"]
 
 
 @pytest.mark.parametrize("msm", [4, 5, 6])

@@ -254,6 +254,6 @@ def test_an_earlier_simulation_is_replaced_whole_and_another_folder_refused(tmp_
     other = tmp_path / "other"
     other.mkdir()
     (other / "rover.obs").write_text("not ours\n")
-    with pytest.raises(ConfigError, match=r"holds rover\.obs and no earlier simulated recording"):
+    with pytest.raises(ConfigError, match=r"holds rover\.obs and no recording this command wrote"):
         simulate("open-sky", other, vehicles=1, duration_s=3.0, seed=1)
     assert sorted(p.name for p in other.iterdir()) == ["rover.obs"]

@@ -24,6 +24,7 @@ from typing import Literal
 
 from coplane.recording.manifest import write_manifest
 from coplane.recording.model import BaseSpec, Manifest, NavData, ObsEpoch, UwbSpec, VehicleSpec
+from coplane.recording.output_dir import prepare_output
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import Recording, open_recording
 from coplane.recording.rtcm3 import (
@@ -151,6 +152,14 @@ def _nav_files(rec: Recording, fmt: str, out: Path, result: ConvertResult) -> tu
     return (path, *(_copy(p, m.root, out) for p in m.nav_files))
 
 
+FORMAT_NAMES = {"ubx": "UBX", "rtcm3": "RTCM 3"}  # a conversion's name ends with one, in brackets
+CONVERTED_PARTS = ("vehicles", "base", "nav")  # what every conversion writes besides its copies
+
+
+def _converted(name: str) -> bool:
+    return any(name.endswith(f" ({label})") for label in FORMAT_NAMES.values())
+
+
 def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int = 7) -> ConvertResult:
     """Write `source` as a UBX or RTCM 3 recording in `out`, read it back and measure the difference.
     `msm`: the RTCM 3 MSM level of the observations (4-7; MSM4 and MSM6 carry no Doppler)."""
@@ -165,6 +174,7 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int
     out = Path(out).resolve()
     if out == m.root or out.is_relative_to(m.root):
         raise RecordingError(f"{out}: the output must not be inside the source recording {m.root}")
+    prepare_output(out, _converted, CONVERTED_PARTS)
     out.mkdir(parents=True, exist_ok=True)
     result = ConvertResult(out, fmt, UBX_RESOLUTION if fmt == "ubx" else rtcm_resolution(msm))
 
@@ -189,7 +199,7 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int
     if m.uwb is not None:
         uwb = UwbSpec(_copy(m.uwb.file, m.root, out), m.uwb.sigma_m, m.uwb.max_range_m)
     nav_files = _nav_files(rec, fmt, out, result)
-    name = f"{m.name} ({'UBX' if fmt == 'ubx' else 'RTCM 3'})"
+    name = f"{m.name} ({FORMAT_NAMES[fmt]})"
     write_manifest(Manifest(out, name, m.interval_s, nav_files, tuple(vehicles), base, uwb))
 
     back = open_recording(out)

@@ -8,15 +8,14 @@ contains wall-clock time, so the same seed gives byte-identical files. See docs/
 from __future__ import annotations
 
 import shutil
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 
-from coplane.errors import ConfigError
 from coplane.gtime import GpsTime
 from coplane.recording.csvfiles import write_uwb
 from coplane.recording.manifest import write_manifest
 from coplane.recording.model import BaseSpec, Manifest, ObsHeader, UwbSpec, VehicleSpec
+from coplane.recording.output_dir import check_output, prepare_output
 from coplane.recording.rinex_obs import DEFAULT_SIGNALS
 from coplane.recording.writer import write_obs
 from coplane.sim.motion import FleetTrack
@@ -51,49 +50,14 @@ def write_truth_csv(path: Path, times: list[GpsTime], track: FleetTrack, v: int)
     path.write_text("\n".join(lines) + "\n", encoding="ascii", newline="\n")
 
 
+def _simulated(name: str) -> bool:
+    return name.startswith(SIMULATED_NAME)
+
+
 def check_out_dir(out: Path) -> bool:
-    """Whether `out` holds an earlier simulation to replace. A folder to simulate into is new,
-    empty, or an earlier simulation (or one cut short: its fleet.toml is written last). Any other
-    is refused before the simulation runs: its files would mix with the drive's, where `recording
-    init` would take them for the same drive."""
-    out = Path(out)
-    if not out.exists():
-        return False
-    if not out.is_dir():
-        raise ConfigError(f"{out}: not a directory, cannot write a recording into it")
-    entries = sorted(p.name for p in out.iterdir())
-    if not entries:
-        return False
-    if not (_is_simulation(out / "fleet.toml") or set(entries) <= set(SIMULATED_PARTS)):
-        shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-        raise ConfigError(
-            f"{out} holds {shown} and no earlier simulated recording: simulate into a new or empty"
-            " folder (its files would mix with the simulated drive's)"
-        )
-    return True
-
-
-def _clear_previous(out: Path) -> None:
-    """An earlier simulation in `out` is replaced whole: a 2-vehicle run over a 3-vehicle one must
-    not leave u3's files beside the new ones. Files the simulator does not write (an eval's output
-    inside, say) stay."""
-    if not check_out_dir(out):
-        return
-    for name in SIMULATED_PARTS:
-        part = out / name
-        if part.is_dir() and not part.is_symlink():
-            shutil.rmtree(part)
-        elif part.exists() or part.is_symlink():
-            part.unlink()
-
-
-def _is_simulation(manifest: Path) -> bool:
-    """Whether `manifest` is a fleet.toml this module wrote (its name starts with 'sim ')."""
-    try:
-        name = tomllib.loads(manifest.read_text(encoding="utf-8")).get("name", "")
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return False
-    return isinstance(name, str) and name.startswith(SIMULATED_NAME)
+    """Whether `out` holds an earlier simulation to replace; a folder of anything else is refused
+    before the simulation runs (`recording.output_dir`)."""
+    return check_output(out, _simulated, SIMULATED_PARTS)
 
 
 def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True) -> Path:
@@ -105,7 +69,7 @@ def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True
     # absolute: the manifest's paths are written relative to its root, which a relative `out_dir`
     # (e.g. `coplane simulate --out sim`) would otherwise count twice ("sim/sim/nav/...")
     out = Path(out_dir).resolve()
-    _clear_previous(out)
+    prepare_output(out, _simulated, SIMULATED_PARTS)
     out.mkdir(parents=True, exist_ok=True)
     sc = result.scenario
     nav_rel = Path("nav") / "brdc.rnx"
