@@ -9,6 +9,7 @@ from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from coplane.runtime import LogLevel, RegionOptions, ServiceSettings
+from coplane.typing import Pace
 
 
 class FusionSettings(ServiceSettings, RegionOptions):
@@ -19,7 +20,7 @@ class FusionSettings(ServiceSettings, RegionOptions):
     method: str = "pc"
     fleet: str | None = None
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    pace: Literal["lockstep", "realtime"] = "lockstep"
+    pace: Pace = "lockstep"
     deadline_s: float = Field(
         default=0.5, gt=0.0, description="Realtime: wall seconds after an epoch's first message"
     )

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import SettingsConfigDict
 
 from coplane.runtime import LogLevel, RegionOptions, ServiceSettings
+from coplane.typing import Pace
 
 
 class AgentSettings(ServiceSettings, RegionOptions):
@@ -40,7 +40,7 @@ class AgentSettings(ServiceSettings, RegionOptions):
     method: str = "pc"
     fleet: str | None = Field(default=None, description="Bus fleet id; default: from the recording name")
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    pace: Literal["lockstep", "realtime"] = "lockstep"
+    pace: Pace = "lockstep"
     speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
     start_unix_s: float | None = Field(
         default=None,
@@ -83,7 +83,7 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
     method: str = "pc"
     fleet: str | None = None
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    pace: Literal["lockstep", "realtime"] = "lockstep"
+    pace: Pace = "lockstep"
     speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
     seed: int = 0
     resend_s: float = Field(

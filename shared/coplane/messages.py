@@ -33,6 +33,7 @@ from coplane.estimation.limits import (
     SAT_RADIUS_M,
 )
 from coplane.ids import VEHICLE_ID_PATTERN
+from coplane.typing import Pace
 
 NODE_SCHEMA = "coplane.node/1"
 SOLUTION_SCHEMA = "coplane.solution/1"
@@ -303,7 +304,7 @@ class DiagnosticsMessage(_Model):
     schema_: Literal["coplane.diagnostics/1"] = Field(default="coplane.diagnostics/1", alias="schema")
     fleet: VehicleId
     method: str = Field(max_length=64)
-    pace: Literal["lockstep", "realtime"]
+    pace: Pace
     epochs_solved: int = Field(ge=0)
     last_epoch: EpochTime | None = None
     last_solve_time_s: float | None = None

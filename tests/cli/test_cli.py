@@ -69,7 +69,7 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     r = runner.invoke(app, ["fleet", str(tmp_path / "nope"), "--no-api"])
     assert r.exit_code == 2 and "error" in r.output and "nope" in r.output
     r = runner.invoke(app, ["fleet", "--pace", "warp", "--no-api"])
-    assert r.exit_code == 2 and "lockstep or realtime" in r.output
+    assert r.exit_code == 2 and "'warp' is not one of 'lockstep'," in r.output
     # a path the OS refuses is named with the reason, without a traceback
     (tmp_path / "afile").write_text("")
     r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "afile" / "rec"), "--duration", "1"])
@@ -228,3 +228,24 @@ def test_progress_bars_on_a_terminal_only(monkeypatch: pytest.MonkeyPatch) -> No
     assert not progress_bars()
     monkeypatch.setattr("sys.stderr", Tty())
     assert progress_bars()
+
+
+def test_service_options_are_checked_before_anything_starts(tmp_path: Path) -> None:
+    """A pace or a method that no service takes stops `compose` before it writes a file that
+    would fail at start-up; a setting a service's pydantic settings refuse is named by its field,
+    without a traceback."""
+    out = tmp_path / "compose.yml"
+    for args, said in (
+        (["--pace", "fast"], "'fast' is not one of 'lockstep',"),
+        (["--method", "warp"], "unknown method 'warp'"),
+    ):
+        r = runner.invoke(app, ["compose", "--out", str(out), *args])
+        assert r.exit_code == 2 and said in " ".join(r.output.split()), r.output
+        assert not out.exists()
+    r = runner.invoke(
+        app,
+        ["agent", "--vehicle-id", "u1", "--insecure", "--max-correction-age", "-5", "--recording", "nowhere"],
+    )
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "AgentSettings: max_correction_age_s: Input should be greater than 0" in said
+    assert "Traceback" not in r.output

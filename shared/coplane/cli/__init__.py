@@ -3,7 +3,9 @@
 Each command parses its options, calls a library function and renders what it returns. A
 `CoplaneError` from any of them is caught here, once: the user sees its message and the process
 exits with its `exit_code`. So does an OS error on a path (no such folder, no permission, a full
-disk): the path and the reason are printed. Any other exception is a bug and keeps its traceback.
+disk): the path and the reason are printed; and a service's settings made invalid by an option or
+a COPLANE_* variable: the field and the reason. Any other exception is a bug and keeps its
+traceback.
 
 Ctrl-C (SIGINT) and SIGTERM end any command cleanly, through the `with` blocks on the way out
 (worker processes joined, files closed), with exit code 130 or 143. `coplane fleet` handles both
@@ -60,6 +62,22 @@ def _path_error(exc: OSError) -> str:
     return f"{where}: {exc.strerror or exc}"
 
 
+def _settings_error(exc: ValueError) -> str | None:
+    """A service's settings (pydantic-settings) that an option or a COPLANE_* variable made
+    invalid, as one line per field: 'AgentSettings: max_correction_age_s: Input should be greater
+    than 0 (got -5.0)'. None for any other ValueError, which keeps its traceback. Told apart by
+    its interface rather than by importing pydantic, which the command line otherwise loads lazily."""
+    errors = getattr(exc, "errors", None)
+    title = getattr(exc, "title", None)
+    if type(exc).__name__ != "ValidationError" or not callable(errors) or title is None:
+        return None
+    lines = []
+    for e in errors():
+        where = ".".join(str(p) for p in e.get("loc", ())) or "(settings)"
+        lines.append(f"{title}: {where}: {e.get('msg', 'invalid')} (got {e.get('input')!r})")
+    return "; ".join(lines)
+
+
 class _CoplaneGroup(TyperGroup):
     """The command group; its `invoke` runs every subcommand, so one handler covers them all."""
 
@@ -71,6 +89,12 @@ class _CoplaneGroup(TyperGroup):
         except CoplaneError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # "[base]" is text, not a style
             raise typer.Exit(exc.exit_code) from exc
+        except ValueError as exc:
+            message = _settings_error(exc)
+            if message is None:
+                raise
+            err_console.print(f"[red]error:[/red] {escape(message)}")
+            raise typer.Exit(CoplaneError.exit_code) from exc
         except OSError as exc:
             if exc.errno not in _PATH_ERRORS or exc.filename is None:
                 raise

@@ -15,6 +15,7 @@ import typer
 
 from coplane.cli.options import recording_or_default
 from coplane.cli.render import err_console
+from coplane.typing import Pace
 
 
 def agent(
@@ -37,7 +38,7 @@ def agent(
     ] = None,
     uwb: Annotated[str | None, typer.Option(help="UWB ranges, e.g. udp://:5600.")] = None,
     method: Annotated[str, typer.Option(help="Estimator method (the fusion server's).")] = "pc",
-    pace: Annotated[str, typer.Option(help="realtime (live receivers) or lockstep (logs).")] = "realtime",
+    pace: Annotated[Pace, typer.Option(help="realtime (live receivers) or lockstep (logs).")] = "realtime",
     connect: Annotated[str, typer.Option(help="Zenoh router endpoint.")] = "tls/127.0.0.1:7447",
     fleet: Annotated[
         str | None, typer.Option(help="Bus fleet id; default: from the recording's name.")

@@ -8,12 +8,13 @@ from typing import Annotated
 import typer
 
 from coplane.cli.render import console
+from coplane.typing import Pace
 
 
 def compose(
     out: Annotated[Path, typer.Option(help="Where to write the compose file.")] = Path("docker-compose.yml"),
     method: Annotated[str, typer.Option(help="Estimator method.")] = "pc",
-    pace: Annotated[str, typer.Option(help="lockstep or realtime.")] = "realtime",
+    pace: Annotated[Pace, typer.Option(help="lockstep or realtime.")] = "realtime",
     router_config: Annotated[
         Path | None,
         typer.Option(

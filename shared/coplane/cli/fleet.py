@@ -14,6 +14,7 @@ import typer
 
 from coplane.cli.options import progress_bars, recording_or_default
 from coplane.cli.render import STRICT_HELP, check_input, console, err_console, print_accuracy, print_problems
+from coplane.typing import Pace
 
 if TYPE_CHECKING:
     from coplane.fleet import FleetResult
@@ -24,7 +25,7 @@ def fleet(
         Path | None, typer.Argument(help="Fleet recording; default: the bundled one.")
     ] = None,
     method: Annotated[str, typer.Option(help="Estimator method.")] = "pc",
-    pace: Annotated[str, typer.Option(help="lockstep (deterministic) or realtime.")] = "lockstep",
+    pace: Annotated[Pace, typer.Option(help="lockstep (deterministic) or realtime.")] = "lockstep",
     speed: Annotated[float, typer.Option(help="Realtime speed factor.")] = 1.0,
     serve: Annotated[bool, typer.Option(help="Keep the API (and the bus) running after the replay.")] = False,
     api: Annotated[bool, typer.Option(help="Start the HTTP API.")] = True,

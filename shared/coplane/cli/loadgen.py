@@ -11,6 +11,7 @@ from rich.table import Table
 
 from coplane.cli.options import recording_or_default
 from coplane.cli.render import console, err_console
+from coplane.typing import Pace
 
 
 def loadgen(
@@ -27,7 +28,7 @@ def loadgen(
     connect: Annotated[str, typer.Option(help="Zenoh router endpoint.")] = "tcp/127.0.0.1:7447",
     vehicles: Annotated[int, typer.Option(min=0, help="Only the first N vehicles (0: all).")] = 0,
     method: Annotated[str, typer.Option(help="Estimator method (the fusion servers').")] = "pc",
-    pace: Annotated[str, typer.Option(help="lockstep or realtime.")] = "lockstep",
+    pace: Annotated[Pace, typer.Option(help="lockstep or realtime.")] = "lockstep",
     speed: Annotated[float, typer.Option(min=0.01, help="Realtime replay speed factor.")] = 1.0,
     regions: Annotated[
         bool, typer.Option(help="Publish by region (servers started with --regions).")
@@ -52,8 +53,6 @@ def loadgen(
             "coplane loadgen speaks for every vehicle of the recording, so it cannot use their certificates:"
             " run it on a test bus with --insecure (routers and servers started with --insecure too)"
         )
-    if pace not in ("lockstep", "realtime"):
-        raise ConfigError(f"--pace must be lockstep or realtime, got {pace!r}")
     err_console.print(
         "[bold red]WARNING: --insecure: plain TCP, no authentication, no access control[/bold red]"
     )

@@ -213,6 +213,9 @@ def write_compose(
     vehicles."""
     import yaml
 
+    from coplane.methods import get_method
+
+    get_method(method)  # an unknown method is named here, not when the stack starts
     if routers > 1 and router_config is not None and router_config.name != ROUTER_CONFIG.name:
         # the compose file mounts deploy/zenoh/router-k.json5 beside the first router's config
         raise ConfigError(

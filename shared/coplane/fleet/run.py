@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import get_args
 
 from coplane.bus.certs import init_certs
 from coplane.bus.security import MONITOR, BusSecurity, use_security, warn_insecure
@@ -49,10 +50,11 @@ from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import open_recording
 from coplane.replay import vehicle_schedule
 from coplane.store import map_path
+from coplane.typing import Pace
 
 log = logging.getLogger("coplane.fleet")
 
-PACES = ("lockstep", "realtime")
+PACES = get_args(Pace)
 REALTIME_START_DELAY_S = 5.0  # the shared realtime origin: once every process is up
 POLL_S = 0.2
 
