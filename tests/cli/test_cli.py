@@ -249,3 +249,19 @@ def test_service_options_are_checked_before_anything_starts(tmp_path: Path) -> N
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and "AgentSettings: max_correction_age_s: Input should be greater than 0" in said
     assert "Traceback" not in r.output
+
+
+def test_eval_refuses_an_unknown_vehicle_and_no_method_and_runs_a_repeated_one_once(tmp_path: Path) -> None:
+    """`--vehicle u9` used to give empty tables and no figures silently, `--methods ''` empty
+    outputs, and a method named twice ran twice."""
+    from coplane.sim.generate import simulate
+
+    rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=5, seed=5)
+    out = tmp_path / "eval"
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--vehicle", "u9", "--out", str(out)])
+    assert r.exit_code == 2 and "vehicle 'u9' is not in recording" in r.output and "u1, u2" in r.output
+    r = runner.invoke(app, ["eval", str(rec), "--methods", " , ", "--out", str(out)])
+    assert r.exit_code == 2 and "no method to run" in r.output
+    assert not out.exists()
+    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp,non-cp", "--out", str(out)])
+    assert r.exit_code == 0 and r.output.count("non-cp: 5 epochs in") == 1, r.output

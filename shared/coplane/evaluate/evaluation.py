@@ -82,8 +82,13 @@ def evaluate(
     vehicle's truth RTKLIB's RTK against the base, where it gives one, for recordings with carrier
     phase but no surveyed trajectory; a TruthChoice's files replace the named vehicles' truth."""
     # validate names (and settings) first
+    if not methods:
+        raise ConfigError("no method to run: name at least one (e.g. --methods non-cp,pc)")
+    methods = list(dict.fromkeys(methods))  # one run per method, however often it is named
     specs = [None if m == RTKLIB_METHOD else get_method(m, fgo=fgo) for m in methods]
     _check_map(specs, road_map)
+    for vid in vehicles or ():
+        rec.manifest.vehicle(vid)  # an unknown one is named before anything runs
     if dgnss and rec.manifest.base is None and any(s is not None for s in specs):
         # the runner would refuse too, but only after the methods before it had run
         raise ConfigError(f"recording {rec.manifest.name!r} has no [base]: cannot run with DGNSS")

@@ -203,4 +203,6 @@ class Manifest:
         for v in self.vehicles:
             if v.id == vid:
                 return v
-        raise NotFoundError(f"vehicle {vid!r} is not in recording {self.name!r}")
+        ids = [v.id for v in self.vehicles]
+        shown = ", ".join(ids[:10]) + (f", ... ({len(ids)} in all)" if len(ids) > 10 else "")
+        raise NotFoundError(f"vehicle {vid!r} is not in recording {self.name!r} (its vehicles: {shown})")
