@@ -60,6 +60,8 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "warp-drive" in r.output and "valid methods" in r.output
     r = runner.invoke(app, ["eval", "--interruption", "150", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "0..100" in r.output
+    r = runner.invoke(app, ["eval", "--interruption", "10,abc", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "--interruption '10,abc': 'abc' is not a number" in r.output, r.output
     r = runner.invoke(app, ["eval", "--fgo", "fde_k_long=-1", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "fde_k_long must be finite and > 0" in r.output, r.output
     r = runner.invoke(app, ["eval", "--fgo", "warp=9", "--out", str(tmp_path)])

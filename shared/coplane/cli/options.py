@@ -25,12 +25,19 @@ def progress_bars() -> bool:
 
 def interruption_rates(text: str) -> list[float]:
     """'0,20,40' (percent) -> [0.0, 0.2, 0.4]."""
-    try:
-        rates = [float(x) / 100.0 for x in text.split(",") if x.strip()]
-    except ValueError as exc:  # float()'s own message names the bad item
-        raise ConfigError(str(exc)) from exc
-    if any(not 0.0 <= r <= 1.0 for r in rates):
-        raise ConfigError("interruption rates must be within 0..100 %")
+    rates = []
+    for item in (x.strip() for x in text.split(",")):
+        if not item:
+            continue
+        try:
+            rate = float(item)
+        except ValueError:
+            raise ConfigError(
+                f"--interruption {text!r}: {item!r} is not a number (rates in %, e.g. 0,20,40)"
+            ) from None
+        if not 0.0 <= rate <= 100.0:  # NaN fails too
+            raise ConfigError(f"--interruption {text!r}: {item} is not a rate within 0..100 %")
+        rates.append(rate / 100.0)
     return rates
 
 
