@@ -72,6 +72,14 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "error" in r.output and "nope" in r.output
     r = runner.invoke(app, ["fleet", "--pace", "warp", "--no-api"])
     assert r.exit_code == 2 and "'warp' is not one of 'lockstep'," in r.output
+    for args, said in (
+        (["--speed", "0", "--pace", "realtime"], "--speed must be a finite factor > 0"),
+        (["--interruption", "150"], "--interruption must be within 0..100 %, got 150"),
+        (["--port", "70000"], "--port must be within 0..65535, got 70000"),
+        (["--api-port", "-3"], "--api-port must be within 1..65535, got -3"),
+    ):
+        r = runner.invoke(app, ["fleet", "--no-api", "--insecure", *args])
+        assert r.exit_code == 2 and said in " ".join(r.output.split()), r.output
     # a path the OS refuses is named with the reason, without a traceback
     (tmp_path / "afile").write_text("")
     r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "afile" / "rec"), "--duration", "1"])

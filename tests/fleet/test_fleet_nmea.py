@@ -128,3 +128,16 @@ def test_a_taken_port_is_a_clear_error() -> None:
         port = taken.getsockname()[1]
         with pytest.raises(ConfigError, match=f"NMEA output for u1: cannot listen on 127.0.0.1:{port} "):
             NmeaServer(["u1"], port, dgnss=False)
+
+
+def test_ports_past_65535_are_a_clear_error() -> None:
+    """The vehicles take the ports from --nmea-port on: the last one must exist too (an
+    OverflowError from bind() before)."""
+    from coplane.errors import ConfigError
+
+    with pytest.raises(
+        ConfigError, match=r"ports 65535\.\.65536 for 2 vehicle\(s\) are not all within 1\.\.65535"
+    ):
+        NmeaServer(["u1", "u2"], 65535, dgnss=False)
+    with pytest.raises(ConfigError, match=r"ports -5\.\.-5 for 1 vehicle"):
+        NmeaServer(["u1"], -5, dgnss=False)

@@ -16,6 +16,7 @@ process is then stopped together (coplane.fleet.launcher.FleetProcesses.stop_all
 from __future__ import annotations
 
 import logging
+import math
 import os
 import tempfile
 import threading
@@ -89,7 +90,19 @@ class FleetOptions:
     # ~30 s at the default size); after that the replay starts anyway, with a warning
     api_start_timeout_s: float = 60.0
 
+    def __post_init__(self) -> None:
+        """Values no process could use are named here, before any process starts (a zero speed
+        divided by zero, a port above 65535 overflowed a socket call, a rate of 150 % ran)."""
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise ConfigError(f"--speed must be a finite factor > 0, got {self.speed}")
+        if not 0.0 <= self.interruption <= 1.0:  # NaN fails too
+            raise ConfigError(f"--interruption must be within 0..100 %, got {self.interruption * 100:g}")
+        for option, port, lowest in (("--port", self.port, 0), ("--api-port", self.api_port, 1)):
+            if not lowest <= port <= MAX_PORT:
+                raise ConfigError(f"{option} must be within {lowest}..{MAX_PORT}, got {port}")
 
+
+MAX_PORT = 65535
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
 MAX_FLEET_ROUTERS = 4  # Zenoh routers it meshes
 

@@ -128,6 +128,11 @@ class NmeaServer:
         self.counts: Counter[str] = Counter()
         self.lock = threading.Lock()
         self.closed = threading.Event()
+        if first_port and not 1 <= first_port <= 65536 - len(vehicles):
+            raise ConfigError(
+                f"NMEA output: ports {first_port}..{first_port + len(vehicles) - 1} for {len(vehicles)}"
+                " vehicle(s) are not all within 1..65535"
+            )
         for i, vid in enumerate(vehicles):
             port = first_port + i if first_port else 0
             try:
