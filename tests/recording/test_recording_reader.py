@@ -123,3 +123,22 @@ def test_problems_beyond_those_kept_are_counted_by_kind_and_by_file() -> None:
     p.add("b.ubx", None, "garbled-frame", "1 byte(s) skipped", offset=7)
     assert len(p.items) == 2 and p.total == 6
     assert p.by_path == {"a.obs": 5, "b.ubx": 1} and p.counts == {"malformed-line": 5, "garbled-frame": 1}
+
+
+def test_a_receiver_faster_than_the_interval_is_decimated_not_reported(tmp_path: Path) -> None:
+    """A 1 s log in a 2 s recording (a 5 Hz one in a 1 s fleet alike): the epoch nearest each
+    nominal time is kept, the others are counted as decimated, not as 'duplicate-epoch' problems
+    (before, half of the log was reported as input problems and --strict failed)."""
+    import dataclasses
+
+    from coplane.recording.manifest import load_manifest, write_manifest
+    from coplane.sim.generate import simulate
+
+    path = simulate("open-sky", tmp_path / "sim", vehicles=1, duration_s=20.0, seed=1)
+    write_manifest(dataclasses.replace(load_manifest(path), interval_s=2.0))
+    rec = open_recording(path)
+    kept = rec.vehicle_epochs("u1")
+    assert len(kept) == 10 and rec.problems.total == 0
+    assert all(abs(e.time - rec.nominal(e.time)) < 0.1 for e in kept)
+    skipped, own = rec.decimated[rec.manifest.vehicle("u1").obs]
+    assert skipped == 10 and own == pytest.approx(1.0, abs=1e-3)  # the receiver's clock drifts

@@ -48,6 +48,11 @@ class FleetEpoch:
     uwb: tuple[UwbRange, ...] = ()
 
 
+# A receiver whose median epoch spacing is below this share of the recording's interval logs
+# faster than it and is decimated (`Recording._dedupe`); receiver clocks jitter far less.
+DECIMATE_BELOW = 0.75
+
+
 class Recording:
     """Lazy, cached access to one fleet recording."""
 
@@ -67,6 +72,8 @@ class Recording:
         self._truth_at: dict[str, dict[GpsTime, tuple[float, float, float]]] = {}
         self._env_at: dict[str, dict[GpsTime, str]] = {}
         self._fleet: list[FleetEpoch] | None = None
+        # observation file -> (epochs skipped, its own spacing s): logs faster than the interval
+        self.decimated: dict[Path, tuple[int, float]] = {}
 
     @property
     def signals(self) -> Mapping[str, SignalCodes] | None:
@@ -122,7 +129,21 @@ class Recording:
             return None
 
     def _dedupe(self, path: Path, epochs: list[ObsEpoch]) -> list[ObsEpoch]:
-        """Keep the first of several epochs that round to one nominal time (reported)."""
+        """One epoch per nominal time. A receiver that logs faster than the recording's interval
+        (a 5 Hz log in a 1 s fleet) is decimated: the epoch nearest each nominal time is kept and
+        the others are counted in `decimated`, not as input problems, since the interval asked
+        for it. Otherwise several epochs on one nominal time are duplicates: the first is kept,
+        the others reported."""
+        spacing = [b.time - a.time for a, b in itertools.pairwise(epochs)]
+        own = statistics.median(spacing) if spacing else None
+        if own is not None and 0 < own < DECIMATE_BELOW * self.manifest.interval_s:
+            nearest: dict[GpsTime, ObsEpoch] = {}
+            for e in epochs:
+                t = self.nominal(e.time)
+                if t not in nearest or abs(e.time - t) < abs(nearest[t].time - t):
+                    nearest[t] = e
+            self.decimated[path] = (len(epochs) - len(nearest), own)
+            return sorted(nearest.values(), key=lambda e: e.time)
         out: list[ObsEpoch] = []
         seen: dict[GpsTime, GpsTime] = {}
         for e in epochs:
