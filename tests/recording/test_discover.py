@@ -175,7 +175,7 @@ def test_bad_requests_name_what_is_wrong(real_data: Path, tmp_path: Path) -> Non
         )
     # receivers at 30 s and 1 s in one folder: the fleet's interval is the user's to give
     shutil.copy(real_data / "urbannav_hk_tst_20200603_static_f9p" / "2020_06_03_TST_03.obs", rec)
-    with pytest.raises(ConfigError, match=r"different intervals.*--interval"):
+    with pytest.raises(ConfigError, match=r"different intervals.*--interval 30, decimates"):
         plan_recording(rec)
     assert plan_recording(rec, interval_s=30.0).manifest.interval_s == 30.0
     # a file found that cannot be read is skipped with its reason, not the end of the plan; the

@@ -330,7 +330,11 @@ def _fleet_interval(vehicles: Sequence[ObsSummary]) -> float:
         raise ConfigError("no observation file states or shows its epoch interval; give --interval")
     if len(known) > 1:
         listed = ", ".join(f"{n} {v} s" for n, v in rates.items())
-        raise ConfigError(f"the vehicles log at different intervals ({listed}); give --interval")
+        raise ConfigError(
+            f"the vehicles log at different intervals ({listed}); give --interval: the slowest,"
+            f" --interval {max(known):g}, decimates the faster ones (each keeps its epoch nearest every"
+            f" {max(known):g} s), a shorter one leaves the slower ones gaps"
+        )
     return known.pop()
 
 
