@@ -136,6 +136,12 @@ def test_eval_takes_reference_files_on_the_command_line(sim: Path, tmp_path: Pat
     assert acc
     bad = runner.invoke(app, ["eval", str(sim), "--methods", "non-cp", "--truth", "u2", "--out", str(out)])
     assert bad.exit_code != 0 and "must be one of recording, rtk" in " ".join(bad.output.split())
+    # two numbers are a mistyped point, not a file name to look for
+    bad = runner.invoke(
+        app, ["eval", str(sim), "--methods", "non-cp", "--truth", "u2=1,2", "--out", str(out)]
+    )
+    said = " ".join(bad.output.split())
+    assert bad.exit_code == 2 and "a surveyed point is three numbers, x,y,z (m) or lat,lon,h; got 2" in said
 
 
 @pytest.mark.slow

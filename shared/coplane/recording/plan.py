@@ -71,6 +71,11 @@ def parse_position(text: str) -> tuple[float, float, float] | Literal["header"]:
 def parse_truth_value(text: str) -> Path | tuple[float, float, float]:
     """A `--truth ID=VALUE` value: three numbers are a surveyed point (ECEF or lat,lon,h, as
     `parse_position` tells them apart), anything else a reference trajectory file."""
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) not in (1, 3) and all(_is_number(p) for p in parts):
+        raise ConfigError(
+            f"--truth ...={text}: a surveyed point is three numbers, x,y,z (m) or lat,lon,h; got {len(parts)}"
+        )
     if text.count(",") == 2 and text.strip() != "header":
         try:
             point = parse_position(text)
@@ -79,6 +84,14 @@ def parse_truth_value(text: str) -> Path | tuple[float, float, float]:
         assert point != "header"
         return point
     return Path(text)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def header_antenna_position(h: ObsHeader, path: Path) -> tuple[float, float, float]:
