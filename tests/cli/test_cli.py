@@ -275,3 +275,23 @@ def test_eval_refuses_an_unknown_vehicle_and_no_method_and_runs_a_repeated_one_o
     assert not out.exists()
     r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp,non-cp", "--out", str(out)])
     assert r.exit_code == 0 and r.output.count("non-cp: 5 epochs in") == 1, r.output
+
+
+def test_fleet_message_counts_name_every_bucket_that_holds_messages() -> None:
+    """A lockstep re-send made 'u1: used 600/601, late 0, rejected 0' with the 601st nowhere."""
+    from coplane.cli.fleet import message_counts
+    from coplane.messages import DiagnosticsMessage, VehicleCounters
+
+    diag = DiagnosticsMessage(
+        fleet="f",
+        method="pc",
+        pace="lockstep",
+        epochs_solved=600,
+        vehicles={
+            "u1": VehicleCounters(received=601, used=600, duplicate=1),
+            "u2": VehicleCounters(received=600, used=600),
+        },
+    )
+    assert message_counts(diag) == (
+        "messages: u1: used 600/601, late 0, rejected 0, duplicate 1; u2: used 600/600, late 0, rejected 0"
+    )

@@ -18,6 +18,7 @@ from coplane.typing import Pace
 
 if TYPE_CHECKING:
     from coplane.fleet import FleetResult
+    from coplane.messages import DiagnosticsMessage
 
 
 def fleet(
@@ -198,12 +199,19 @@ def _render(result: FleetResult) -> None:
         f"{result.recording_name} (fleet over Zenoh)", {result.method: result.stats}, result.truth_vehicles
     )
     if result.diagnostics is not None:
-        console.print(
-            "messages: "
-            + ", ".join(
-                f"{v}: used {c.used}/{c.received}, late {c.late}, rejected {c.rejected}"
-                for v, c in result.diagnostics.vehicles.items()
-            )
-        )
+        console.print(message_counts(result.diagnostics))
     if result.solutions_dir is not None:
         console.print(f"wrote {result.solutions_dir}/")
+
+
+def message_counts(diagnostics: DiagnosticsMessage) -> str:
+    """'messages: u1: used 600/601, late 0, rejected 0, duplicate 1; u2: ...': every message the
+    server received is in one bucket, so the buckets beyond the usual three are named when they
+    hold any (a lockstep agent's re-send after a slow second is a duplicate)."""
+    return "messages: " + "; ".join(
+        f"{v}: used {c.used}/{c.received}, late {c.late}, rejected {c.rejected}"
+        + "".join(
+            f", {name} {n}" for name, n in (("duplicate", c.duplicate), ("elsewhere", c.elsewhere)) if n
+        )
+        for v, c in diagnostics.vehicles.items()
+    )
