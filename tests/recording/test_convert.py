@@ -146,7 +146,7 @@ def test_a_conversion_replaces_an_earlier_one_and_refuses_other_folders(
     other = tmp_path / "other"
     other.mkdir()
     (other / "rover.obs").write_text("not ours\n")
-    with pytest.raises(ConfigError, match=r"holds rover\.obs and no recording this command wrote"):
+    with pytest.raises(ConfigError, match=r"holds rover\.obs and no earlier output of `coplane convert`"):
         convert_recording(sources["sim"], "ubx", other)
     assert [p.name for p in other.iterdir()] == ["rover.obs"]
 

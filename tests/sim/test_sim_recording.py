@@ -18,6 +18,7 @@ from coplane.evaluate.metrics import enu_errors
 from coplane.evaluate.spp_run import run_spp
 from coplane.gnss.epoch_solver import EpochSolverOptions
 from coplane.gnss.spp import SppOptions
+from coplane.recording.output_dir import MARKER
 from coplane.recording.reader import open_recording
 from coplane.sim import errors as er
 from coplane.sim.canyon import BLOCKED
@@ -34,10 +35,11 @@ from coplane.sim.write import write_recording
 
 
 def _digest(root: Path) -> dict[str, str]:
+    """The recording's files (not the hidden mark of the command that wrote the folder)."""
     return {
         p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(root.rglob("*"))
-        if p.is_file()
+        if p.is_file() and p.name != MARKER
     }
 
 
@@ -254,6 +256,12 @@ def test_an_earlier_simulation_is_replaced_whole_and_another_folder_refused(tmp_
     other = tmp_path / "other"
     other.mkdir()
     (other / "rover.obs").write_text("not ours\n")
-    with pytest.raises(ConfigError, match=r"holds rover\.obs and no recording this command wrote"):
+    with pytest.raises(ConfigError, match=r"holds rover\.obs and no earlier output of `coplane simulate`"):
         simulate("open-sky", other, vehicles=1, duration_s=3.0, seed=1)
     assert sorted(p.name for p in other.iterdir()) == ["rover.obs"]
+    # a user's recording whose name looks like a simulation's is still the user's
+    (other / "vehicles").mkdir()
+    (other / "fleet.toml").write_text('name = "sim drive of mine"\n')
+    with pytest.raises(ConfigError, match="no earlier output"):
+        simulate("open-sky", other, vehicles=1, duration_s=3.0, seed=1)
+    assert sorted(p.name for p in other.iterdir()) == ["fleet.toml", "rover.obs", "vehicles"]

@@ -152,12 +152,8 @@ def _nav_files(rec: Recording, fmt: str, out: Path, result: ConvertResult) -> tu
     return (path, *(_copy(p, m.root, out) for p in m.nav_files))
 
 
-FORMAT_NAMES = {"ubx": "UBX", "rtcm3": "RTCM 3"}  # a conversion's name ends with one, in brackets
+FORMAT_NAMES = {"ubx": "UBX", "rtcm3": "RTCM 3"}  # in a conversion's name, in brackets
 CONVERTED_PARTS = ("vehicles", "base", "nav")  # what every conversion writes besides its copies
-
-
-def _converted(name: str) -> bool:
-    return any(name.endswith(f" ({label})") for label in FORMAT_NAMES.values())
 
 
 def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int = 7) -> ConvertResult:
@@ -174,8 +170,7 @@ def convert_recording(source: str | Path, fmt: Format, out: str | Path, msm: int
     out = Path(out).resolve()
     if out == m.root or out.is_relative_to(m.root):
         raise RecordingError(f"{out}: the output must not be inside the source recording {m.root}")
-    prepare_output(out, _converted, CONVERTED_PARTS)
-    out.mkdir(parents=True, exist_ok=True)
+    prepare_output(out, "convert", CONVERTED_PARTS)
     result = ConvertResult(out, fmt, UBX_RESOLUTION if fmt == "ubx" else rtcm_resolution(msm))
 
     vehicles: list[VehicleSpec] = []

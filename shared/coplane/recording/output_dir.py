@@ -4,27 +4,28 @@ Such a folder is new, empty, or an earlier output of the same command, which is 
 a 2-vehicle run over a 3-vehicle one, or an RTCM 3 conversion over a UBX one, must not leave the
 old vehicles' files beside the new ones, where `coplane recording init` would take them for the
 same drive. Files the command never wrote (an eval's output inside, say) stay. Any other folder is
-refused before the work starts: the command would mix its files into someone else's.
+refused before the work starts: the command would mix its files into someone else's, or delete
+them. What marks an earlier output is a hidden file naming the command, written before anything
+else (so an output cut short is one too), never the recording's name, which a user may choose.
 """
 
 from __future__ import annotations
 
 import shutil
 import tomllib
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from coplane.errors import ConfigError
 
 MANIFEST = "fleet.toml"
+MARKER = ".coplane-output"  # holds the name of the command that writes the folder
 
 
-def check_output(out: Path, ours: Callable[[str], bool], parts: Iterable[str]) -> bool:
-    """Whether `out` holds an earlier output to replace; raise ConfigError for a folder that may
-    not be written into. `ours(name)`: the recording's name says this command wrote it; `parts`:
-    the names the command always writes at the top, so that an output cut short before its
-    fleet.toml (written last) is recognised too."""
+def check_output(out: Path, command: str) -> bool:
+    """Whether `out` holds an earlier output of `command` to replace; raise ConfigError for a
+    folder that may not be written into."""
     if not out.exists():
         return False
     if not out.is_dir():
@@ -32,32 +33,38 @@ def check_output(out: Path, ours: Callable[[str], bool], parts: Iterable[str]) -
     entries = sorted(p.name for p in out.iterdir())
     if not entries:
         return False
-    manifest = _manifest(out)
-    name = manifest.get("name") if manifest else None
-    if not ((isinstance(name, str) and ours(name)) or set(entries) <= set(parts) | {MANIFEST}):
+    if _marked(out) != command:
         shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
         raise ConfigError(
-            f"{out} holds {shown} and no recording this command wrote: write into a new or empty"
-            " folder (its files would mix with the new recording's)"
+            f"{out} holds {shown} and no earlier output of `coplane {command}`: write into a new or"
+            " empty folder (its files would mix with the new recording's)"
         )
     return True
 
 
-def prepare_output(out: Path, ours: Callable[[str], bool], parts: Iterable[str]) -> None:
-    """Make `out` ready for a new recording: the files an earlier one listed in its fleet.toml and
-    the command's `parts` are removed (`check_output` says which folders qualify)."""
-    parts = tuple(parts)
-    if not check_output(out, ours, parts):
-        return
-    root = out.resolve()
-    doomed = [out / p for p in parts] + [p for p in _listed(out) if p.resolve().is_relative_to(root)]
-    for path in doomed:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        elif path.exists() or path.is_symlink():
-            path.unlink()
-            _prune_empty(path.parent, root)
-    (out / MANIFEST).unlink(missing_ok=True)
+def prepare_output(out: Path, command: str, parts: Iterable[str]) -> None:
+    """Make `out` ready for a new recording of `command`: the files an earlier one listed in its
+    fleet.toml and the command's fixed `parts` (top-level names it always writes) are removed,
+    then the folder is marked as this command's (`check_output` says which folders qualify)."""
+    if check_output(out, command):
+        root = out.resolve()
+        listed = [p for p in _listed(out) if p.resolve().is_relative_to(root)]
+        for path in [*(out / p for p in parts), *listed]:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+                _prune_empty(path.parent, root)
+        (out / MANIFEST).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MARKER).write_text(command + "\n", encoding="utf-8")
+
+
+def _marked(out: Path) -> str | None:
+    try:
+        return (out / MARKER).read_text(encoding="utf-8").strip()
+    except (OSError, UnicodeDecodeError):
+        return None
 
 
 def _manifest(out: Path) -> dict[str, Any] | None:

@@ -26,8 +26,7 @@ RECEIVER_NAME = "COPLANE SIM"
 ANTENNA_NAME = "SIM PATCH"
 BASE_ANTENNA_NAME = "SIM CHOKE RING"
 
-SIMULATED_NAME = "sim "  # how every simulated recording's name begins (`write_recording`)
-SIMULATED_PARTS = ("fleet.toml", "nav", "base", "vehicles", "truth", "uwb.csv")  # what it writes
+SIMULATED_PARTS = ("nav", "base", "vehicles", "truth", "uwb.csv")  # what it writes besides fleet.toml
 TRUTH_HEADER = "gps_week,tow_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps,section,lane"
 
 
@@ -50,14 +49,10 @@ def write_truth_csv(path: Path, times: list[GpsTime], track: FleetTrack, v: int)
     path.write_text("\n".join(lines) + "\n", encoding="ascii", newline="\n")
 
 
-def _simulated(name: str) -> bool:
-    return name.startswith(SIMULATED_NAME)
-
-
 def check_out_dir(out: Path) -> bool:
     """Whether `out` holds an earlier simulation to replace; a folder of anything else is refused
     before the simulation runs (`recording.output_dir`)."""
-    return check_output(out, _simulated, SIMULATED_PARTS)
+    return check_output(out, "simulate")
 
 
 def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True) -> Path:
@@ -69,7 +64,7 @@ def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True
     # absolute: the manifest's paths are written relative to its root, which a relative `out_dir`
     # (e.g. `coplane simulate --out sim`) would otherwise count twice ("sim/sim/nav/...")
     out = Path(out_dir).resolve()
-    prepare_output(out, _simulated, SIMULATED_PARTS)
+    prepare_output(out, "simulate", SIMULATED_PARTS)
     out.mkdir(parents=True, exist_ok=True)
     sc = result.scenario
     nav_rel = Path("nav") / "brdc.rnx"
@@ -126,7 +121,7 @@ def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True
 
     manifest = Manifest(
         root=out,
-        name=f"{SIMULATED_NAME}{sc.name} seed {result.seed}: {len(result.vehicle_ids)} vehicles, {len(result.times)} epochs",
+        name=f"sim {sc.name} seed {result.seed}: {len(result.vehicle_ids)} vehicles, {len(result.times)} epochs",
         interval_s=sc.interval_s,
         nav_files=(out / nav_rel,),
         vehicles=tuple(specs),
