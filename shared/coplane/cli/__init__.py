@@ -57,7 +57,7 @@ _PATH_ERRORS = frozenset(
 
 
 def _path_error(exc: OSError) -> str:
-    """'cannot write /proc/x: No such file or directory', naming both paths of a rename."""
+    """'/proc/x: No such file or directory'; both paths of a failed rename or copy."""
     where = f"{exc.filename} -> {exc.filename2}" if exc.filename2 else str(exc.filename)
     return f"{where}: {exc.strerror or exc}"
 
