@@ -69,3 +69,7 @@ def test_eval_refuses_a_map_no_method_reads_and_map_methods_without_one(tmp_path
     said = " ".join(r.output.split())
     assert r.exit_code != 0 and "pc-map, pc-self-map take their planes from a road-surface map" in said
     assert not (ev / "solutions").exists()  # nothing ran
+    # a missing recording among several is named before any is built into the map
+    fresh = tmp_path / "fresh.sqlite"
+    r = runner.invoke(app, ["map", "build", str(rec), str(tmp_path / "nope"), "--out", str(fresh)])
+    assert r.exit_code == 2 and "nope: no such directory" in r.output and not fresh.exists()

@@ -50,10 +50,10 @@ def build(
     table = Table(title=f"map {out}")
     for col in ("recording", "method", "samples", "skipped", "passes", "changes"):
         table.add_column(col, justify="left" if col in ("recording", "method") else "right")
+    recs = [open_recording(path) for path in recordings]  # a missing one is named before any build
     with RoadMapDb(out) as db:
         road_map = db.load()
-        for path in recordings:
-            rec = open_recording(path)
+        for path, rec in zip(recordings, recs, strict=True):
             run = run_method(
                 rec,
                 spec,
