@@ -72,4 +72,5 @@ def test_eval_refuses_a_map_no_method_reads_and_map_methods_without_one(tmp_path
     # a missing recording among several is named before any is built into the map
     fresh = tmp_path / "fresh.sqlite"
     r = runner.invoke(app, ["map", "build", str(rec), str(tmp_path / "nope"), "--out", str(fresh)])
-    assert r.exit_code == 2 and "nope: no such directory" in r.output and not fresh.exists()
+    said = "".join(r.output.split())  # rich wraps, and folds a long path anywhere
+    assert r.exit_code == 2 and "nope:nosuchdirectory" in said and not fresh.exists()

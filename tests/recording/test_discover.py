@@ -21,7 +21,8 @@ from coplane.evaluate.evaluation import evaluate
 from coplane.recording.convert import convert_recording
 from coplane.recording.discover import sniff, summarise_obs, vehicle_ids
 from coplane.recording.manifest import load_manifest
-from coplane.recording.plan import parse_position, plan_recording, write_plan
+from coplane.recording.plan import plan_recording, write_plan
+from coplane.recording.positions import parse_position
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import open_recording
 from coplane.sim.generate import bundled_default_path, simulate

@@ -108,7 +108,8 @@ def init(
 
     from coplane.recording.health import ephemeris_gap
     from coplane.recording.manifest import MANIFEST_NAME, manifest_dict
-    from coplane.recording.plan import parse_position, parse_truth_value, plan_recording, write_plan
+    from coplane.recording.plan import plan_recording, write_plan
+    from coplane.recording.positions import parse_position, parse_truth_value
     from coplane.recording.reader import open_recording
 
     target = directory / MANIFEST_NAME

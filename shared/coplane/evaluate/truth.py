@@ -25,7 +25,7 @@ from coplane.errors import ConfigError
 from coplane.evaluate.rtk_reference import use_rtk_truth
 from coplane.gtime import calendar_span
 from coplane.recording.csvfiles import read_truth, write_truth
-from coplane.recording.plan import parse_truth_value
+from coplane.recording.positions import parse_truth_value
 from coplane.recording.problems import RecordingError
 from coplane.recording.reader import Recording
 from coplane.recording.trajectories import read_trajectory
@@ -58,7 +58,7 @@ def parse_truth(text: str) -> Truth:
 
 def parse_truth_choice(values: Sequence[str] | None) -> TruthChoice:
     """The `--truth` options of `coplane eval` / `coplane fleet`: at most one of the sources'
-    names, and any number of ID=FILE or ID=POINT (`recording.plan.parse_truth_value`);
+    names, and any number of ID=FILE or ID=POINT (`recording.positions.parse_truth_value`);
     ConfigError naming the bad value otherwise. Files are only named here; they are read when
     applied to a recording (`apply_truth`)."""
     sources: list[Truth] = []

@@ -18,10 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
-
 from coplane.errors import ConfigError
-from coplane.geo import enu_to_ecef, geodetic_to_ecef
 from coplane.gtime import calendar_span
 from coplane.ids import is_vehicle_id
 from coplane.recording.csvfiles import write_truth
@@ -36,72 +33,13 @@ from coplane.recording.discover import (
     vehicle_ids,
 )
 from coplane.recording.manifest import MANIFEST_NAME, write_manifest
-from coplane.recording.model import BaseSpec, Manifest, ObsHeader, TruthPoint, UwbSpec, VehicleSpec
+from coplane.recording.model import BaseSpec, Manifest, TruthPoint, UwbSpec, VehicleSpec
+from coplane.recording.positions import header_antenna_position
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.splice import join_runs, splice
 from coplane.recording.trajectories import read_trajectory, sniff
 
-# the broadcast systems coplane positions with (GPS LNAV, BeiDou D1/D2); "M" is a mixed file
-EARTH_RADIUS_RANGE_M = (6.30e6, 6.42e6)  # |ECEF| of a point near the surface
 DEFAULT_ANTENNA_HEIGHT_M = 1.5  # a car's roof, when the user does not say
-
-
-def parse_position(text: str) -> tuple[float, float, float] | Literal["header"]:
-    """A base antenna position: "header", ECEF "x,y,z" (m) or geodetic "lat,lon,h" (deg, deg, m
-    ellipsoidal), told apart by magnitude; ConfigError naming the forms otherwise."""
-    if text.strip() == "header":
-        return "header"
-    try:
-        vals = [float(v) for v in text.replace(" ", "").split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) == 3 and all(math.isfinite(v) for v in vals):
-        norm = math.hypot(*vals)
-        if EARTH_RADIUS_RANGE_M[0] <= norm <= EARTH_RADIUS_RANGE_M[1]:
-            return (vals[0], vals[1], vals[2])
-        if abs(vals[0]) <= 90.0 and abs(vals[1]) <= 180.0 and abs(vals[2]) < 1e4:
-            xyz = geodetic_to_ecef(math.radians(vals[0]), math.radians(vals[1]), vals[2])
-            return (float(xyz[0]), float(xyz[1]), float(xyz[2]))
-    raise ConfigError(
-        f"--base-position {text!r}: expected 'header', ECEF 'x,y,z' in metres or 'lat,lon,h' "
-        "(degrees, degrees, ellipsoidal metres)"
-    )
-
-
-def parse_truth_value(text: str) -> Path | tuple[float, float, float]:
-    """A `--truth ID=VALUE` value: three numbers are a surveyed point (ECEF or lat,lon,h, as
-    `parse_position` tells them apart), anything else a reference trajectory file."""
-    parts = [p.strip() for p in text.split(",")]
-    if len(parts) not in (1, 3) and all(_is_number(p) for p in parts):
-        raise ConfigError(
-            f"--truth ...={text}: a surveyed point is three numbers, x,y,z (m) or lat,lon,h; got {len(parts)}"
-        )
-    if text.count(",") == 2 and text.strip() != "header":
-        try:
-            point = parse_position(text)
-        except ConfigError:
-            return Path(text)
-        assert point != "header"
-        return point
-    return Path(text)
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def header_antenna_position(h: ObsHeader, path: Path) -> tuple[float, float, float]:
-    """The antenna reference point from a header: APPROX POSITION XYZ (the marker) moved by
-    ANTENNA: DELTA H/E/N (up, east, north), as RINEX defines them."""
-    if h.approx_position_ecef_m is None:
-        raise ConfigError(f"{path}: its header has no APPROX POSITION XYZ; give --base-position x,y,z")
-    up, east, north = h.antenna_delta_hen_m
-    xyz = enu_to_ecef(np.array([east, north, up]), np.array(h.approx_position_ecef_m))
-    return (float(xyz[0]), float(xyz[1]), float(xyz[2]))
 
 
 @dataclass
