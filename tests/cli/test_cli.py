@@ -295,3 +295,15 @@ def test_fleet_message_counts_name_every_bucket_that_holds_messages() -> None:
     assert message_counts(diag) == (
         "messages: u1: used 600/601, late 0, rejected 0, duplicate 1; u2: used 600/600, late 0, rejected 0"
     )
+
+
+def test_the_command_line_starts_without_pydantic() -> None:
+    """The options' types (`coplane.typing.Pace`) and the settings-error handler must not pull
+    pydantic (and the bus messages) into every command's start: they load where a command uses
+    them."""
+    import subprocess
+    import sys
+
+    code = "import sys, coplane.cli; print('pydantic' in sys.modules, 'coplane.messages' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False"], out
