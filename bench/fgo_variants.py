@@ -45,6 +45,16 @@ VARIANTS: dict[str, dict[str, object]] = {
     "robust-warmup-1": {"robust_warmup_epochs": 1},
     "robust-warmup-5": {"robust_warmup_epochs": 5},
     "robust-warmup-10": {"robust_warmup_epochs": 10},
+    # the Huber corner in sigmas (1.345 is the usual 95 %-efficiency constant, never tuned here)
+    "huber-0.5": {"robust_k": 0.5},
+    "huber-0.75": {"robust_k": 0.75},
+    "huber-1": {"robust_k": 1.0},
+    # ... narrowed only on epochs with at least N pseudoranges ("-nN")
+    "huber-0.5-n8": {"robust_k_redundant": 0.5, "robust_redundant_min": 8},
+    "huber-0.5-n12": {"robust_k_redundant": 0.5, "robust_redundant_min": 12},
+    "huber-0.75-n10": {"robust_k_redundant": 0.75, "robust_redundant_min": 10},
+    "huber-2": {"robust_k": 2.0},
+    "huber-3": {"robust_k": 3.0},
     "dcs-1": {"robust": "dcs", "robust_k": 1.0},  # switchable constraints in closed form
     "dcs-4": {"robust": "dcs", "robust_k": 4.0},
     "dcs-9": {"robust": "dcs", "robust_k": 9.0},

@@ -160,3 +160,17 @@ def test_a_kernel_on_planes_and_links_needs_a_kernel() -> None:
     with pytest.raises(ValueError, match="robust_planes_links needs a robust kernel"):
         FgoConfig(robust_planes_links=True)
     assert FgoConfig(robust="dcs", robust_planes_links=True).robust_tuning == 1.0
+
+
+def test_robust_k_redundant_narrows_the_kernel_only_on_redundant_epochs() -> None:
+    """`robust_k_redundant` (opt-in, docs/fgo.md "The kernel's corner"): an epoch with at least
+    `robust_redundant_min` pseudoranges takes that k, a weaker one the usual `robust_k`."""
+    cfg = FgoConfig(robust="huber", robust_k_redundant=0.5, robust_redundant_min=8)
+    assert cfg.pseudorange_tuning(8) == 0.5
+    assert cfg.pseudorange_tuning(7) == pytest.approx(1.345)
+    assert FgoConfig(robust="huber").pseudorange_tuning(20) == pytest.approx(1.345)
+    assert FgoConfig(robust=None, robust_k_redundant=0.5).pseudorange_tuning(20) is None
+    with pytest.raises(ValueError, match="robust_redundant_min"):
+        FgoConfig(robust="huber", robust_redundant_min=0)
+    with pytest.raises(ValueError, match="robust_k_redundant"):
+        FgoConfig(robust="huber", robust_k_redundant=-1.0)

@@ -51,7 +51,7 @@ def build_block(p: Prepared, k: int, t: GpsTime, keys: KeyRegistry, cfg: FgoConf
                 prs.sigma,
                 p.init_pos,
                 cfg.robust if p.kernel else None,
-                cfg.robust_tuning,
+                cfg.pseudorange_tuning(len(prs)),
                 tuple([bias_keys.get(sys) for sys in prs.systems]) if bias_keys else None,
             )
         )

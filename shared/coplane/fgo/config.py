@@ -90,6 +90,11 @@ class FgoConfig:
     # weak sky the kernel's optimum can lie metres from the least-squares fix, and the Doppler
     # links carry that start for tens of seconds (docs/fgo.md, "A moving car against RTK"). 0: off.
     robust_warmup_epochs: int = 0
+    # ... and narrowed to this k (sigmas) on an epoch with at least `robust_redundant_min`
+    # pseudoranges: a small k costs efficiency that a redundant epoch can spare and a weak one
+    # cannot (docs/fgo.md, "The kernel's corner"). None: `robust_k` on every epoch.
+    robust_k_redundant: float | None = None
+    robust_redundant_min: int = 8
     # ... and on the plane factors and the velocity (Doppler / motion) links too: NLOS biases
     # Doppler as well, and a plane fitted across a grade change is wrong for the vehicle on it.
     robust_planes_links: bool = False
@@ -363,3 +368,8 @@ class FgoConfig:
         if self.robust is None:
             return None
         return self.robust_k if self.robust_k is not None else DEFAULT_ROBUST_K[self.robust]
+
+    def pseudorange_tuning(self, n_pseudoranges: int) -> float | None:
+        """The kernel's k on an epoch with this many pseudoranges (`robust_k_redundant`)."""
+        narrow = self.robust_k_redundant is not None and n_pseudoranges >= self.robust_redundant_min
+        return self.robust_k_redundant if narrow and self.robust is not None else self.robust_tuning

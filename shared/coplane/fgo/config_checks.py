@@ -49,6 +49,7 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         raise ValueError(f"window_epochs must be a positive integer, got {cfg.window_epochs!r}")
     optional = (  # thresholds checked where set (None switches each one off)
         "robust_k",
+        "robust_k_redundant",
         "fde_k",
         "fde_k_long",
         "fde_long_below_elevation_deg",
@@ -121,6 +122,8 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         )
     if cfg.height_link_settled_epochs < 0:
         raise ValueError(f"height_link_settled_epochs must be >= 0, got {cfg.height_link_settled_epochs!r}")
+    if cfg.robust_redundant_min < 1:
+        raise ValueError(f"robust_redundant_min must be >= 1, got {cfg.robust_redundant_min!r}")
     if cfg.robust_warmup_epochs < 0:
         raise ValueError(f"robust_warmup_epochs must be >= 0, got {cfg.robust_warmup_epochs!r}")
     if cfg.range_warmup_epochs < 0:
