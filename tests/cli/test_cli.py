@@ -80,6 +80,12 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
     ):
         r = runner.invoke(app, ["fleet", "--no-api", "--insecure", *args])
         assert r.exit_code == 2 and said in " ".join(r.output.split()), r.output
+    # code that makes the options itself meets the same checks (typer stops a bad pace before)
+    from coplane.errors import ConfigError
+    from coplane.fleet.run import FleetOptions
+
+    with pytest.raises(ConfigError, match="--pace must be lockstep or realtime, got 'warp'"):
+        FleetOptions(recording=tmp_path, pace="warp")
     # a path the OS refuses is named with the reason, without a traceback
     (tmp_path / "afile").write_text("")
     r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "afile" / "rec"), "--duration", "1"])

@@ -45,6 +45,7 @@ from coplane.fleet.launcher import (
     wait_for_port,
 )
 from coplane.live.nmea_out import NmeaServer
+from coplane.live.urls import MAX_PORT
 from coplane.messages import DiagnosticsMessage
 from coplane.methods import get_method
 from coplane.recording.health import InputHealth, input_health
@@ -92,7 +93,8 @@ class FleetOptions:
 
     def __post_init__(self) -> None:
         """Values no process could use are named here, before any process starts (a zero speed
-        divided by zero, a port above 65535 overflowed a socket call, a rate of 150 % ran)."""
+        divided by zero, a port above 65535 overflowed a socket call, a rate of 150 % ran); the
+        pace too, which the command line already limits but code calling run_fleet does not."""
         if not (math.isfinite(self.speed) and self.speed > 0):
             raise ConfigError(f"--speed must be a finite factor > 0, got {self.speed}")
         if not 0.0 <= self.interruption <= 1.0:  # NaN fails too
@@ -100,9 +102,10 @@ class FleetOptions:
         for option, port, lowest in (("--port", self.port, 0), ("--api-port", self.api_port, 1)):
             if not lowest <= port <= MAX_PORT:
                 raise ConfigError(f"{option} must be within {lowest}..{MAX_PORT}, got {port}")
+        if self.pace not in PACES:
+            raise ConfigError(f"--pace must be lockstep or realtime, got {self.pace!r}")
 
 
-MAX_PORT = 65535
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
 MAX_FLEET_ROUTERS = 4  # Zenoh routers it meshes
 
@@ -171,8 +174,6 @@ def run_fleet(
     process table to fill (the caller's signal watchdog kills what it holds).
     """
     o = options
-    if o.pace not in PACES:
-        raise ConfigError(f"--pace must be lockstep or realtime, got {o.pace!r}")
     method = get_method(o.method)
     stop = stop or threading.Event()
     path = o.recording.resolve()

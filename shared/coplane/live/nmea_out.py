@@ -38,6 +38,7 @@ from pynmeagps import GET, NMEAMessage
 from coplane.errors import ConfigError
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
+from coplane.live.urls import MAX_PORT
 from coplane.messages import SolutionMessage, VehicleState
 from coplane.steps.wire import gps_time
 
@@ -128,10 +129,10 @@ class NmeaServer:
         self.counts: Counter[str] = Counter()
         self.lock = threading.Lock()
         self.closed = threading.Event()
-        if first_port and not 1 <= first_port <= 65536 - len(vehicles):
+        if first_port and not 1 <= first_port <= MAX_PORT + 1 - len(vehicles):
             raise ConfigError(
                 f"NMEA output: ports {first_port}..{first_port + len(vehicles) - 1} for {len(vehicles)}"
-                " vehicle(s) are not all within 1..65535"
+                f" vehicle(s) are not all within 1..{MAX_PORT}"
             )
         for i, vid in enumerate(vehicles):
             port = first_port + i if first_port else 0

@@ -24,6 +24,8 @@ Transport = Literal["file", "tcp", "serial", "ntrip", "udp"]
 Format = Literal["ubx", "rtcm3", "uwb"]
 Role = Literal["gnss", "base", "uwb"]
 
+MAX_PORT = 65535  # TCP and UDP port numbers are 16 bits; 0 asks the OS for a free one
+
 EXTENSIONS: dict[str, Format] = {
     ".ubx": "ubx",
     ".rtcm3": "rtcm3",
@@ -127,8 +129,8 @@ def parse_source(text: str, *, option: str, role: Role) -> SourceUrl:
             port = NTRIP_PORT
         if port is None:
             raise bad("missing port (HOST:PORT)")
-        if not 1 <= port <= 65535:
-            raise bad(f"port {port} outside 1..65535")
+        if not 1 <= port <= MAX_PORT:
+            raise bad(f"port {port} outside 1..{MAX_PORT}")
         if u.path not in ("", "/") and transport != "ntrip":
             raise bad(f"unexpected path {u.path!r} after the port")
         if transport == "ntrip":
