@@ -208,6 +208,29 @@ def test_a_stray_ephemeris_does_not_move_an_rtcm_stream_by_weeks(logs: dict[str,
     assert [e.time for e in got] == [e.time for e in epochs]
 
 
+def test_one_beidou_ephemeris_of_another_week_does_not_move_an_rtcm_stream(
+    logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """A stream's first week comes from its BeiDou 1042s (13-bit weeks). One well-formed 1042
+    30 weeks off, arriving first, used to set it alone and move every epoch by 30 weeks; now the
+    week waits for two satellites that agree and is their median, as the file reader's."""
+    from coplane.recording.rtcm3_ephemeris import ephemeris_frame
+
+    epochs, nav = _reference("rtcm3", logs["rtcm3"])
+    bds = sorted(s for s in nav.ephemerides if s.startswith("C"))
+    assert len(bds) >= 2
+    first = nav.ephemerides[bds[0]][0]
+    off = {"week": first.week + 30, "toe": GpsTime(first.toe.week + 30, first.toe.tow)}
+    stray = ephemeris_frame(dataclasses.replace(first, **off))  # type: ignore[arg-type]
+    data = stray + logs["rtcm3"].read_bytes()
+    problems = Problems()
+    dec = GnssStreamDecoder("rtcm3", "rtcm3+tcp://base:1", NavData(), problems)
+    got = dec.feed(data, final=True)
+    assert [e.time for e in got] == [e.time for e in epochs]
+    (tmp_path / "u1.rtcm3").write_bytes(data)  # the file reader takes the median of the log's 1042s
+    assert [e.time for e in read_rtcm3(tmp_path / "u1.rtcm3", Problems())[1]] == [e.time for e in epochs]
+
+
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_a_reconnect_in_the_middle_of_a_frame_costs_that_frame(logs: dict[str, Path], fmt: str) -> None:
     """The stream drops in the middle of a frame and a new connection starts at a frame boundary

@@ -6,20 +6,23 @@ give the same epochs and ephemerides. Ephemerides go into the `NavData` the vehi
 as they complete; bad frames are counted in `problems` (by kind) and cost only themselves.
 
 Epoch time is the receiver's own tag: RAWX rcvTow + week (rollover resolved by the receiver);
-MSM time of week resolved to the week nearest the previous epoch (first: a BeiDou 1042's week,
-else that of the ephemerides already held, `NavData.reference_time`, else the clock), so a stream
-that crosses a week boundary keeps counting.
+MSM time of week resolved to the week nearest the previous epoch (first: the median week of the
+BeiDou 1042s seen so far, as the file reader takes the median of a log's 1042s, else that of the
+ephemerides already held, `NavData.reference_time`, else the clock), so a stream that crosses a
+week boundary keeps counting. Before the first epoch, 1042s set the week once two satellites'
+agree within a week: one well-formed 1042 of another week must not move every epoch by weeks.
 """
 
 from __future__ import annotations
 
-import contextlib
+import itertools
+import statistics
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
 import numpy as np
 
-from coplane.gtime import GpsTime, bdt_to_gpst
+from coplane.gtime import SECONDS_PER_WEEK, GpsTime, bdt_to_gpst
 from coplane.recording.broadcast import nearest_week, today
 from coplane.recording.frames import Frame, FrameScanner, rtcm_scanner, ubx_scanner
 from coplane.recording.model import NavData, ObsEpoch
@@ -66,6 +69,7 @@ class GnssStreamDecoder:
         # replayed as a stream resolves its week as the file reader does. Bounded: at MAX_HELD the
         # clock is taken.
         self._held: list[Any] = []
+        self._bds_toes: dict[int, GpsTime] = {}  # BeiDou satellite -> its 1042's toe, until the week is set
         self.reference: GpsTime | None = None
         self.scanner: FrameScanner
         if fmt == "ubx":
@@ -183,7 +187,7 @@ class GnssStreamDecoder:
     def _close_epoch(self) -> ObsEpoch | None:
         msms, self._pending = self._pending, []
         if self.reference is None:
-            self._set_reference(self.nav.reference_time() or today())
+            self._set_reference(self._bds_reference() or self.nav.reference_time() or today())
         ref = self.last or self.reference or today()
         t = nearest_week(msms[0].tow_ms / 1000.0, ref)
         if self.last is not None and t <= self.last:
@@ -216,13 +220,26 @@ class GnssStreamDecoder:
             self.station_ecef_m = xyz
             return
         if ident == "1042" and self.reference is None:
-            # a bad one: decode_ephemeris below names what is wrong with it
-            with contextlib.suppress(AttributeError, TypeError, ValueError):
-                self._set_reference(bdt_to_gpst(int(msg.DF489), float(msg.DF505)))
+            self._bds_week_candidate(msg)
         if self.reference is None and len(self._held) < MAX_HELD:
             self._held.append((offset, msg))
             return
         self._ephemeris(offset, msg)
+
+    def _bds_week_candidate(self, msg: Any) -> None:
+        """A 1042's toe as a candidate for the stream's week (a 13-bit BDT week, unlike a 1019's
+        10 bits); the week is set once two satellites' toes lie within a week of each other."""
+        try:  # a bad one: decode_ephemeris names what is wrong with it when it is decoded
+            self._bds_toes[int(msg.DF488)] = bdt_to_gpst(int(msg.DF489), float(msg.DF505))
+        except (AttributeError, TypeError, ValueError, OverflowError):
+            return
+        toes = sorted(self._bds_toes.values())
+        if any(b - a <= SECONDS_PER_WEEK for a, b in itertools.pairwise(toes)):
+            self._set_reference(self._bds_reference() or toes[0])
+
+    def _bds_reference(self) -> GpsTime | None:
+        """The median toe of the 1042s seen before the week was set (None: none seen)."""
+        return statistics.median_low(self._bds_toes.values()) if self._bds_toes else None
 
     def _ephemeris(self, offset: int, msg: Any) -> None:
         ident = msg.identity
