@@ -106,6 +106,7 @@ def test_a_reference_that_gives_nothing_stops_before_any_method(sim: Path, tmp_p
     empty.write_text(XYZ_HEADER + "\n2300 junk 1 2 3 1 12\n")
     for choice, match in (
         (TruthChoice(references=(("u9", empty),)), "--truth u9=.*no such vehicle"),
+        (TruthChoice(references=(("u9", (1.0, 2.0, 3.0)),)), "--truth u9: no such vehicle"),
         (
             TruthChoice(references=(("u1", empty),)),
             "--truth u1=.*empty.pos: no usable point \\(1 bad rows, the first: .*empty.pos:2",

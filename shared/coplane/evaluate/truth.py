@@ -99,8 +99,9 @@ def use_references(rec: Recording, references: Mapping[str, Reference]) -> str:
     notes = []
     for vid, ref in references.items():
         if vid not in known:
-            where = ref if isinstance(ref, Path) else ",".join(f"{x:.3f}" for x in ref)
-            raise ConfigError(f"--truth {vid}={where}: no such vehicle (vehicles: {', '.join(known)})")
+            # a point is not shown: parsed, it is ECEF metres, not what was typed
+            where = f"={ref}" if isinstance(ref, Path) else ""
+            raise ConfigError(f"--truth {vid}{where}: no such vehicle (vehicles: {', '.join(known)})")
         if not isinstance(ref, Path):  # a static receiver's surveyed point
             epochs = sorted({rec.nominal(e.time) for e in rec.vehicle_epochs(vid)})
             rec.use_truth(vid, dict.fromkeys(epochs, ref))
