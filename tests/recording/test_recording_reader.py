@@ -142,3 +142,33 @@ def test_a_receiver_faster_than_the_interval_is_decimated_not_reported(tmp_path:
     assert all(abs(e.time - rec.nominal(e.time)) < 0.1 for e in kept)
     skipped, own = rec.decimated[rec.manifest.vehicle("u1").obs]
     assert skipped == 10 and own == pytest.approx(1.0, abs=1e-3)  # the receiver's clock drifts
+    from typer.testing import CliRunner
+
+    from coplane.cli import app
+
+    r = CliRunner().invoke(app, ["recording", "show", str(path)])
+    said = " ".join(r.output.split())
+    assert "DGNSS corrections exist only" not in said  # the faster base is decimated too
+    assert r.exit_code == 0 and "logs every 1 s, decimated to the recording's 2 s (10 epochs" in said, (
+        r.output
+    )
+
+
+def test_only_a_base_slower_than_the_interval_is_a_corrections_note() -> None:
+    """A slower base leaves epochs without DGNSS corrections; a faster one is decimated like any
+    receiver (`Recording._dedupe`), so saying its corrections exist only at its epochs misled."""
+    from types import SimpleNamespace
+
+    from coplane.recording.plan import coverage_notes
+
+    def summary(interval: float) -> SimpleNamespace:
+        return SimpleNamespace(interval_s=interval, doppler_share=1.0, first=None, last=None)
+
+    def notes(base_interval: float) -> list[str]:
+        summaries = {Path("u1.obs"): summary(1.0), Path("base.obs"): summary(base_interval)}
+        return coverage_notes(summaries, {"u1": Path("u1.obs")}, Path("base.obs"), 1.0)  # type: ignore[arg-type]
+
+    assert notes(5.0) == [
+        "base logs every 5 s, the vehicles every 1 s: DGNSS corrections exist only at the base's epochs"
+    ]
+    assert notes(0.2) == [] and notes(1.0) == []

@@ -222,7 +222,7 @@ def show(
         notes.append(health.nav_gap + ": nothing can be positioned")
     for path, (skipped, own) in rec.decimated.items():
         notes.append(
-            f"{roles[path]}: logs every {own:g} s, decimated to the recording's {m.interval_s:g} s"
+            f"{roles[path]}: logs every {own:.3g} s, decimated to the recording's {m.interval_s:g} s"
             f" ({skipped} epochs between its epochs skipped, not counted as problems)"
         )
     for note in notes:
