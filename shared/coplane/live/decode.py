@@ -235,7 +235,7 @@ class GnssStreamDecoder:
             return
         toes = sorted(self._bds_toes.values())
         if any(b - a <= SECONDS_PER_WEEK for a, b in itertools.pairwise(toes)):
-            self._set_reference(self._bds_reference() or toes[0])
+            self._set_reference(statistics.median_low(toes))
 
     def _bds_reference(self) -> GpsTime | None:
         """The median toe of the 1042s seen before the week was set (None: none seen)."""

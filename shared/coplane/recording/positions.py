@@ -49,7 +49,7 @@ def parse_truth_value(text: str) -> Path | tuple[float, float, float]:
         raise ConfigError(
             f"--truth ...={text}: a surveyed point is three numbers, x,y,z (m) or lat,lon,h; got {len(parts)}"
         )
-    if text.count(",") == 2 and text.strip() != "header":
+    if len(parts) == 3:
         try:
             point = parse_position(text)
         except ConfigError:

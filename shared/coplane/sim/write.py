@@ -64,8 +64,7 @@ def write_recording(result: SimResult, out_dir: str | Path, doppler: bool = True
     # absolute: the manifest's paths are written relative to its root, which a relative `out_dir`
     # (e.g. `coplane simulate --out sim`) would otherwise count twice ("sim/sim/nav/...")
     out = Path(out_dir).resolve()
-    prepare_output(out, "simulate", SIMULATED_PARTS)
-    out.mkdir(parents=True, exist_ok=True)
+    prepare_output(out, "simulate", SIMULATED_PARTS)  # makes the folder too
     sc = result.scenario
     nav_rel = Path("nav") / "brdc.rnx"
     (out / "nav").mkdir(exist_ok=True)
