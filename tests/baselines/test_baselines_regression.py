@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats
 from coplane.evaluate.runner import MethodRun, run_method
@@ -31,8 +32,9 @@ def rec60(tmp_path_factory: pytest.TempPathFactory) -> Recording:
 @pytest.fixture(scope="module")
 def runs(rec60: Recording) -> dict[str, tuple[MethodRun, dict[str, AccuracyStats]]]:
     out = {}
+    memo = FrontEndMemo()  # the GNSS front ends once for the three runs (same bits)
     for m in METHODS:
-        run = run_method(rec60, m)
+        run = run_method(rec60, m, jobs=1, front_ends=memo)
         out[m] = (run, run_stats(run, rec60))
     return out
 

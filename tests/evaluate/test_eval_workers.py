@@ -1,7 +1,8 @@
 """`coplane eval` on several cores: worker processes own some vehicles' steps (evaluate.vehicle_workers).
 
-Whatever the number of processes, a run must give the same bits, and a failing worker must stop
-the run with its traceback instead of hanging or dropping vehicles.
+Whatever the number of processes, and with GNSS front ends an earlier run computed
+(evaluate.front_ends), a run must give the same bits; a failing worker must stop the run with its
+traceback instead of hanging or dropping vehicles.
 """
 
 from __future__ import annotations
@@ -11,8 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
+from coplane.gnss.epoch_solver import EpochSolverOptions
+from coplane.gnss.spp import SppOptions
 from coplane.recording.reader import Recording, open_recording
 from coplane.sim.generate import simulate
 from coplane.steps import VehicleStep
@@ -48,6 +52,32 @@ def test_any_number_of_processes_gives_the_same_bits(
     assert sum(len(p) for p in alone.positions.values()) > 100
     for jobs in (2, 3, 6):  # 1, 2 and 5 workers (one per vehicle)
         _same(alone, run_method(rec30, method, jobs=jobs, dgnss=dgnss))
+
+
+@pytest.mark.parametrize("dgnss", [None, False], ids=["dgnss", "standalone"])
+def test_front_ends_of_an_earlier_run_give_the_same_bits(rec30: Recording, dgnss: bool | None) -> None:
+    """A memo filled by one method serves the next ones, in one process and with workers."""
+    memo = FrontEndMemo()
+    first = run_method(rec30, "non-cp", jobs=1, dgnss=dgnss)
+    _same(first, run_method(rec30, "non-cp", jobs=2, dgnss=dgnss, front_ends=memo))
+    assert memo.n_epochs == sum(len(p) for p in first.positions.values())  # every vehicle-epoch
+    for method, jobs in (("pc", 1), ("gamp-cp", 2)):
+        alone = run_method(rec30, method, jobs=1, dgnss=dgnss)
+        _same(alone, run_method(rec30, method, jobs=jobs, dgnss=dgnss, front_ends=memo))
+
+
+def test_front_ends_are_remembered_per_setup_and_within_the_bound(rec30: Recording) -> None:
+    """Other solver options or no DGNSS are another front end; past the bound nothing is kept."""
+    memo = FrontEndMemo()
+    run_method(rec30, "non-cp", jobs=1, front_ends=memo)
+    kept = memo.n_epochs
+    masked = EpochSolverOptions(spp=SppOptions(elevation_mask_deg=25.0))
+    alone = run_method(rec30, "non-cp", jobs=1, front_end=masked)
+    _same(alone, run_method(rec30, "non-cp", jobs=1, front_end=masked, front_ends=memo))
+    assert memo.n_epochs == 2 * kept
+    small = FrontEndMemo(max_epochs=kept // 2)
+    _same(alone, run_method(rec30, "non-cp", jobs=1, front_end=masked, front_ends=small))
+    assert small.n_epochs <= kept // 2
 
 
 def test_worker_failure_stops_the_run_with_its_traceback(

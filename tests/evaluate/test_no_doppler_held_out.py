@@ -17,6 +17,7 @@ from coplane.evaluate.benchmark import (
     make_recordings,
     pooled_by_environment,
 )
+from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.metrics import PooledStats
 
 pytestmark = pytest.mark.slow
@@ -27,7 +28,9 @@ SCENARIO = "dense-urban"
 def stats(tmp_path_factory: pytest.TempPathFactory) -> dict[str, PooledStats]:
     tmp = tmp_path_factory.mktemp("no-doppler")
     recs = make_recordings(SCENARIO, HELD_OUT[SCENARIO], tmp, 4, HELD_OUT_DURATION_S, doppler=False)
-    out = {m: pooled_by_environment(recs, m)[0]["all"] for m in ("pc", "non-cp", *BASELINES)}
+    memo = FrontEndMemo()  # as tests/evaluate/test_benchmark_ordering.py: the same bits, less CPU
+    methods = ("pc", "non-cp", *BASELINES)
+    out = {m: pooled_by_environment(recs, m, jobs=1, front_ends=memo)[0]["all"] for m in methods}
     for m, s in out.items():
         print(
             f"{SCENARIO} without Doppler, {m}: H RMSE {s.h_rmse_m:.2f} max {s.h_max_m:.1f}, V RMSE {s.v_rmse_m:.2f}"

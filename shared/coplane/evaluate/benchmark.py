@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_info
 
+from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.metrics import (
     Consistency,
     EpochCheck,
@@ -149,18 +150,28 @@ def pooled_by_environment(
     dgnss: bool | None = None,
     front_end: EpochSolverOptions | None = None,
     plane_config: PlaneConfig | None = None,
+    front_ends: FrontEndMemo | None = None,
 ) -> tuple[dict[str, PooledStats], Consistency]:
     """One method's errors pooled over every vehicle of every recording, overall and per
     environment, and the consistency of its reported covariances (NaN share when it has none).
     Epochs with a horizontal error above `tail_m` are appended to `tail` when it is given.
     `dgnss`, `front_end`, `plane_config`: as `run_method` (None: with the recording's base when it
-    has one; the default GNSS front end; the default plane step)."""
+    has one; the default GNSS front end; the default plane step). `front_ends`: as `run_method` (one
+    memo for every method's call computes the GNSS front ends once)."""
     sol: dict[str, dict] = {}
     truth: dict[str, dict] = {}
     env: dict[str, dict] = {}
     checks: list[EpochCheck] = []
     for k, rec in enumerate(recs):
-        run = run_method(rec, method, jobs=jobs, dgnss=dgnss, front_end=front_end, plane_config=plane_config)
+        run = run_method(
+            rec,
+            method,
+            jobs=jobs,
+            dgnss=dgnss,
+            front_end=front_end,
+            plane_config=plane_config,
+            front_ends=front_ends,
+        )
         if on_run is not None:
             on_run(run.method, run.wall_time_s)
         for v in rec.manifest.vehicles:

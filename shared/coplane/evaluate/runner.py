@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from coplane.errors import ConfigError
+from coplane.evaluate.front_ends import FrontEndMemo, Fronts
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions
@@ -98,12 +99,15 @@ def run_method(
     jobs: int | None = None,
     road_map: RoadMap | None = None,
     front_end: EpochSolverOptions | None = None,
+    front_ends: FrontEndMemo | None = None,
 ) -> MethodRun:
     """Run one method over the recording. DGNSS is used when the recording has a base (default).
 
     `jobs` processes share the work (None: one per core, at most one per vehicle plus one for the
     fusion step; 1: all in this process). The result is the same bits for any `jobs`
-    (evaluate.vehicle_workers).
+    (evaluate.vehicle_workers). `front_ends`: the GNSS front ends remembered for the next runs on
+    `rec` (or taken from the earlier ones), for several methods on one recording; same bits (the
+    run's `wall_time_s` then leaves out the front ends an earlier run computed).
     """
     if jobs is not None and jobs < 1:
         raise ConfigError(f"jobs must be >= 1, got {jobs}")
@@ -141,6 +145,8 @@ def run_method(
     own = {vid: steps[vid] for vid in ids[:n_own]}
     groups = split_vehicles(ids[n_own:], n_workers) if workers_on else []
     t_start = _time.perf_counter()
+    if front_ends is not None:  # before the workers fork, so that they have them too
+        replay.known = front_ends.fronts(rec, steps, schedule, setup.use_dgnss, replay.corrections)
     with VehicleWorkers([{vid: steps[vid] for vid in g} for g in groups], replay, len(schedule)) as workers:
         sol: SolutionMessage | None = None
         for k, (t, _) in enumerate(
@@ -168,7 +174,8 @@ class _Replay:
     schedule: list[tuple[GpsTime, dict[str, Any]]]
     uwb: Mapping[str, Mapping[GpsTime, Any]]
     base: BaseCorrections
-    _fronts: dict[tuple[int, str], EpochResult] = field(default_factory=dict)
+    known: Fronts = field(default_factory=dict)  # front ends computed before the run (`FrontEndMemo`)
+    _fronts: Fronts = field(default_factory=dict)
 
     def corrections(self, k: int) -> DgnssCorrections | None:
         """DGNSS corrections of epoch k (each process computes them itself: same bits)."""
@@ -177,17 +184,22 @@ class _Replay:
     def ahead(self, steps: Mapping[str, VehicleStep], k: int) -> None:
         t, live = self.schedule[k]
         for vid, ep in sorted(live.items()):
-            if vid in steps:
+            if vid in steps and (k, vid) not in self.known:
                 self._fronts[(k, vid)] = steps[vid].front_end(t, ep, self.corrections(k))
 
     def messages(self, steps: Mapping[str, VehicleStep], k: int) -> dict[str, NodeMessage]:
         t, live = self.schedule[k]
         corr = self.corrections(k) if any(vid in steps for vid in live) else None
         return {
-            vid: steps[vid].process(t, ep, corr, self.uwb[vid].get(t, ()), self._fronts.pop((k, vid), None))
+            vid: steps[vid].process(t, ep, corr, self.uwb[vid].get(t, ()), self._front(k, vid))
             for vid, ep in sorted(live.items())
             if vid in steps
         }
+
+    def _front(self, k: int, vid: str) -> EpochResult | None:
+        """Vehicle `vid`'s front end of epoch k if it was computed ahead (else `process` runs it)."""
+        front = self._fronts.pop((k, vid), None)
+        return front if front is not None else self.known.get((k, vid))
 
 
 def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMessage]) -> None:
