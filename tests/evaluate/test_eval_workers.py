@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coplane.evaluate.evaluation import evaluate
 from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split_vehicles
@@ -64,6 +65,12 @@ def test_front_ends_of_an_earlier_run_give_the_same_bits(rec30: Recording, dgnss
     for method, jobs in (("pc", 1), ("gamp-cp", 2)):
         alone = run_method(rec30, method, jobs=1, dgnss=dgnss)
         _same(alone, run_method(rec30, method, jobs=jobs, dgnss=dgnss, front_ends=memo))
+
+
+def test_eval_in_one_process_shares_the_front_ends_with_the_same_bits(rec30: Recording) -> None:
+    """`coplane eval --jobs 1` keeps a memo across its methods (evaluate.evaluation)."""
+    ev = evaluate(rec30, ["non-cp", "pc"], jobs=1)
+    _same(ev.runs[1], run_method(rec30, "pc", jobs=2))
 
 
 def test_front_ends_are_remembered_per_setup_and_within_the_bound(rec30: Recording) -> None:

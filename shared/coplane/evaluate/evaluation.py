@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from coplane.errors import ConfigError
+from coplane.evaluate.front_ends import FrontEndMemo
 from coplane.evaluate.metrics import AccuracyStats, PooledStats
 from coplane.evaluate.plots import plot_cdfs, plot_error_vs_time, plot_plane_map, plot_rmse_vs_interruption
 from coplane.evaluate.report import (
@@ -100,6 +101,9 @@ def evaluate(
     if fgo:  # in accuracy.json too: these are not the methods' defaults
         changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
         ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"
+    # in one process every run after the first skips the GNSS front ends (a third less CPU); with
+    # vehicle workers they already run beside the fusion step, and a memo measured slower there
+    memo = FrontEndMemo() if jobs == 1 else None
     for spec in specs:
         if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
             rtk_run, ev.notes[RTKLIB_METHOD] = evaluation_row(rec, dgnss)
@@ -123,6 +127,7 @@ def evaluate(
                 progress=progress,
                 jobs=jobs,
                 road_map=road_map,
+                front_ends=memo,
             )
             ev.runs.append(run)
             ev.stats[run.label] = run_stats(run, rec)

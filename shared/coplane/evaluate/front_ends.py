@@ -6,6 +6,10 @@ base corrections computes the same bits. `coplane eval` and the benchmark run fi
 on each recording, and the front end is about a third of a method's run: a `FrontEndMemo` passed
 to each run computes it once. Kept per `Recording` object (weakly: it goes with the recording).
 
+For runs in one process (`jobs=1`): there it takes a quarter to two fifths off a method's run on
+the bundled recording. With vehicle workers the front ends already run beside the fusion step, and
+a memo measured slower there (docs/performance.md, "coplane eval on the bundled recording").
+
 The results are shared between runs, not copied: nothing downstream changes them (their arrays
 are read-only, as the sky-view caches already require; `geometry.sky_view`).
 """
