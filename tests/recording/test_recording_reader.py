@@ -136,6 +136,8 @@ def test_a_receiver_faster_than_the_interval_is_decimated_not_reported(tmp_path:
 
     path = simulate("open-sky", tmp_path / "sim", vehicles=1, duration_s=20.0, seed=1)
     write_manifest(dataclasses.replace(load_manifest(path), interval_s=2.0))
+    u1 = load_manifest(path).vehicle("u1").obs
+    assert open_recording(path).decimations()[u1][0] == 10  # read on asking, not only once loaded
     rec = open_recording(path)
     kept = rec.vehicle_epochs("u1")
     assert len(kept) == 10 and rec.problems.total == 0

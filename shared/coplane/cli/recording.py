@@ -220,7 +220,7 @@ def show(
     health = input_health(rec)
     if health.nav_gap:
         notes.append(health.nav_gap + ": nothing can be positioned")
-    for path, (skipped, own) in rec.decimated.items():
+    for path, (skipped, own) in rec.decimations().items():
         notes.append(
             f"{roles[path]}: logs every {own:.3g} s, decimated to the recording's {m.interval_s:g} s"
             f" ({skipped} epochs between its epochs skipped, not counted as problems)"

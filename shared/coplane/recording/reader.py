@@ -160,6 +160,14 @@ class Recording:
             out.append(e)
         return out
 
+    def decimations(self) -> dict[Path, tuple[int, float]]:
+        """`decimated` of every receiver: their observations are read first, as a file's
+        decimation is only known once it has been read."""
+        for v in self.manifest.vehicles:
+            self.vehicle_epochs(v.id)
+        self.base_epochs()
+        return dict(self.decimated)
+
     def vehicle_epochs(self, vid: str) -> list[ObsEpoch]:
         return self._load_obs(f"vehicle:{vid}", self.manifest.vehicle(vid).obs)[1]
 
