@@ -101,8 +101,9 @@ def evaluate(
     if fgo:  # in accuracy.json too: these are not the methods' defaults
         changed = ", ".join(f"{k}={v}" for k, v in fgo.items())
         ev.notes["fgo"] = f"factor-graph settings changed for every FGO method: {changed}"
-    # in one process every run after the first skips the GNSS front ends (a third less CPU); with
-    # vehicle workers they already run beside the fusion step, and a memo measured slower there
+    # in one process every run after the first skips the GNSS front ends (a quarter to two fifths
+    # less time); with vehicle workers they already run beside the fusion step, and a memo measured
+    # slower there (docs/performance.md)
     memo = FrontEndMemo() if jobs == 1 else None
     for spec in specs:
         if spec is None:  # the RTKLIB reference row: RINEX straight into RTKLIB, optional pyrtklib
