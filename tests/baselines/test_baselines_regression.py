@@ -8,6 +8,7 @@ changes; the ordering checks are the ones the physics supports on this data (doc
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -60,3 +61,21 @@ def test_orderings(runs: dict[str, tuple[MethodRun, dict[str, AccuracyStats]]]) 
     # DD of DGNSS-corrected pseudoranges adds little (the base already removed the common errors)
     assert abs(mean_h("dd-cp") - mean_h("non-cp-ekf")) < 0.25 * mean_h("non-cp-ekf")
     assert all(v for v in runs["gamp-cp"][0].ranges_used.values())
+
+
+def test_a_failing_message_passing_falls_back_and_says_why(
+    rec60: Recording, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """gamp-cp never raises on data: each vehicle keeps its local EKF update, and the log names the
+    failure (a programming error would otherwise pass for a weak baseline, epoch after epoch)."""
+    import coplane.baselines.gamp_cp as gamp_cp
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("injected")
+
+    monkeypatch.setattr(gamp_cp, "cooperative_gamp", broken)
+    with caplog.at_level(logging.WARNING, logger="coplane.baselines.gamp_cp"):
+        run = run_method(rec60, "gamp-cp", jobs=1)
+    assert "message passing failed (RuntimeError: injected)" in caplog.text
+    assert all(len(p) == 60 for p in run.positions.values()) and len(run.positions) == 4
+    assert not any(any(r.values()) for r in run.ranges_used.values())  # no ranges without GAMP

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -46,6 +47,8 @@ from coplane.estimation.validate import ValidEpoch
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import chi2_threshold
 from coplane.typing import Mat, Vec
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -302,7 +305,14 @@ class GampCp(BaselineEstimator):
             return
         try:
             out.estimates = self._gamp(valid, out.estimates, out.rejected, out.counts)
-        except Exception:  # never raise on data: fall back to the exact local update
+        except Exception as exc:  # never raise on data: fall back to the exact local update
+            # counted and said: a fallback on every epoch would otherwise pass for a weak method
+            log.warning(
+                "gamp-cp at %s: message passing failed (%s: %s); every vehicle takes its local EKF update",
+                valid.time,
+                type(exc).__name__,
+                exc,
+            )
             out.rejected["gamp_failure"] += 1
             out.estimates = self._local_update(out.estimates, out.counts)
 
