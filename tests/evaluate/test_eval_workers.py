@@ -7,6 +7,7 @@ traceback instead of hanging or dropping vehicles.
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import numpy as np
@@ -82,9 +83,22 @@ def test_front_ends_are_remembered_per_setup_and_within_the_bound(rec30: Recordi
     alone = run_method(rec30, "non-cp", jobs=1, front_end=masked)
     _same(alone, run_method(rec30, "non-cp", jobs=1, front_end=masked, front_ends=memo))
     assert memo.n_epochs == 2 * kept
+    standalone = run_method(rec30, "non-cp", jobs=1, dgnss=False)
+    _same(standalone, run_method(rec30, "non-cp", jobs=1, dgnss=False, front_ends=memo))
+    assert memo.n_epochs == 3 * kept
     small = FrontEndMemo(max_epochs=kept // 2)
     _same(alone, run_method(rec30, "non-cp", jobs=1, front_end=masked, front_ends=small))
     assert small.n_epochs <= kept // 2
+
+
+def test_a_recording_that_is_gone_frees_its_share_of_the_bound(rec30: Recording) -> None:
+    memo = FrontEndMemo()
+    other = open_recording(rec30.manifest.root)
+    run_method(other, "non-cp", jobs=1, front_ends=memo)
+    assert memo.n_epochs > 0
+    del other
+    gc.collect()
+    assert memo.n_epochs == 0
 
 
 def test_worker_failure_stops_the_run_with_its_traceback(
