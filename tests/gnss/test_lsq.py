@@ -58,3 +58,27 @@ def test_with_one_redundant_row_every_row_is_the_same_test() -> None:
     assert worst_rows(a, v, sigma).tolist() == [0, 1, 2, 3, 4]
     # rows past `rows` (a Doppler solve's pseudo rows) are never taken
     assert worst_rows(a, v, sigma, rows=3).tolist() == [0, 1, 2]
+
+
+def test_chi2_threshold_is_scipy_stats_quantile() -> None:
+    """The global test's threshold comes from scipy.special (scipy.stats is not imported for it):
+    it must be scipy.stats.chi2's quantile to the bit, so that no RAIM decision moves."""
+    from scipy.stats import chi2
+
+    from coplane.gnss.lsq import chi2_threshold
+
+    for p in (1e-7, 1e-5, 1e-3, 0.01, 0.05, 0.1, 0.5):
+        for dof in range(1, 60):
+            assert chi2_threshold(p, dof) == float(chi2.ppf(1.0 - p, dof)), (p, dof)
+    assert chi2_threshold(0.01, 0) == float("inf")
+
+
+def test_service_imports_leave_out_scipy_stats() -> None:
+    """A fusion server never runs a test that needs scipy.stats, so its imports must not load it
+    (half a second and tens of MB of every server's start-up)."""
+    import subprocess
+    import sys
+
+    code = "import sys, coplane.fusion_server.server; print('scipy.stats' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

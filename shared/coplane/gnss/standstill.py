@@ -23,8 +23,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.stats import ncx2
 
 from coplane.errors import require_finite_positive
 from coplane.geo import enu_rotation
@@ -111,6 +109,11 @@ class DopplerNoise:
 def noncentrality(false_alarm_probability: float, power: float, dof: int) -> float:
     """The chi-square non-centrality at which the test of `dof` degrees of freedom rejects with
     probability `power` (Baarda's lambda_0)."""
+    # imported here, once per process (the result is cached): scipy.stats costs a process that
+    # never runs the test (a fusion server, the API) half a second and tens of MB to import
+    from scipy.optimize import brentq
+    from scipy.stats import ncx2
+
     k = chi2_threshold(false_alarm_probability, dof)
     return float(brentq(lambda lam: ncx2.sf(k, dof, lam) - power, 1e-9, 1e4))
 
