@@ -77,19 +77,6 @@ def robust_isotropic(dim: int, sigma: float, kernel: str | None, k: float | None
 # pseudorange (eqs. 18-21)
 
 
-def _rotation_z(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """R_z(theta) per element, shape (n, 3, 3): the ECEF frame rotated by theta about z."""
-    c, s = np.cos(theta), np.sin(theta)
-    n = theta.shape[0]
-    r = np.zeros((n, 3, 3))
-    r[:, 0, 0] = c
-    r[:, 0, 1] = s
-    r[:, 1, 0] = -s
-    r[:, 1, 1] = c
-    r[:, 2, 2] = 1.0
-    return r
-
-
 @functools.cache
 def gtsam_applies_sagnac() -> bool:
     """Whether this GTSAM's PseudorangeFactor adds the Sagnac term itself (4.3.0 wheel: yes)."""
@@ -118,9 +105,12 @@ def gtsam_satellite_positions(sat_pos_rx: Vec, receiver: Vec) -> Vec:
     if not gtsam_applies_sagnac():
         return sats
     tau = np.linalg.norm(sats - np.asarray(receiver, dtype=float), axis=1) / C
-    r = _rotation_z(OMEGA_E_GPS * tau)
-    # s_rx = R_z(theta) s_tx  =>  s_tx = R_z(theta)^T s_rx
-    return np.einsum("nji,nj->ni", r, sats)
+    theta = OMEGA_E_GPS * tau
+    c, s = np.cos(theta), np.sin(theta)
+    # s_rx = R_z(theta) s_tx  =>  s_tx = R_z(theta)^T s_rx, with R_z(theta) = [[c, s, 0],
+    # [-s, c, 0], [0, 0, 1]] (the ECEF frame rotated by theta about z), written out per component
+    x, y = sats[:, 0], sats[:, 1]
+    return np.column_stack((c * x - s * y, s * x + c * y, sats[:, 2]))
 
 
 def pseudorange_factors(
@@ -146,11 +136,19 @@ def pseudorange_factors(
     """
     sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
     corr = correction_keys if correction_keys is not None else [None] * len(sats)
+    # one noise model per row (`with_kernel`'s models), made in one pass: this runs for every
+    # vehicle epoch, and the per-row calls of `with_kernel` were about a tenth of its cost
+    sigma = gtsam.noiseModel.Isotropic.Sigma
+    noises: list[gtsam.noiseModel.Base]
+    if robust is None:
+        noises = [sigma(1, sg) for sg in _floats(sigma_m)]
+    else:
+        kernel, wrap = m_estimator(robust, robust_k), gtsam.noiseModel.Robust.Create
+        noises = [wrap(kernel, sigma(1, sg)) for sg in _floats(sigma_m)]
     out: list[gtsam.NonlinearFactor] = []
-    for ck, dk, r, sat, sc, sg in zip(
-        clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
+    for ck, dk, r, sat, sc, noise in zip(
+        clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), noises, strict=True
     ):
-        noise = with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
         if dk is None:
             out.append(gtsam.PseudorangeFactor(pos_key, ck, r, sat, sc, noise))
         else:
