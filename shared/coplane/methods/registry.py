@@ -16,13 +16,35 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from coplane.baselines import DdCpEkf, GampConfig, GampCp, NonCpEkf
 from coplane.errors import ConfigError
 from coplane.estimation.contract import Estimator
 from coplane.fgo.config import FgoConfig, Solver
 
 if TYPE_CHECKING:
     from coplane.fgo.solve import Smoothers  # imports GTSAM: only for the annotation
+
+# The baselines' estimators, imported when one is built: the baselines' filters need scipy.linalg,
+# which a fusion server running the factor graph would otherwise load at start-up for nothing
+# (docs/performance-scale.md, "Start-up").
+
+
+def _non_cp_ekf() -> Estimator:
+    from coplane.baselines import NonCpEkf
+
+    return NonCpEkf()
+
+
+def _dd_cp() -> Estimator:
+    from coplane.baselines import DdCpEkf
+
+    return DdCpEkf()
+
+
+def _gamp_cp() -> Estimator:
+    from coplane.baselines import GampConfig, GampCp
+
+    return GampCp(GampConfig(use_ranging=True))
+
 
 PlaneSource = Literal["none", "fleet", "self"]
 
@@ -255,19 +277,19 @@ METHODS: dict[str, MethodSpec] = {
         _baseline(
             "non-cp-ekf",
             "Non-CP baseline: per-vehicle EKF with pseudorange + Doppler updates and innovation gating.",
-            NonCpEkf,
+            _non_cp_ekf,
             ranging=False,
         ),
         _baseline(
             "dd-cp",
             "GNSS-based CP: centralised EKF with absolute and inter-vehicle double-differenced pseudoranges.",
-            DdCpEkf,
+            _dd_cp,
             ranging=False,
         ),
         _baseline(
             "gamp-cp",
             "GAMP CP: damped GAMP over pseudoranges + UWB ranges; priors from each vehicle's EKF prediction.",
-            lambda: GampCp(GampConfig(use_ranging=True)),
+            _gamp_cp,
             ranging=True,
         ),
     )

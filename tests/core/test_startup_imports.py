@@ -1,0 +1,29 @@
+"""What a service loads before its first message (docs/performance-scale.md, "Start-up"): a fusion
+server and the API never run a baseline filter or the standstill test, so they must not pay for
+scipy.stats (half a second, about 40 MB) or scipy.linalg at every start."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("scipy.stats", "scipy.linalg", "scipy.optimize", "coplane.baselines")
+
+
+@pytest.mark.parametrize("module", ["coplane.fusion_server.server", "coplane.api.app"])
+def test_service_imports_leave_out_what_it_never_runs(module: str) -> None:
+    code = f"import sys, {module}; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"{module} loads {out.stdout.strip()}"
+
+
+def test_a_baseline_is_still_built_by_name() -> None:
+    """The baselines are imported when their method is built, not when the registry is."""
+    from coplane.methods import get_method
+
+    for name in ("non-cp-ekf", "dd-cp", "gamp-cp"):
+        spec = get_method(name)
+        assert spec.factory is not None
+        assert type(spec.factory()).__module__.startswith("coplane.baselines")
