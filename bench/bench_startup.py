@@ -9,8 +9,10 @@ by importing its modules; a server that joins a region set or restarts after `ki
 before it can own a region, and its resident memory is the floor under the per-vehicle growth of
 docs/performance-scale.md ("Memory over a long run"). For each service's entry module this
 starts a fresh interpreter that imports it, and reports the import's wall time and the process's
-peak RSS (`ru_maxrss`) and whether scipy.stats got loaded, alternating the two commits (base,
-head, base, head, ...) so that the host's drift falls on both; medians of `--repeats` runs.
+peak RSS (`ru_maxrss`) and whether scipy.stats got loaded (an agent and the load generator
+also load the standstill test's modules, as they do when they start), alternating the two
+commits (base, head, base, head, ...) so that the host's drift falls on both; medians of
+`--repeats` runs.
 
 Each side's code is `git archive` of its commit, unpacked and put first on PYTHONPATH
 (`bench_scale_ab.unpack`): uncommitted edits are in neither side.
@@ -31,29 +33,40 @@ from docblock import machine, publish
 
 PY = sys.executable
 MARK = "bench_startup"
-# each service's entry module: what `python -m coplane.<service>` imports before it runs
+# each service's entry module: what `python -m coplane.<service>` imports before it runs; an
+# agent and the load generator also load the standstill test's modules when they start
+# (`coplane.gnss.standstill.load_dependencies`, absent from commits before it)
+PRELOAD = """
+try:
+    from coplane.gnss.standstill import load_dependencies
+except ImportError:
+    pass
+else:
+    load_dependencies()
+"""
 MODULES = [
-    ("fusion server", "coplane.fusion_server.server"),
-    ("vehicle agent", "coplane.vehicle_agent.agent"),
-    ("load generator", "coplane.vehicle_agent.loadgen"),
-    ("API", "coplane.api.app"),
-    ("`coplane` command line", "coplane.cli"),
+    ("fusion server", "coplane.fusion_server.server", ""),
+    ("vehicle agent", "coplane.vehicle_agent.agent", PRELOAD),
+    ("load generator", "coplane.vehicle_agent.loadgen", PRELOAD),
+    ("API", "coplane.api.app", ""),
+    ("`coplane` command line", "coplane.cli", ""),
 ]
 PROBE = """
 import json, resource, sys, time
 t0 = time.perf_counter()
 import {module}
+{then}
 t = time.perf_counter() - t0
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 print(json.dumps({{"s": t, "mb": rss, "stats": "scipy.stats" in sys.modules}}))
 """
 
 
-def measure(module: str, env: dict[str, str]) -> dict[str, float]:
-    """One fresh interpreter importing `module`: seconds, peak RSS in MB, scipy.stats loaded."""
-    out = subprocess.run(
-        [PY, "-c", PROBE.format(module=module)], env=env, check=True, capture_output=True, text=True
-    ).stdout
+def measure(module: str, then: str, env: dict[str, str]) -> dict[str, float]:
+    """One fresh interpreter importing `module` and running `then`: seconds, peak RSS in MB,
+    scipy.stats loaded."""
+    code = PROBE.format(module=module, then=then)
+    out = subprocess.run([PY, "-c", code], env=env, check=True, capture_output=True, text=True).stdout
     return dict(json.loads(out.strip().splitlines()[-1]))
 
 
@@ -72,16 +85,16 @@ def main() -> int:
             check_imports(short, envs[short], path)
         runs: dict[tuple[str, str], list[dict[str, float]]] = {}
         for _ in range(args.repeats):
-            for _, module in MODULES:
+            for _, module, then in MODULES:
                 for short, _ in sides:  # alternating, module by module
-                    runs.setdefault((short, module), []).append(measure(module, envs[short]))
+                    runs.setdefault((short, module), []).append(measure(module, then, envs[short]))
     (base, _), (head, _) = sides
     rows = [
         f"| process | import s, {base} | import s, {head} | {head} / {base} "
         f"| peak RSS MB, {base} | peak RSS MB, {head} | scipy.stats loaded, {base} / {head} |",
         "|---|---|---|---|---|---|---|",
     ]
-    for name, module in MODULES:
+    for name, module, _ in MODULES:
         b, h = runs[(base, module)], runs[(head, module)]
         bs, hs = statistics.median(r["s"] for r in b), statistics.median(r["s"] for r in h)
         bm, hm = statistics.median(r["mb"] for r in b), statistics.median(r["mb"] for r in h)

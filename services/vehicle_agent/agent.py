@@ -32,6 +32,7 @@ from coplane.bus import (
     session_config,
 )
 from coplane.bus.trust import GateSet
+from coplane.gnss.standstill import load_dependencies
 from coplane.gtime import GpsTime
 from coplane.live.nmea_out import NmeaServer
 from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
@@ -70,6 +71,7 @@ class VehicleAgent:
     def __init__(self, settings: AgentSettings, stop: threading.Event | None = None) -> None:
         self.s = settings
         self.stop = stop or threading.Event()
+        load_dependencies()  # the standstill test's, now: not at the first standing epoch
         rec = open_recording(settings.recording)
         self.rec = rec
         man = rec.manifest

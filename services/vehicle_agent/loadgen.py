@@ -23,6 +23,7 @@ from typing import Any
 from coplane.bus import BusNode, KeySpace, Payload, Publication, Subscription, decode, encode, session_config
 from coplane.bus.codec import BadMessage
 from coplane.bus.trust import GateSet
+from coplane.gnss.standstill import load_dependencies
 from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
 from coplane.recording.model import ObsEpoch, UwbRange
@@ -108,6 +109,7 @@ class LoadGenerator:
     def __init__(self, settings: LoadgenSettings, stop: threading.Event | None = None) -> None:
         self.s = settings
         self.stop = stop or threading.Event()
+        load_dependencies()  # the standstill test's, now: not at the first standing epoch
         rec = open_recording(settings.recording)
         man = rec.manifest
         setup = replay_setup(man, settings.method, seed=settings.seed, fleet=settings.fleet)

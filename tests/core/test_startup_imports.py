@@ -27,3 +27,19 @@ def test_a_baseline_is_still_built_by_name() -> None:
         spec = get_method(name)
         assert spec.factory is not None
         assert type(spec.factory()).__module__.startswith("coplane.baselines")
+
+
+def test_an_agent_loads_the_standstill_modules_when_it_starts() -> None:
+    """An agent runs the standstill test, whose first power computation needs scipy.stats: the
+    agent and the load generator load it at start (`load_dependencies`), not mid-run."""
+    code = (
+        "import sys\n"
+        "from coplane.gnss.standstill import load_dependencies, noncentrality\n"
+        "assert 'scipy.stats' not in sys.modules\n"
+        "load_dependencies()\n"
+        "before = set(sys.modules)\n"
+        "noncentrality(0.01, 0.8, 5)\n"
+        "print(sorted(m for m in set(sys.modules) - before if m.startswith('scipy')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

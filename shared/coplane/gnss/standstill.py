@@ -105,12 +105,23 @@ class DopplerNoise:
         return min(max(f, lo), hi)
 
 
+def load_dependencies() -> None:
+    """Import what the test's first power computation needs (scipy.optimize, scipy.stats) now.
+
+    For a process that runs the test on its own epochs (an agent, the load generator): its
+    first few-satellite standstill must not stall that epoch by the half second of imports.
+    Processes that never run it (a fusion server, the API) never call this."""
+    import scipy.optimize
+    import scipy.stats  # noqa: F401
+
+
 @functools.lru_cache(maxsize=256)
 def noncentrality(false_alarm_probability: float, power: float, dof: int) -> float:
     """The chi-square non-centrality at which the test of `dof` degrees of freedom rejects with
     probability `power` (Baarda's lambda_0)."""
-    # imported here, once per process (the result is cached): scipy.stats costs a process that
-    # never runs the test (a fusion server, the API) half a second and tens of MB to import
+    # imported here (once per argument set: the result is cached), not with the module: a process
+    # that never runs the test (a fusion server, the API) is spared half a second and tens of MB
+    # at start; one that does loads them when it starts (`load_dependencies`)
     from scipy.optimize import brentq
     from scipy.stats import ncx2
 
