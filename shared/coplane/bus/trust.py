@@ -44,7 +44,8 @@ Generations: every solution names its server run (`SolutionMessage.generation`; 
 resume from the log, so a crash is not a new run). Only a different generation lets a consumer
 reset. A forger on an insecure bus can invent one, so a new generation is adopted only when the
 current one has been silent for `restart_quiet_s` wall seconds (a real restart stops the old
-server first; starting a new one takes longer than that). While the current server publishes, an
+server first; a server that starts faster than that is heard only once the time has passed: a
+gap of about 3 s after a clean restart, docs/bus.md). While the current server publishes, an
 invented generation is rejected; the last such message is held, and `release(now)` adopts it once
 the quiet time has passed, so a consumer that waits for exactly that message (a lockstep agent) is
 not stalled by a fast restart. Residual risk, insecure bus only: while the genuine server is
