@@ -307,9 +307,8 @@ def test_the_command_line_starts_without_pydantic() -> None:
     """The options' types (`coplane.typing.Pace`) and the settings-error handler must not pull
     pydantic (and the bus messages) into every command's start: they load where a command uses
     them."""
-    import subprocess
-    import sys
+    from support.fresh_python import fresh_python
 
     code = "import sys, coplane.cli; print('pydantic' in sys.modules, 'coplane.messages' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    out = fresh_python(code)
     assert out.split() == ["False", "False"], out

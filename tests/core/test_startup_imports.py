@@ -4,10 +4,8 @@ scipy.stats (half a second, about 40 MB) or scipy.linalg at every start."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
+from support.fresh_python import fresh_python
 
 HEAVY = ("scipy.stats", "scipy.linalg", "scipy.optimize", "coplane.baselines")
 
@@ -15,8 +13,8 @@ HEAVY = ("scipy.stats", "scipy.linalg", "scipy.optimize", "coplane.baselines")
 @pytest.mark.parametrize("module", ["coplane.fusion_server.server", "coplane.api.app"])
 def test_service_imports_leave_out_what_it_never_runs(module: str) -> None:
     code = f"import sys, {module}; print(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "", f"{module} loads {out.stdout.strip()}"
+    out = fresh_python(code)
+    assert out == "", f"{module} loads {out}"
 
 
 def test_a_baseline_is_still_built_by_name() -> None:
@@ -41,5 +39,4 @@ def test_an_agent_loads_the_standstill_modules_when_it_starts() -> None:
         "noncentrality(0.01, 0.8, 5)\n"
         "print(sorted(m for m in set(sys.modules) - before if m.startswith('scipy')))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
+    assert fresh_python(code) == "[]"

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from support.fresh_python import fresh_python
 
 from coplane.errors import ConfigError, NotFoundError
 from coplane.gnss.dgnss import DgnssCorrections
@@ -402,5 +401,4 @@ def test_import_does_not_load_estimators() -> None:
         "('coplane.steps', 'coplane.fgo', 'coplane.baselines', 'coplane.methods')))\n"
         "print(','.join(bad))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == ""
+    assert fresh_python(code) == ""
