@@ -136,19 +136,11 @@ def pseudorange_factors(
     """
     sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
     corr = correction_keys if correction_keys is not None else [None] * len(sats)
-    # one noise model per row (`with_kernel`'s models), made in one pass: this runs for every
-    # vehicle epoch, and the per-row calls of `with_kernel` were about a tenth of its cost
-    sigma = gtsam.noiseModel.Isotropic.Sigma
-    noises: list[gtsam.noiseModel.Base]
-    if robust is None:
-        noises = [sigma(1, sg) for sg in _floats(sigma_m)]
-    else:
-        kernel, wrap = m_estimator(robust, robust_k), gtsam.noiseModel.Robust.Create
-        noises = [wrap(kernel, sigma(1, sg)) for sg in _floats(sigma_m)]
     out: list[gtsam.NonlinearFactor] = []
-    for ck, dk, r, sat, sc, noise in zip(
-        clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), noises, strict=True
+    for ck, dk, r, sat, sc, sg in zip(
+        clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
     ):
+        noise = with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
         if dk is None:
             out.append(gtsam.PseudorangeFactor(pos_key, ck, r, sat, sc, noise))
         else:
