@@ -40,3 +40,24 @@ def test_an_agent_loads_the_standstill_modules_when_it_starts() -> None:
         "print(sorted(m for m in set(sys.modules) - before if m.startswith('scipy')))"
     )
     assert fresh_python(code) == "[]"
+
+
+def test_agents_load_the_standstill_modules_when_they_are_built() -> None:
+    """The agent and the load generator call `load_dependencies` when they are built (the bundled
+    recording; neither touches the bus before `run`): their import alone does not load scipy.stats,
+    building them does."""
+    code = (
+        "import sys\n"
+        "from coplane.sim.generate import bundled_default_path\n"
+        "from coplane.vehicle_agent.agent import VehicleAgent\n"
+        "from coplane.vehicle_agent.loadgen import LoadGenerator\n"
+        "from coplane.vehicle_agent.settings import AgentSettings, LoadgenSettings\n"
+        "rec = bundled_default_path()\n"
+        "sys.modules.pop('scipy.stats', None)\n"
+        "VehicleAgent(AgentSettings(recording=rec, vehicle_id='u1', method='pc'))\n"
+        "agent = 'scipy.stats' in sys.modules\n"
+        "sys.modules.pop('scipy.stats', None)\n"
+        "LoadGenerator(LoadgenSettings(recording=rec))\n"
+        "print(agent, 'scipy.stats' in sys.modules)"
+    )
+    assert fresh_python(code).split()[-2:] == ["True", "True"]
