@@ -333,19 +333,24 @@ class FleetState:
         if role == "fusion":
             if not is_vehicle_id(ident):
                 self.reject("liveliness", "bad-id")
-            elif present:
+                return
+            if present:
                 if len(self.fusion_alive) < 64:
                     self.fusion_alive.add(ident)
             else:
                 self.fusion_alive.discard(ident)
+            # a server that withdrew its token ended its run: its successor is followed at once
+            self.gate.server_token(ident, present)
         elif role == "agent":
             v = self.vehicles.get(ident) if not present else self._vehicle(ident)
             if v is not None:
                 v.online = present
 
     def bus_lost(self) -> None:
-        """The router went away: every token we saw through it is gone too."""
+        """The router went away: every token we saw through it is gone too (the servers' are
+        announced again on reconnect; that is no server's departure, so no run ends here)."""
         self.fusion_alive.clear()
+        self.gate.servers_alive.clear()
         for v in self.vehicles.values():
             v.online = False
 

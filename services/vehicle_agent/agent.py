@@ -25,6 +25,7 @@ from coplane.bus import (
     BusNode,
     KeySpace,
     Payload,
+    Presence,
     Publication,
     Subscription,
     decode,
@@ -140,6 +141,8 @@ class VehicleAgent:
             history_later=self.region is not None,
             subscribe=[
                 Subscription(self.keys.all_solutions),
+                # the servers' tokens: a restarted server's solutions are taken at once (`GateSet`)
+                Subscription(self.keys.all_alive("fusion"), liveliness=True),
                 *([Subscription(self.keys.map_tiles, history=True)] if self.tiles is not None else []),
             ],
         )
@@ -153,6 +156,14 @@ class VehicleAgent:
         """Decode, gate and ingest one bus event; the solution taken, or None. `expect`: this
         agent's current epoch (solutions far beyond it are forged; a gap before it is no reason to
         reject the one a lockstep agent waits for)."""
+        if isinstance(ev, Presence):
+            # a fusion server withdrew its token: a restarted server's first solution, held
+            # while the old run was not over, is taken now
+            if self.gate.presence(ev.key, ev.alive) and not ev.alive:
+                released = self.gate.release(time.time())
+                if released is not None:
+                    return self._take(released, released)
+            return None
         if not isinstance(ev, Payload):
             return None
         if ev.key == self.keys.map_tiles:

@@ -20,7 +20,17 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
-from coplane.bus import BusNode, KeySpace, Payload, Publication, Subscription, decode, encode, session_config
+from coplane.bus import (
+    BusNode,
+    KeySpace,
+    Payload,
+    Presence,
+    Publication,
+    Subscription,
+    decode,
+    encode,
+    session_config,
+)
 from coplane.bus.codec import BadMessage
 from coplane.bus.trust import GateSet
 from coplane.gnss.standstill import load_dependencies
@@ -147,7 +157,11 @@ class LoadGenerator:
         return BusNode(
             session_config("client", self.s.connect, lease_ms=self.s.lease_ms),
             publish=publish,
-            subscribe=[Subscription(self.keys.all_solutions)],
+            # the servers' tokens: a restarted server's solutions are taken at once (`GateSet`)
+            subscribe=[
+                Subscription(self.keys.all_solutions),
+                Subscription(self.keys.all_alive("fusion"), liveliness=True),
+            ],
             history_later=self.s.regions,
         )
 
@@ -265,14 +279,21 @@ class LoadGenerator:
         c0 = time.process_time()
         now = time.monotonic()
         for ev in events:
-            if not isinstance(ev, Payload):
+            if isinstance(ev, Presence):
+                # a fusion server withdrew its token: a restarted server's held solution counts now
+                gone = self.gate.presence(ev.key, ev.alive) and not ev.alive
+                ok = self.gate.release(time.time()) if gone else None
+                if ok is None:
+                    continue
+            elif not isinstance(ev, Payload):
                 continue
-            try:
-                sol = decode(SolutionMessage, ev.data)
-            except BadMessage as exc:
-                self.stats.rejected[exc.kind] += 1
-                continue
-            ok = self.gate.check(KeySpace.server_of_solution_key(ev.key), sol, time.time()).solution
+            else:
+                try:
+                    sol = decode(SolutionMessage, ev.data)
+                except BadMessage as exc:
+                    self.stats.rejected[exc.kind] += 1
+                    continue
+                ok = self.gate.check(KeySpace.server_of_solution_key(ev.key), sol, time.time()).solution
             if ok is None:
                 self.stats.rejected[self.gate.last_reason or "untrusted"] += 1
                 continue

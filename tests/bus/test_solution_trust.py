@@ -117,6 +117,73 @@ def test_new_generation_only_after_the_current_one_went_quiet() -> None:
     assert g.check(sol(4), 7.5).reason == "new-generation"
 
 
+def test_a_server_that_withdrew_its_token_is_followed_by_its_successor_at_once() -> None:
+    """The run's server withdrew its liveliness token (a clean stop): the restarted server's first
+    solution is taken when it comes, not after the quiet time; held before that, released then."""
+    g = SolutionGate(FLEET, restart_quiet_s=3.0)
+    for k in range(3):
+        assert g.check(sol(k), float(k)).accepted
+    g.server_gone()  # at 2.1
+    restarted = sol(0, gen="0123456789abcdef")
+    v = g.check(restarted, 2.6)  # 0.6 s after the old server's last solution
+    assert v.accepted and v.reset and g.generation == "0123456789abcdef"
+    # the other order: the new run's first solution before the old token's withdrawal
+    g = SolutionGate(FLEET, restart_quiet_s=3.0)
+    for k in range(3):
+        g.check(sol(k), float(k))
+    assert g.check(restarted, 2.5).reason == "new-generation" and g.release(2.6) is None
+    g.server_gone()
+    v = g.release(2.7)
+    assert v is not None and v.accepted and v.reset
+
+
+def test_a_held_message_the_run_went_on_after_is_never_released() -> None:
+    """A forged generation held while the genuine server still published is a forgery, not the
+    successor: when that server later stops, it must not be taken (found by the insecure-bus
+    attack of tests/fleet/test_hostile_fleet.py, whose server stops after the attack)."""
+    g = SolutionGate(FLEET, restart_quiet_s=3.0)
+    g.check(sol(0), 0.0)
+    assert g.check(sol(0, gen="badbadbadbad"), 0.5).reason == "new-generation"  # held
+    for k in range(1, 4):
+        assert g.check(sol(k), float(k)).accepted  # the genuine run goes on
+    g.server_gone()
+    assert g.release(3.5) is None and g.held is None and g.generation == GEN
+    assert g.release(10.0) is None  # nor after the quiet time
+
+
+def test_the_same_run_coming_back_undoes_server_gone() -> None:
+    """A router restart withdraws and re-announces every token, and a crashed server resumes its
+    generation: once its run continues, a foreign generation must wait for the quiet time again."""
+    g = SolutionGate(FLEET, restart_quiet_s=3.0)
+    for k in range(3):
+        g.check(sol(k), float(k))
+    g.server_gone()
+    assert g.check(sol(3), 3.0).accepted  # the same run goes on
+    assert g.check(sol(0, gen="badbadbadbad"), 3.5).reason == "new-generation"
+
+
+def test_gate_set_ends_a_run_only_when_its_server_s_token_goes() -> None:
+    """Regions: server s2's token ends s2's run, not s1's. The single server's gate (its solutions
+    do not name a server) ends once no fusion token is left. Other roles' tokens change nothing."""
+    gs = GateSet(FLEET, restart_quiet_s=3.0)
+    for server in ("s1", "s2", ""):
+        assert gs.check(server, sol(0), 0.0).accepted
+    for ident in ("s1", "s2", "0"):
+        assert gs.presence(f"coplane/v1/{FLEET}/alive/fusion/{ident}", True)
+    assert not gs.presence(f"coplane/v1/{FLEET}/alive/agent/a", False)
+    assert not gs.presence("not/a/token/key", False)
+    gs.presence(f"coplane/v1/{FLEET}/alive/fusion/s2", False)
+    new = sol(0, gen="0123456789abcdef")
+    assert gs.check("s2", new, 0.5).accepted
+    assert gs.check("s1", new, 0.5).reason == "new-generation"
+    assert gs.check("", new, 0.5).reason == "new-generation"  # s1 and 0 are still up
+    gs.presence(f"coplane/v1/{FLEET}/alive/fusion/s1", False)
+    gs.presence(f"coplane/v1/{FLEET}/alive/fusion/0", False)
+    # the new generation each of them held is taken now, long before the quiet time
+    assert gs.release(0.6) is not None and gs.release(0.6) is not None and gs.release(0.6) is None
+    assert all(g.generation == "0123456789abcdef" for g in gs.gates.values())
+
+
 def test_resumed_server_same_generation_republish_is_a_silent_repeat() -> None:
     g = SolutionGate(FLEET)
     for k in range(4):

@@ -7,7 +7,7 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 
 | identity | sends (ingress) | receives (egress) |
 | --- | --- | --- |
-| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe `P/map/tiles` with history queries to its cache | `P/solution`; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
+| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution` and the servers' tokens `P/alive/fusion/*`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe `P/map/tiles` with history queries to its cache | `P/solution`; the servers' tokens; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
 | `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`); with regions, the other servers' tiles as a vehicle subscribes to them | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache; the other servers' tiles, their caches' replies and tokens |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
@@ -67,6 +67,9 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
         out[vehicle_identity(v)] = [
             ("ingress", ("put",), (own, r_own)),
             ("ingress", ("declare_subscriber",), (k.solution, sols)),
+            # the servers' tokens: a restarted server's solutions are taken at once (bus.trust)
+            ("ingress", SUBSCRIBE_LIVELINESS, (k.all_alive("fusion"),)),
+            ("egress", ("liveliness_token",), (k.all_alive("fusion"),)),
             ("ingress", ("liveliness_token",), (k.alive("agent", v), adv, r_adv)),
             ("ingress", ("declare_queryable",), (adv, r_adv)),
             ("ingress", ("reply",), (own, adv, r_own, r_adv)),

@@ -71,10 +71,9 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
             return vid is not None or identity in (API, MONITOR, FUSION)
         return parts[0] == "diagnostics" and identity in (API, MONITOR)
     if operation == "liveliness-subscribe":  # agents' and servers' tokens, as fusion servers follow them
-        return (identity == FUSION and key in ("alive/agent/*", "alive/fusion/*")) or identity in (
-            API,
-            MONITOR,
-        )
+        if key == "alive/fusion/*":  # the servers' tokens: every consumer of solutions follows them
+            return vid is not None or identity in (FUSION, API, MONITOR)
+        return (identity == FUSION and key == "alive/agent/*") or identity in (API, MONITOR)
     return False
 
 
@@ -274,16 +273,21 @@ def _probe_subscriptions(
     for identity in identities:
         for key in publishers:
             subs.append(session(identity).declare_subscriber(key, on_sample(identity)))
-        subs.append(
-            session(identity).liveliness().declare_subscriber(k.all_alive("agent"), on_token(identity))
-        )
+        for role in ("agent", "fusion"):
+            subs.append(
+                session(identity).liveliness().declare_subscriber(k.all_alive(role), on_token(identity))
+            )
     pubs = {key: _open(endpoint, base.as_identity(who), wait=True) for key, who in publishers.items()}
     time.sleep(0.5)
     try:
         for key, s in pubs.items():
             s.put(key, "legit")
-        token_key = k.alive("agent", vehicles[0])
-        token = pubs[k.node(vehicles[0])].liveliness().declare_token(token_key)
+        # the legitimate tokens: an agent's, and a server's (from the fusion identity's session)
+        token_keys = {"agent": k.alive("agent", vehicles[0]), "fusion": k.alive("fusion", "0")}
+        tokens = [
+            pubs[k.node(vehicles[0])].liveliness().declare_token(token_keys["agent"]),
+            pubs[k.solution].liveliness().declare_token(token_keys["fusion"]),
+        ]
         time.sleep(SETTLE_S)
         out = []
         for identity in identities:
@@ -291,10 +295,12 @@ def _probe_subscriptions(
                 ok = allowed(identity, rel(key), "subscribe", vehicles)
                 got = seen.wait(key, f"{identity}<legit", 2.0 if ok else 0.0)
                 out.append(Attempt(identity, rel(key), "subscribe", ok, got))
-            ok = allowed(identity, rel(k.all_alive("agent")), "liveliness-subscribe", vehicles)
-            got = seen.wait(token_key, f"{identity}<{zenoh.SampleKind.PUT}", 2.0 if ok else 0.0)
-            out.append(Attempt(identity, rel(k.all_alive("agent")), "liveliness-subscribe", ok, got))
-        token.undeclare()
+            for role, token_key in token_keys.items():
+                ok = allowed(identity, rel(k.all_alive(role)), "liveliness-subscribe", vehicles)
+                got = seen.wait(token_key, f"{identity}<{zenoh.SampleKind.PUT}", 2.0 if ok else 0.0)
+                out.append(Attempt(identity, rel(k.all_alive(role)), "liveliness-subscribe", ok, got))
+        for token in tokens:
+            token.undeclare()
         if progress is not None:
             for a in out:
                 progress(a)

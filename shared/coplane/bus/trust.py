@@ -42,15 +42,20 @@ One vehicle dropped (counted as `vehicle-unknown`, `vehicle-jump`, `too-many-veh
 
 Generations: every solution names its server run (`SolutionMessage.generation`; the same after a
 resume from the log, so a crash is not a new run). Only a different generation lets a consumer
-reset. A forger on an insecure bus can invent one, so a new generation is adopted only when the
-current one has been silent for `restart_quiet_s` wall seconds (a real restart stops the old
-server first; a server that starts faster than that is heard only once the time has passed: a
-gap of about 3 s after a clean restart, docs/bus.md). While the current server publishes, an
-invented generation is rejected; the last such message is held, and `release(now)` adopts it once
-the quiet time has passed, so a consumer that waits for exactly that message (a lockstep agent) is
-not stalled by a fast restart. Residual risk, insecure bus only: while the genuine server is
-silent for longer than that, a forger can make consumers reset, and anyone can stamp a plausible
-next epoch of the current generation.
+reset. A forger on an insecure bus can invent one, so a new generation is adopted only once the
+current run is over: its server withdrew its liveliness token (`server_gone`: a clean stop, a
+crash, an expired lease), or it has been silent for `restart_quiet_s` wall seconds (a consumer
+that does not follow the tokens, or a server replaced while its token stays up). A token cannot be
+withdrawn by anyone but the session that declared it: Zenoh's router keeps a key alive while any
+session declares it, so a forger's twin of the server's token going away changes nothing
+(tests/bus/test_trust_tokens.py). So a restarted server is followed from its first solution,
+and a forger's generation is refused while the genuine server is up. While the current run is
+not over, an invented generation is rejected; the last such message is held, and `release(now)`
+adopts it once the run is over, so a consumer that waits for exactly that message (a lockstep
+agent) is not stalled by a fast restart; a held message the current run continued after is
+dropped instead (a forgery: a successor's first solution comes after its predecessor's last). Residual risk, insecure bus only: while the genuine
+server is down (or silent for longer than `restart_quiet_s`), a forger can make consumers reset,
+and anyone can stamp a plausible next epoch of the current generation.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+from coplane.bus.keys import KeySpace
 from coplane.estimation.limits import MAX_SPEED_MPS, RECEIVER_RADIUS_M
 from coplane.geo import ecef_to_geodetic
 from coplane.gtime import GpsTime
@@ -71,7 +77,7 @@ HEIGHT_BAND_M = (-1_000.0, 10_000.0)
 MAX_AHEAD_S = 900.0  # GPS seconds a solution may run ahead of the last accepted (recording gaps)
 MAX_PACE = 100.0  # epoch seconds per wall second a replay may advance (realtime `speed` at most)
 JUMP_MARGIN_M = 500.0  # beyond max speed: an estimator re-initialised from a poor fix
-RESTART_QUIET_S = 3.0  # wall seconds the current server must be silent before a new generation counts
+RESTART_QUIET_S = 3.0  # wall seconds of silence after which a new generation counts without `server_gone`
 RESYNC_S = 10.0  # wall seconds of only older epochs of this generation before the held head is dropped
 MAX_VEHICLES = 4096  # vehicles whose last position is kept (a message holds at most this many)
 
@@ -110,6 +116,11 @@ class _Run:
     accepted_at: float  # wall time of the last accepted message
     seen_at: float  # wall time of the last message of this generation (repeats too)
     positions: dict[str, tuple[GpsTime, tuple[float, float, float]]] = field(default_factory=dict)
+    gone: bool = False  # its server withdrew its liveliness token: the next generation may come at once
+
+    def over(self, now: float, quiet_s: float) -> bool:
+        """Whether another generation may take over: the server is gone, or silent for `quiet_s`."""
+        return self.gone or now - self.seen_at >= quiet_s
 
 
 class SolutionGate:
@@ -148,6 +159,7 @@ class SolutionGate:
         self.resets = 0
         self.run: _Run | None = None
         self.held: SolutionMessage | None = None  # the latest message of a not yet adopted generation
+        self.held_at = 0.0  # when it came
         self.last_reason: str | None = None  # why the latest message was rejected (None: accepted)
 
     @property
@@ -172,15 +184,16 @@ class SolutionGate:
         t = GpsTime(sol.epoch.week, sol.epoch.tow)
         run = self.run
         if run is not None and sol.generation != run.generation:
-            if now - run.seen_at < self.restart_quiet_s:
-                self.held = sol
+            if not run.over(now, self.restart_quiet_s):
+                self.held, self.held_at = sol, now
                 return self._reject("new-generation")
-            run = None  # the current server has gone quiet: this is its successor
+            run = None  # the current server has gone: this is its successor
         if expect is not None and t.seconds - expect.seconds > self.max_ahead_s:
             return self._reject("too-far-ahead")  # the consumer knows where the fleet is
         if run is None:
             return self._accept(sol, t, now, reset=self.run is not None)
         run.seen_at = now
+        run.gone = False  # its server is back with the same run (a router restart, a resume)
         if t == run.epoch:
             return self._reject("repeat")
         if t < run.epoch:
@@ -192,11 +205,24 @@ class SolutionGate:
             return self._reject("too-far-ahead")
         return self._accept(sol, t, now, reset=False)
 
+    def server_gone(self) -> None:
+        """The current run's server withdrew its liveliness token: its run is over, and the next
+        generation (a restarted server's) is adopted from its first message, not after the quiet
+        time. A later message of the same generation continues the run and undoes this (a crashed
+        server that resumed from its log, a router restart that re-announced the tokens)."""
+        if self.run is not None:
+            self.run.gone = True
+
     def release(self, now: float) -> Verdict | None:
-        """The held message of a new generation, accepted once the current server has been silent
-        for `restart_quiet_s` (None while it is not, or nothing is held)."""
+        """The held message of a new generation, accepted once the current run is over (its
+        server gone, or silent for `restart_quiet_s`); None while it is not, or nothing is held."""
         sol, run = self.held, self.run
-        if sol is None or (run is not None and now - run.seen_at < self.restart_quiet_s):
+        if sol is not None and run is not None and self.held_at < run.seen_at:
+            # the current run went on after it came: a forgery, not its successor (a successor's
+            # first solution comes after the old server's last; its next ones are taken anyway)
+            self.held = None
+            return None
+        if sol is None or (run is not None and not run.over(now, self.restart_quiet_s)):
             return None
         self.held = None
         return self.check(sol, now)
@@ -276,6 +302,35 @@ class GateSet:
         self.gates: dict[str, SolutionGate] = {}
         self.overflow: Counter[str] = Counter()
         self.last_reason: str | None = None
+        self.servers_alive: set[str] = set()  # fusion servers whose liveliness token is up
+
+    def server_token(self, server_id: str, alive: bool) -> None:
+        """A fusion server's liveliness token (`alive/fusion/<server_id>`) appeared or went away.
+        Going away ends the run of that server's gate (regions: its own solution key), and of the
+        single server's gate ("") once no fusion token is left: its solutions do not name their
+        server, and a fleet with one server has one token. At most `MAX_SERVERS` tokens are
+        remembered; beyond that (invented ones on an insecure bus) no gate ends early, and the
+        quiet time decides as before."""
+        if not server_id:
+            return
+        if alive:
+            if len(self.servers_alive) < MAX_SERVERS:
+                self.servers_alive.add(server_id)
+            return
+        self.servers_alive.discard(server_id)
+        if (g := self.gates.get(server_id)) is not None:
+            g.server_gone()
+        if not self.servers_alive and (g := self.gates.get("")) is not None:
+            g.server_gone()
+
+    def presence(self, key: str, alive: bool) -> bool:
+        """A liveliness event from the bus: a fusion server's token goes to `server_token`;
+        whether it was one (other roles' tokens and other keys are not this gate set's)."""
+        ident = KeySpace.id_of_alive_key(key)
+        if ident is None or ident[0] != "fusion":
+            return False
+        self.server_token(ident[1], alive)
+        return True
 
     def gate(self, server: str) -> SolutionGate | None:
         g = self.gates.get(server)

@@ -26,7 +26,7 @@ from coplane.bus import (
     BusEvent,
     BusNode,
     KeySpace,
-    Payload,
+    Presence,
     Subscription,
     decode,
     encode,
@@ -71,12 +71,18 @@ class Collector:
         self.bad = 0
         self.node = BusNode(
             session_config("client", [connect]),
-            subscribe=[Subscription(self.keys.all_solutions), Subscription(f"{self.keys.diagnostics}/**")],
+            subscribe=[
+                Subscription(self.keys.all_solutions),
+                Subscription(f"{self.keys.diagnostics}/**"),
+                # the servers' tokens: a restarted server's solutions are taken at once (`GateSet`)
+                Subscription(self.keys.all_alive("fusion"), liveliness=True),
+            ],
             sink=self._on_event,
         ).open()
 
     def _on_event(self, event: BusEvent) -> None:
-        if not isinstance(event, Payload):
+        if isinstance(event, Presence):
+            self._on_presence(event)
             return
         if event.key.startswith(self.keys.solution):
             self._on_solution(event.data, KeySpace.server_of_solution_key(event.key))
@@ -95,12 +101,28 @@ class Collector:
                 return  # counted in `untrusted`
             if taken is not sol:  # some vehicles were left out: store what was taken
                 sol, payload = taken, encode(taken)
-            if self.stream is not None:
-                self.stream.append(sol, payload)  # on disk before it counts as received
-            record_solution(self.run, sol, {})
-            self.epochs += 1
+            self._record(sol, payload)
         for listener in self.listeners:
             listener(sol)
+
+    def _on_presence(self, event: Presence) -> None:
+        """A fusion server withdrew its token: a restarted server's first solution, held while the
+        old run was not over, is taken now."""
+        with self.lock:
+            gone = self.gate.presence(event.key, event.alive) and not event.alive
+            sol = self.gate.release(time.time()) if gone else None
+            if sol is None:
+                return
+            self._record(sol, encode(sol))
+        for listener in self.listeners:
+            listener(sol)
+
+    def _record(self, sol: SolutionMessage, payload: bytes) -> None:
+        """A trusted solution: on disk first (when streaming), then in the run (lock held)."""
+        if self.stream is not None:
+            self.stream.append(sol, payload)  # on disk before it counts as received
+        record_solution(self.run, sol, {})
+        self.epochs += 1
 
     def _on_diagnostics(self, payload: bytes, server: str = "") -> None:
         if server not in self.diags and len(self.diags) >= MAX_SERVERS:
