@@ -139,6 +139,12 @@ VARIANTS: dict[str, dict[str, object]] = {
     "no-doppler-horizontal-cov-0.25": _no_doppler("horizontal", 0.25),
     "no-doppler-horizontal-cov-0.5": _no_doppler("horizontal", 0.5),
     "no-doppler-horizontal-cov-1": _no_doppler("horizontal", 1.0),
+    # and the height's sigma of such a receiver (FgoConfig.no_doppler_sigma_up; m/s, every epoch)
+    "no-doppler-up-0.2": {"no_doppler_sigma_up": 0.2},
+    "no-doppler-up-0.3": {"no_doppler_sigma_up": 0.3},
+    "no-doppler-up-0.4": {"no_doppler_sigma_up": 0.4},
+    "no-doppler-up-0.5": {"no_doppler_sigma_up": 0.5},
+    "no-doppler-up-0.7": {"no_doppler_sigma_up": 0.7},
     "dcs-4-planes-links": {"robust": "dcs", "robust_k": 4.0, "robust_planes_links": True},
     "sigma-v-0.05": {"sigma_v": 0.05},
     "sigma-v-0.2": {"sigma_v": 0.2},

@@ -106,9 +106,10 @@ def _held_out(
             "fleet gets from receivers or streams that give pseudoranges and C/N0 only (an RTCM MSM4 "
             "stream, a pseudorange-only log). No estimator has a Doppler velocity then, and the factor "
             "graph's motion link falls back to the velocity between its last two estimates. How that "
-            "velocity is used for such receivers (`FgoConfig.no_doppler_velocity`) was chosen on the "
-            "training seeds recorded the same way (docs/tuning-no-doppler.md); every other default "
-            "was chosen with Doppler.\n",
+            "velocity is used for such receivers (`FgoConfig.no_doppler_velocity`) and how tightly "
+            "their height is held (`FgoConfig.no_doppler_sigma_up`) were chosen on the training seeds "
+            "recorded the same way (docs/tuning-no-doppler.md, docs/tuning-no-doppler-sigma-up.md) and "
+            "checked on the validation seeds; every other default was chosen with Doppler.\n",
         )
     elif dgnss:
         head = (

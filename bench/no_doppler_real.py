@@ -11,8 +11,9 @@ choice made on simulated drives is checked here on a real receiver: the same dri
 pseudoranges, carrier phases and C/N0, only the `D` columns removed (the base station keeps its
 own, which DGNSS does not use). The RTK reference is RTKLIB's, made from the carrier phases,
 which are untouched. Rows: `non-cp` with the settings before receivers without Doppler had their
-own (the 3-D difference, no covariance), each share of the estimates' covariance, and the EKF.
-Nothing here chooses a default.
+own (the 3-D difference, no covariance), each share of the estimates' covariance, each sigma of
+the height's link (`FgoConfig.no_doppler_sigma_up`; 0.2 m/s, the Doppler receivers' outage value,
+until 2026-12-02), and the EKF. Nothing here chooses a default.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from coplane.recording.reader import open_recording
 
 CAR = "hk_klt_20210610_f9p_rover_hksc_base"
 SHARES = (0.1, 0.25, 0.5, 1.0)
+SIGMAS_UP = (0.2, 0.3, 0.4, 0.5)  # FgoConfig.no_doppler_sigma_up, m/s
 LABEL = "SYS / # / OBS TYPES"
 
 
@@ -97,11 +99,14 @@ def main() -> None:
         assert base.fgo is not None
         runs = [
             (
-                "non-cp, before (3-D difference, no covariance)",
+                "non-cp, before (3-D difference, no covariance, height sigma 0.2 m/s)",
                 replace(
                     base,
                     fgo=replace(
-                        base.fgo, no_doppler_velocity="estimates", no_doppler_velocity_covariance=0.0
+                        base.fgo,
+                        no_doppler_velocity="estimates",
+                        no_doppler_velocity_covariance=0.0,
+                        no_doppler_sigma_up=None,  # the outage value, motion_sigma_up
                     ),
                 ),
             )
@@ -110,6 +115,10 @@ def main() -> None:
             cfg = replace(base.fgo, no_doppler_velocity="horizontal", no_doppler_velocity_covariance=share)
             mark = " (default)" if cfg == base.fgo else ""
             runs.append((f"non-cp, horizontal, covariance share {share:g}{mark}", replace(base, fgo=cfg)))
+        for up in SIGMAS_UP:
+            cfg = replace(base.fgo, no_doppler_sigma_up=up)
+            mark = " (default)" if cfg == base.fgo else " (before 2026-12-02)" if up == 0.2 else ""
+            runs.append((f"non-cp, height sigma {up:g} m/s{mark}", replace(base, fgo=cfg)))
         runs.append(("non-cp-ekf", get_method("non-cp-ekf")))
         rows = [
             "| run | H RMSE (m) | V RMSE (m) | H max (m) | V max (m) | epochs |",

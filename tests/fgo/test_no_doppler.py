@@ -16,7 +16,7 @@ from coplane.estimation.contract import EpochInput
 from coplane.estimation.validate import validate_epoch
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.links import _estimated_velocity
+from coplane.fgo.links import _estimated_velocity, displacement
 from coplane.fgo.state import GraphState
 from coplane.fgo.window import Window
 from coplane.geo import up_vector
@@ -104,6 +104,26 @@ def test_its_link_loosens_with_the_estimates_covariance() -> None:
     assert _estimated_velocity(v, last, prev, 2.0, "horizontal", state, cfg)[1:] == (0.0, 0.0)  # type: ignore[arg-type]
 
 
+def test_the_height_of_a_receiver_without_doppler_has_its_own_sigma() -> None:
+    """Without Doppler the height's link is `no_doppler_sigma_up` at every epoch; a Doppler
+    receiver's outage keeps `motion_sigma_up` (and None falls back to it)."""
+    p0 = np.array([-2418077.0, 5386069.0, 2405174.0])
+    state = GraphState(window=Window(5))
+    state.values.insertPoint3(0, p0)
+    state.values.insertPoint3(1, p0 + np.array([3.0, 0.0, 0.0]))
+    hist = [
+        SimpleNamespace(pos_key=0, step=0, time=0.0, velocity=None),
+        SimpleNamespace(pos_key=1, step=1, time=1.0, velocity=None),
+    ]
+    cfg = dataclasses.replace(get_method("pc").fgo, no_doppler_velocity_covariance=0.0)  # type: ignore[type-var]
+    assert cfg.no_doppler_sigma_up == 0.4 and cfg.motion_sigma_up == 0.2
+    without = displacement(hist, None, 2.0, state, cfg, no_doppler=True)  # type: ignore[arg-type]
+    outage = displacement(hist, None, 2.0, state, cfg, no_doppler=False)  # type: ignore[arg-type]
+    assert without.sigma_up == pytest.approx(0.4 * 2.0) and outage.sigma_up == pytest.approx(0.2 * 2.0)
+    same = dataclasses.replace(cfg, no_doppler_sigma_up=None)
+    assert displacement(hist, None, 2.0, state, same, no_doppler=True).sigma_up == pytest.approx(0.4)  # type: ignore[arg-type]
+
+
 def test_receivers_with_doppler_are_not_touched() -> None:
     """The new settings act on receivers without Doppler only: a fleet with Doppler (and one whose
     velocity fails while its receiver still reports Doppler) gives the same bits with the
@@ -111,7 +131,9 @@ def test_receivers_with_doppler_are_not_touched() -> None:
     fleet = make_fleet(3, 12, seed=21)
     cfg = get_method("pc").fgo
     assert cfg is not None
-    old = dataclasses.replace(cfg, no_doppler_velocity="estimates", no_doppler_velocity_covariance=0.0)
+    old = dataclasses.replace(
+        cfg, no_doppler_velocity="estimates", no_doppler_velocity_covariance=0.0, no_doppler_sigma_up=None
+    )
     for epochs in (fleet.epochs, _inputs(fleet, True)):
         a, b = run(fleet, cfg, epochs), run(fleet, old, epochs)
         for sa, sb in zip(a, b, strict=True):
@@ -120,7 +142,8 @@ def test_receivers_with_doppler_are_not_touched() -> None:
 
 
 @pytest.mark.parametrize(
-    ("field", "value"), [("no_doppler_velocity", "3d"), ("no_doppler_velocity_covariance", -1.0)]
+    ("field", "value"),
+    [("no_doppler_velocity", "3d"), ("no_doppler_velocity_covariance", -1.0), ("no_doppler_sigma_up", 0.0)],
 )
 def test_bad_settings_are_refused_by_name(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):

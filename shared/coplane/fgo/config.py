@@ -277,6 +277,11 @@ class FgoConfig:
     # 2 m/s vertical sigma let the height run away under a deck; 3 m/s is a 15 % grade at 72 km/h).
     motion_sigma_up: float = 0.5
     max_vertical_speed: float = 3.0
+    # ... and for a receiver without any Doppler (`no_doppler_velocity`), whose height that
+    # sigma holds at every epoch rather than through an outage's few: None, the same
+    # `motion_sigma_up`. Held that tightly every epoch, the height lags the road's grade and
+    # keeps an NLOS pull for tens of seconds (docs/fgo.md, "Receivers without Doppler").
+    no_doppler_sigma_up: float | None = None
     min_fix_pseudoranges: int = 4  # has_gnss_fix threshold
     # Opt-in: a tracked vehicle's epoch with fewer pseudoranges than a fix needs
     # (min_fix_pseudoranges, one fewer with a plane; `prepare.determining_count`) adds none of them

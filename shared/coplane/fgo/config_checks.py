@@ -60,6 +60,7 @@ def check_fgo_config(cfg: FgoConfig) -> None:
         "fde_restart_chi2",
         "fde_snapshot_max_chi2",
         "clock_drift_wander",
+        "no_doppler_sigma_up",
         "motion_accel_psd",
         "clock_accel_psd",
         "clock_isb_sigma_m",

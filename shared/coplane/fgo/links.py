@@ -121,7 +121,12 @@ def displacement(
         return constant_velocity(hist, dt, state, cfg)
     if v_last is not None:
         sigma = math.sqrt(cfg.motion_sigma**2 + var_h) * dt
-        sigma_up = math.sqrt(cfg.motion_sigma_up**2 + var_up) * dt
+        up = (
+            cfg.no_doppler_sigma_up
+            if no_doppler and cfg.no_doppler_sigma_up is not None
+            else cfg.motion_sigma_up
+        )
+        sigma_up = math.sqrt(up**2 + var_up) * dt
         return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
     sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
     return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))

@@ -184,6 +184,7 @@ ROBUST_FGO: dict[str, object] = {
     "clock_isb_sigma_m": 0.5,
     "no_doppler_velocity": "horizontal",
     "no_doppler_velocity_covariance": 0.5,
+    "no_doppler_sigma_up": 0.4,
 }
 
 
