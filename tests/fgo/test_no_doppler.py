@@ -112,8 +112,8 @@ def test_the_height_of_a_receiver_without_doppler_has_its_own_sigma() -> None:
     state.values.insertPoint3(0, p0)
     state.values.insertPoint3(1, p0 + np.array([3.0, 0.0, 0.0]))
     hist = [
-        SimpleNamespace(pos_key=0, step=0, time=0.0, velocity=None),
-        SimpleNamespace(pos_key=1, step=1, time=1.0, velocity=None),
+        SimpleNamespace(vehicle_id="v01", pos_key=0, step=0, time=0.0, velocity=None),
+        SimpleNamespace(vehicle_id="v01", pos_key=1, step=1, time=1.0, velocity=None),
     ]
     cfg = dataclasses.replace(get_method("pc").fgo, no_doppler_velocity_covariance=0.0)  # type: ignore[type-var]
     assert cfg.no_doppler_sigma_up == 0.4 and cfg.motion_sigma_up == 0.2
@@ -122,6 +122,30 @@ def test_the_height_of_a_receiver_without_doppler_has_its_own_sigma() -> None:
     assert without.sigma_up == pytest.approx(0.4 * 2.0) and outage.sigma_up == pytest.approx(0.2 * 2.0)
     same = dataclasses.replace(cfg, no_doppler_sigma_up=None)
     assert displacement(hist, None, 2.0, state, same, no_doppler=True).sigma_up == pytest.approx(0.4)  # type: ignore[arg-type]
+
+
+def test_no_velocity_is_made_across_a_track_restart() -> None:
+    """A track restarted at its last state (the FDE found it diverged) must not extrapolate the
+    difference between that state and the diverged one before it: that jump is no velocity. With
+    the 3-D difference and no covariance, the real car without Doppler ran to thousands of
+    kilometres that way (docs/fgo.md, "Receivers without Doppler")."""
+    p0 = np.array([-2418077.0, 5386069.0, 2405174.0])
+    state = GraphState(window=Window(5))
+    state.values.insertPoint3(0, p0)
+    state.values.insertPoint3(1, p0 + np.array([900.0, 0.0, 0.0]))  # restarted 900 m away
+    hist = [
+        SimpleNamespace(vehicle_id="v01", pos_key=0, step=0, time=0.0, velocity=None),
+        SimpleNamespace(vehicle_id="v01", pos_key=1, step=1, time=1.0, velocity=None),
+    ]
+    cfg = dataclasses.replace(
+        get_method("non-cp").fgo, no_doppler_velocity="estimates", no_doppler_velocity_covariance=0.0
+    )  # type: ignore[type-var]
+    state.track_start["v01"] = 0
+    across = displacement(hist, None, 1.0, state, cfg, no_doppler=True)  # type: ignore[arg-type]
+    assert np.allclose(across.displacement, [900.0, 0.0, 0.0])  # the same track: its velocity
+    state.track_start["v01"] = 1  # the last state restarted the track
+    after = displacement(hist, None, 1.0, state, cfg, no_doppler=True)  # type: ignore[arg-type]
+    assert np.array_equal(after.displacement, np.zeros(3)) and after.sigma == pytest.approx(cfg.max_speed)
 
 
 def test_receivers_with_doppler_are_not_touched() -> None:

@@ -108,7 +108,11 @@ def displacement(
         v_last = next((b.velocity for b in reversed(hist) if b.velocity is not None), None)
     var_h = var_up = 0.0  # the variance (m^2/s^2) of a velocity made from two estimates
     mode: NoDopplerVelocity = cfg.no_doppler_velocity if no_doppler else "estimates"
-    if v_last is None and len(hist) >= 2 and mode != "none":
+    # a track restarted at its last state (the FDE found it diverged) has no velocity yet: the
+    # difference to the diverged state before it is the restart's jump, and extrapolated every
+    # epoch it carried a receiver without Doppler thousands of kilometres (docs/fgo.md)
+    one_track = len(hist) >= 2 and state.track_start.get(last.vehicle_id, -1) <= hist[-2].step
+    if v_last is None and one_track and mode != "none":
         prev = hist[-2]
         dt0 = last.time - prev.time
         v_last = (state.position(last.pos_key) - state.position(prev.pos_key)) / dt0
@@ -117,7 +121,7 @@ def displacement(
     if v_last is not None and cfg.outage_horizontal and not no_doppler:
         u = up_vector(state.position(last.pos_key))
         v_last = v_last - float(v_last @ u) * u  # the height is the fallback's vertical sigma's
-    if three_state and cfg.motion_accel_psd is not None and len(hist) >= 2 and last.time - hist[-2].time > 0:
+    if three_state and cfg.motion_accel_psd is not None and one_track and last.time - hist[-2].time > 0:
         return constant_velocity(hist, dt, state, cfg)
     if v_last is not None:
         sigma = math.sqrt(cfg.motion_sigma**2 + var_h) * dt
