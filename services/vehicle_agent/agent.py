@@ -159,11 +159,8 @@ class VehicleAgent:
         if isinstance(ev, Presence):
             # a fusion server withdrew its token: a restarted server's first solution, held
             # while the old run was not over, is taken now
-            if self.gate.presence(ev.key, ev.alive) and not ev.alive:
-                released = self.gate.release(time.time())
-                if released is not None:
-                    return self._take(released, released)
-            return None
+            released = self.gate.on_token(ev.key, ev.alive, time.time())
+            return None if released is None else self._take(released, released)
         if not isinstance(ev, Payload):
             return None
         if ev.key == self.keys.map_tiles:

@@ -23,7 +23,6 @@ from typing import Any
 from coplane.bus import (
     BusNode,
     KeySpace,
-    Payload,
     Presence,
     Publication,
     Subscription,
@@ -281,12 +280,9 @@ class LoadGenerator:
         for ev in events:
             if isinstance(ev, Presence):
                 # a fusion server withdrew its token: a restarted server's held solution counts now
-                gone = self.gate.presence(ev.key, ev.alive) and not ev.alive
-                ok = self.gate.release(time.time()) if gone else None
+                ok = self.gate.on_token(ev.key, ev.alive, time.time())
                 if ok is None:
                     continue
-            elif not isinstance(ev, Payload):
-                continue
             else:
                 try:
                     sol = decode(SolutionMessage, ev.data)

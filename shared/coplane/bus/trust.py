@@ -53,9 +53,10 @@ and a forger's generation is refused while the genuine server is up. While the c
 not over, an invented generation is rejected; the last such message is held, and `release(now)`
 adopts it once the run is over, so a consumer that waits for exactly that message (a lockstep
 agent) is not stalled by a fast restart; a held message the current run continued after is
-dropped instead (a forgery: a successor's first solution comes after its predecessor's last). Residual risk, insecure bus only: while the genuine
-server is down (or silent for longer than `restart_quiet_s`), a forger can make consumers reset,
-and anyone can stamp a plausible next epoch of the current generation.
+dropped instead (a forgery: a successor's first solution comes after its predecessor's last).
+Residual risk, insecure bus only: while the genuine server is down (or silent for longer than
+`restart_quiet_s`), a forger can make consumers reset, and anyone can stamp a plausible next
+epoch of the current generation.
 """
 
 from __future__ import annotations
@@ -331,6 +332,13 @@ class GateSet:
             return False
         self.server_token(ident[1], alive)
         return True
+
+    def on_token(self, key: str, alive: bool, now: float) -> SolutionMessage | None:
+        """`presence`, and when a fusion server's token went away, the held first solution of its
+        successor that this releases (`release`), for the consumer to take as if it came now."""
+        if self.presence(key, alive) and not alive:
+            return self.release(now)
+        return None
 
     def gate(self, server: str) -> SolutionGate | None:
         g = self.gates.get(server)

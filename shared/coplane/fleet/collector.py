@@ -109,8 +109,7 @@ class Collector:
         """A fusion server withdrew its token: a restarted server's first solution, held while the
         old run was not over, is taken now."""
         with self.lock:
-            gone = self.gate.presence(event.key, event.alive) and not event.alive
-            sol = self.gate.release(time.time()) if gone else None
+            sol = self.gate.on_token(event.key, event.alive, time.time())
             if sol is None:
                 return
             self._record(sol, encode(sol))
