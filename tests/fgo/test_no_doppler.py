@@ -16,7 +16,7 @@ from coplane.estimation.contract import EpochInput
 from coplane.estimation.validate import validate_epoch
 from coplane.fgo.config import FgoConfig
 from coplane.fgo.engine import FusionEstimator
-from coplane.fgo.links import _estimated_velocity, displacement
+from coplane.fgo.links import _estimated_velocity, constant_drift, displacement
 from coplane.fgo.state import GraphState
 from coplane.fgo.window import Window
 from coplane.geo import up_vector
@@ -146,6 +146,23 @@ def test_no_velocity_is_made_across_a_track_restart() -> None:
     state.track_start["v01"] = 1  # the last state restarted the track
     after = displacement(hist, None, 1.0, state, cfg, no_doppler=True)  # type: ignore[arg-type]
     assert np.array_equal(after.displacement, np.zeros(3)) and after.sigma == pytest.approx(cfg.max_speed)
+
+
+def test_no_clock_drift_is_made_across_a_track_restart() -> None:
+    """The opt-in constant-drift clock link (`clock_accel_psd`) takes the drift between the last
+    two clocks; across a track restart that is the restart's jump too, so it is not made."""
+    state = GraphState(window=Window(5))
+    state.values.insert(10, c=0.0)
+    state.values.insert(11, c=1e-3)  # the restarted clock, 300 km of range away
+    hist = [
+        SimpleNamespace(vehicle_id="v01", step=0, time=0.0, clock_keys={"G": 10}),
+        SimpleNamespace(vehicle_id="v01", step=1, time=1.0, clock_keys={"G": 11}),
+    ]
+    cfg = FgoConfig(solver="isam2-fixed-lag", clock_accel_psd=0.1)
+    state.track_start["v01"] = 0
+    assert constant_drift(hist, hist[-1], "G", 1.0, state, cfg) is not None  # type: ignore[arg-type]
+    state.track_start["v01"] = 1
+    assert constant_drift(hist, hist[-1], "G", 1.0, state, cfg) is None  # type: ignore[arg-type]
 
 
 def test_receivers_with_doppler_are_not_touched() -> None:

@@ -108,10 +108,7 @@ def displacement(
         v_last = next((b.velocity for b in reversed(hist) if b.velocity is not None), None)
     var_h = var_up = 0.0  # the variance (m^2/s^2) of a velocity made from two estimates
     mode: NoDopplerVelocity = cfg.no_doppler_velocity if no_doppler else "estimates"
-    # a track restarted at its last state (the FDE found it diverged) has no velocity yet: the
-    # difference to the diverged state before it is the restart's jump, and extrapolated every
-    # epoch it carried a receiver without Doppler thousands of kilometres (docs/fgo.md)
-    one_track = len(hist) >= 2 and state.track_start.get(last.vehicle_id, -1) <= hist[-2].step
+    one_track = len(hist) >= 2 and in_track(hist[-2], state)
     if v_last is None and one_track and mode != "none":
         prev = hist[-2]
         dt0 = last.time - prev.time
@@ -134,6 +131,14 @@ def displacement(
         return MotionLink(last.pos_key, last.step, v_last * dt, sigma, "motion", min(sigma, sigma_up))
     sigma, sigma_up = cfg.max_speed * dt, cfg.max_vertical_speed * dt
     return MotionLink(last.pos_key, last.step, np.zeros(3), sigma, "motion", min(sigma, sigma_up))
+
+
+def in_track(block: StateBlock, state: GraphState) -> bool:
+    """Whether a window state belongs to its vehicle's current track. A track the FDE restarted
+    (it found it diverged) keeps the diverged states in its window, but a difference across the
+    restart is its jump, not a velocity or a drift: extrapolated every epoch, it carried a receiver
+    without Doppler thousands of kilometres (docs/fgo.md, "Receivers without Doppler")."""
+    return state.track_start.get(block.vehicle_id, -1) <= block.step
 
 
 def _estimated_velocity(
@@ -194,7 +199,7 @@ def constant_drift(
     if cfg.clock_accel_psd is None:
         return None
     prev2 = next((b for b in reversed(hist) if system in b.clock_keys and b.step < prev.step), None)
-    if prev2 is None or prev.time - prev2.time <= 0:
+    if prev2 is None or not in_track(prev2, state) or prev.time - prev2.time <= 0:
         return None
     dt0 = prev.time - prev2.time
     k1, k0 = prev.clock_keys[system], prev2.clock_keys[system]
