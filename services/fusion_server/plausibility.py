@@ -22,6 +22,7 @@ import numpy as np
 from coplane.geo import WGS84_A, ecef_to_geodetic, up_vector
 from coplane.gnss.constants import C
 from coplane.messages import NodeMessage, PlaneReport
+from coplane.numeric import row_norms
 
 # Genuine maxima (see the module docstring; re-measured by the tests, which fail if they grow past
 # half of a threshold): the worst SPP fix's median |residual| after removing each system's clock,
@@ -72,7 +73,7 @@ def spp_residual_m(msg: NodeMessage) -> float | None:
     pos = np.asarray(p, dtype=float)
     sat = np.array([s.sat_pos_ecef_m for s in used], dtype=float)
     rho = np.array([s.rho_m + C * s.sat_clock_s for s in used], dtype=float)
-    res = (rho - np.linalg.norm(sat - pos, axis=1)).tolist()
+    res = (rho - row_norms(sat - pos)).tolist()
     by_system: dict[str, list[float]] = {}
     for s, r in zip(used, res, strict=True):
         by_system.setdefault(s.sat[0], []).append(r)

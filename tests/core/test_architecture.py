@@ -26,6 +26,7 @@ LAYERS: dict[str, int] = {
     "gtime": 1,
     "allocator": 1,  # jemalloc for the processes coplane starts (fleet/launcher.py); errors only
     "geo": 1,
+    "numeric": 1,  # numpy's norms without their wrappers' overhead, for per-epoch loops
     # data and models
     "recording": 2,
     "gnss": 3,

@@ -16,7 +16,7 @@ import math
 from collections import Counter
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
-from typing import cast
+from typing import TypeGuard, cast
 
 import numpy as np
 
@@ -44,6 +44,7 @@ from coplane.estimation.limits import (
     SAT_RADIUS_M,
 )
 from coplane.gtime import GpsTime
+from coplane.numeric import norm3
 from coplane.typing import Mat, Vec
 
 MAX_EPOCH_MISMATCH_S = 0.5  # a vehicle's epoch time may differ this much from the fleet epoch's
@@ -198,7 +199,7 @@ def validate_vehicle(
     if vin.velocity is not None:
         velocity = finite_vec3(getattr(vin.velocity, "velocity_mps", None))
         s = finite(getattr(vin.velocity, "sigma_mps", None))
-        if velocity is None or float(np.linalg.norm(velocity)) > MAX_SPEED_MPS or s is None or not s > 0:
+        if velocity is None or norm3(velocity) > MAX_SPEED_MPS or s is None or not s > 0:
             rejected["velocity"] += 1
             velocity = None
         else:
@@ -217,7 +218,7 @@ def validate_vehicle(
     spp = None
     if vin.spp_position is not None:
         spp = finite_vec3(vin.spp_position)
-        if spp is None or not RECEIVER_RADIUS_M[0] <= float(np.linalg.norm(spp)) <= RECEIVER_RADIUS_M[1]:
+        if spp is None or not RECEIVER_RADIUS_M[0] <= norm3(spp) <= RECEIVER_RADIUS_M[1]:
             rejected["spp"] += 1
             spp = None
     plane = _valid_plane(vin.plane, rejected) if planes else None
@@ -251,17 +252,19 @@ def _valid_pseudoranges(
             & (num[:, 2] > 0.0)
             & (num[:, 2] <= MAX_SIGMA_M)
         )
-    keep: list[int] = []
-    seen: set[str] = set()
-    for i, good in enumerate(ok.tolist()):
-        sat = ids_in[i]
-        if good and isinstance(sat, str) and len(sat) >= 2 and sat[0] in KNOWN_SYSTEMS and sat not in seen:
-            seen.add(sat)
-            keep.append(i)
-    if len(keep) < n:
-        rejected["pseudorange"] += n - len(keep)
-        sats, num = sats[keep], num[keep]
-    ids = [cast(str, ids_in[i]) for i in keep]
+    ids = cast(list[str], list(ids_in))  # the usual epoch keeps every row, without the row loop
+    if not (bool(ok.all()) and all(map(_plausible_id, ids)) and len(set(ids)) == n):
+        keep: list[int] = []
+        seen: set[str] = set()
+        for i, good in enumerate(ok.tolist()):
+            sat = ids_in[i]
+            if good and _plausible_id(sat) and sat not in seen:
+                seen.add(sat)
+                keep.append(i)
+        if len(keep) < n:
+            rejected["pseudorange"] += n - len(keep)
+            sats, num = sats[keep], num[keep]
+        ids = [cast(str, ids_in[i]) for i in keep]
     extra = num[:, 3:]  # elevation, C/N0, common sigma are optional: anything not finite is unknown
     extra[~np.isfinite(extra)] = np.nan
     with np.errstate(invalid="ignore"):
@@ -278,6 +281,11 @@ def _valid_pseudoranges(
         num[:, 4],
         None if bool(np.isnan(common).all()) else common,
     )
+
+
+def _plausible_id(sat: object) -> TypeGuard[str]:
+    """A satellite id of a known system ('G05'): what the row loop of `_valid_pseudoranges` keeps."""
+    return isinstance(sat, str) and len(sat) >= 2 and sat[0] in KNOWN_SYSTEMS
 
 
 def _pseudorange_rows(prs: object) -> tuple[list[object], Mat, Mat]:
@@ -342,7 +350,7 @@ def _valid_plane(plane: PlaneObs | None, rejected: Counter[str]) -> PlaneObs | N
         or d is None
         or sg is None
         or not (0.0 < sg <= MAX_PLANE_SIGMA_M)
-        or abs(np.linalg.norm(n) - 1.0) > MAX_NORMAL_ERROR
+        or abs(norm3(n) - 1.0) > MAX_NORMAL_ERROR
     ):
         rejected["plane"] += 1
         return None

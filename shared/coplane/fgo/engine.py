@@ -41,6 +41,7 @@ from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import RangeEdge, StateBlock, StepRecord, Window
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
+from coplane.numeric import norm3
 
 SEED_MAX_AGE_S = 60.0  # a seed older than this (GPS time) says little about where the vehicle is
 SEED_FLOOR_M = 0.05  # smallest sigma of a seed's position prior (m): never a hard constraint
@@ -305,7 +306,7 @@ class FusionEstimator:
         def admitted(r: ValidRange) -> bool:
             if r.range_m >= short or k - start[r.a] >= w or k - start[r.b] >= w:
                 return True
-            gap = float(np.linalg.norm(preps[r.a].init_pos - preps[r.b].init_pos)) - r.range_m
+            gap = norm3(preps[r.a].init_pos - preps[r.b].init_pos) - r.range_m
             return abs(gap) > short
 
         keep: list[ValidRange] = []

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from coplane.estimation.contract import PlaneObs
 from coplane.geo import up_vector
 from coplane.gnss.constants import OMEGA_E_GPS, C
+from coplane.numeric import norm3, row_norms
 from coplane.typing import Vec
 
 # ----------------------------------------------------------------------------------------------
@@ -104,13 +105,17 @@ def gtsam_satellite_positions(sat_pos_rx: Vec, receiver: Vec) -> Vec:
     sats = np.asarray(sat_pos_rx, dtype=float).reshape(-1, 3)
     if not gtsam_applies_sagnac():
         return sats
-    tau = np.linalg.norm(sats - np.asarray(receiver, dtype=float), axis=1) / C
+    tau = row_norms(sats - np.asarray(receiver, dtype=float)) / C
     theta = OMEGA_E_GPS * tau
     c, s = np.cos(theta), np.sin(theta)
     # s_rx = R_z(theta) s_tx  =>  s_tx = R_z(theta)^T s_rx, with R_z(theta) = [[c, s, 0],
     # [-s, c, 0], [0, 0, 1]] (the ECEF frame rotated by theta about z), written out per component
     x, y = sats[:, 0], sats[:, 1]
-    return np.column_stack((c * x - s * y, s * x + c * y, sats[:, 2]))
+    out = np.empty_like(sats)
+    out[:, 0] = c * x - s * y
+    out[:, 1] = s * x + c * y
+    out[:, 2] = sats[:, 2]
+    return out
 
 
 def pseudorange_factors(
@@ -136,15 +141,20 @@ def pseudorange_factors(
     """
     sats = gtsam_satellite_positions(sat_pos_rx, receiver_approx)
     corr = correction_keys if correction_keys is not None else [None] * len(sats)
+    # a fusion server runs this loop for every satellite of every vehicle epoch: GTSAM's
+    # constructors are looked up once, and the kernel (`with_kernel`) wraps each noise model inline
+    sigma_model, robust_model = gtsam.noiseModel.Isotropic.Sigma, gtsam.noiseModel.Robust.Create
+    kernel = m_estimator(robust, robust_k) if robust is not None else None
+    plain, differential = gtsam.PseudorangeFactor, gtsam.DifferentialPseudorangeFactor
     out: list[gtsam.NonlinearFactor] = []
     for ck, dk, r, sat, sc, sg in zip(
         clock_keys, corr, _floats(rho_m), sats, _floats(sat_clock_s), _floats(sigma_m), strict=True
     ):
-        noise = with_kernel(gtsam.noiseModel.Isotropic.Sigma(1, sg), robust, robust_k)
+        noise = sigma_model(1, sg) if kernel is None else robust_model(kernel, sigma_model(1, sg))
         if dk is None:
-            out.append(gtsam.PseudorangeFactor(pos_key, ck, r, sat, sc, noise))
+            out.append(plain(pos_key, ck, r, sat, sc, noise))
         else:
-            out.append(gtsam.DifferentialPseudorangeFactor(pos_key, ck, dk, r, sat, sc, noise))
+            out.append(differential(pos_key, ck, dk, r, sat, sc, noise))
     return out
 
 
@@ -169,7 +179,7 @@ def plane_factor(
     renormalised so the error is a distance whatever the caller's rounding.
     """
     n = np.asarray(plane.normal, dtype=float).reshape(3)
-    norm = float(np.linalg.norm(n))
+    norm = norm3(n)
     if not (math.isfinite(norm) and norm > 0.5):
         raise ValueError(f"plane normal is not a unit vector: {plane.normal!r}")
     n = n / norm

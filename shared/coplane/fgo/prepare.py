@@ -41,6 +41,7 @@ from coplane.fgo.state import GraphState, StepStats
 from coplane.fgo.window import StateBlock
 from coplane.gnss.constants import C
 from coplane.gtime import GpsTime
+from coplane.numeric import row_norms
 from coplane.typing import Mat, Vec
 
 
@@ -143,7 +144,7 @@ def prepare_vehicle(
     # initial clock per system: median residual at the initial position (robust to NLOS)
     clock_init: dict[str, float] = {}
     if len(prs):
-        resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - init, axis=1)
+        resid = prs.rho + C * prs.sat_clock - row_norms(prs.sat_pos - init)
         by_system: dict[str, list[float]] = {s: [] for s in systems}
         for s, r in zip(prs.systems, resid.tolist(), strict=True):
             by_system[s].append(r)
@@ -238,7 +239,7 @@ def gate(
     prs: ValidPseudoranges, predicted: Vec, k: float, sigma_pred: float, stats: StepStats
 ) -> ValidPseudoranges:
     """Drop pseudoranges whose innovation at the predicted position exceeds k sigma."""
-    resid = prs.rho + C * prs.sat_clock - np.linalg.norm(prs.sat_pos - predicted, axis=1)
+    resid = prs.rho + C * prs.sat_clock - row_norms(prs.sat_pos - predicted)
     sys_of = np.array(prs.systems)
     keep = np.ones(len(resid), dtype=bool)
     for s in set(prs.systems):

@@ -31,6 +31,7 @@ import numpy as np
 from coplane.estimation.validate import ValidPseudoranges
 from coplane.gnss.constants import C
 from coplane.gnss.lsq import inseparable
+from coplane.numeric import row_norms
 from coplane.typing import Mat, Vec
 
 
@@ -60,10 +61,11 @@ def design_matrix(prs: ValidPseudoranges, position: Vec) -> tuple[Mat, Vec, np.n
     index and the systems. The FDE's test and the common errors' covariance
     (`common_error`) share it."""
     los = prs.sat_pos - position
-    dist = np.linalg.norm(los, axis=1)
+    dist = row_norms(los)
     u = los / dist[:, None]
     systems = sorted(set(prs.systems))
-    sys_idx = np.array([systems.index(s) for s in prs.systems], dtype=int)
+    column = {s: j for j, s in enumerate(systems)}
+    sys_idx = np.array([column[s] for s in prs.systems], dtype=int)
     h = np.zeros((len(prs), 3 + len(systems)))
     h[:, :3] = -u
     h[np.arange(len(prs)), 3 + sys_idx] = 1.0
@@ -154,50 +156,63 @@ def screen_pseudoranges(
             return dataclasses.replace(snapshot, prediction_rejected=True)
         return ScreenResult(np.ones(n, dtype=bool), (), True)
 
-    while int(keep.sum()) > min_keep:
-        idx = np.flatnonzero(keep)
-        h = h_full[idx]
-        w_inv = 1.0 / var[idx]
+    # the loop runs once per vehicle epoch on a fusion server (twice or more with exclusions):
+    # each numpy call costs microseconds on arrays of a few dozen values, so the kept rows' arrays
+    # are taken once per pass, and the whole epoch's are used as they are until a row goes
+    n_kept = n
+    idx = np.arange(n)
+    h, var_k, resid_k = h_full, var, resid
+    while n_kept > min_keep:
+        w_inv = 1.0 / var_k
         info = prior_info + (h.T * w_inv) @ h
-        # a system whose satellites were all excluded has an unobservable clock: regularise it
-        free = np.flatnonzero(np.diag(info)[3:] == 0.0) + 3
-        info[free, free] = 1.0
+        if excluded:
+            # a system whose satellites were all excluded has an unobservable clock: regularise it
+            # (before the first exclusion every system has a row, so its diagonal is positive)
+            free = np.flatnonzero(np.diag(info)[3:] == 0.0) + 3
+            info[free, free] = 1.0
         try:
             q_x = np.linalg.inv(info)
         except np.linalg.LinAlgError:
             break
-        x = q_x @ (h.T @ (w_inv * resid[idx]))
-        v = resid[idx] - h @ x
-        q_v = var[idx] - np.einsum("ij,jk,ik->i", h, q_x, h)
-        ok = q_v > 1e-6 * var[idx]  # a system's only satellite has no redundancy: not testable
+        x = q_x @ (h.T @ (w_inv * resid_k))
+        v = resid_k - h @ x
+        q_v = var_k - np.einsum("ij,jk,ik->i", h, q_x, h)
+        ok = q_v > 1e-6 * var_k  # a system's only satellite has no redundancy: not testable
         w_abs = np.zeros_like(v)
         w_abs[ok] = np.abs(v[ok]) / np.sqrt(q_v[ok])
         # the test statistic: a long residual is tested against k_long, so scale it onto k
-        long_side = np.ones(len(v), dtype=bool) if two_sided else v > 0
-        if long_rows is not None:
-            long_side &= long_rows[idx]
-        w = w_abs if k_long is None else np.where(long_side, w_abs * (k / k_long), w_abs)
+        if k_long is None:
+            w = w_abs
+        else:
+            long_side = np.ones(len(v), dtype=bool) if two_sided else v > 0
+            if long_rows is not None:
+                long_side &= long_rows[idx]
+            w = np.where(long_side, w_abs * (k / k_long), w_abs)
         if n_fail_first is None:
-            n_fail_first = int((w > k).sum())
+            n_fail_first = int(np.count_nonzero(w > k))
             if n >= divergence_min and n_fail_first > divergence_fraction * n:
                 return rejected()
-        worst = int(np.argmax(w))
+        worst = int(w.argmax())
         if w[worst] <= k:
-            redundancy = float(np.sum(q_v[ok] / var[idx][ok]))
+            var_ok = var_k[ok]
+            redundancy = float((q_v[ok] / var_ok).sum())
             signed = np.full(n, np.nan)
             signed[idx[ok]] = v[ok] / np.sqrt(q_v[ok])
             if redundancy >= 1.0:
-                factor = float(np.sum(v[ok] ** 2 / var[idx][ok])) / redundancy
+                factor = float((v[ok] ** 2 / var_ok).sum()) / redundancy
                 return ScreenResult(keep, tuple(excluded), False, factor, signed, x[:3], q_x[:3, :3])
             return ScreenResult(keep, tuple(excluded), False, 1.0, signed, x[:3], q_x[:3, :3])
-        group = inseparable(h, var[idx], q_x, q_v, ok, worst)
-        if int(keep.sum()) - len(group) < min_keep:
+        group = inseparable(h, var_k, q_x, q_v, ok, worst)
+        if n_kept - len(group) < min_keep:
             break  # as when min_keep rows are left: the fault cannot go without going below
         for j in group:
             keep[idx[j]] = False
             excluded.append(float(w_abs[j]))  # the standardised residual, not the scaled statistic
+        n_kept -= len(group)
         if count_exclusions and n >= divergence_min and len(excluded) > divergence_fraction * n:
             return rejected()
+        idx = np.flatnonzero(keep)
+        h, var_k, resid_k = h_full[idx], var[idx], resid[idx]
     return ScreenResult(keep, tuple(excluded), False)
 
 

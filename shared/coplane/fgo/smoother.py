@@ -32,6 +32,7 @@ from coplane.fgo.window import (
     lm_params,
     marginal_covariances,
 )
+from coplane.numeric import norm3
 
 
 class SmootherCluster:
@@ -106,9 +107,7 @@ class SmootherCluster:
                     self._relinearize()
                     iterations += 1
                     after = self.smoother.calculateEstimate(list(pos_keys))
-                    moved = max(
-                        float(np.linalg.norm(after.atPoint3(k) - before.atPoint3(k))) for k in pos_keys
-                    )
+                    moved = max(norm3(after.atPoint3(k) - before.atPoint3(k)) for k in pos_keys)
                     before = after
                     if moved < self.cfg.isam2_converged_m:
                         break
