@@ -9,7 +9,8 @@ alternately, minutes apart: this script runs `bench/bench_scale.py` (this checko
 one server, lockstep, 1000 m regions) against the library and services of `--base` and of
 `--head` in turn (base, head, base, head, ...) and prints each run's fusion CPU per
 vehicle-epoch, the load generator's front end (the same code on both sides unless the commits
-changed it: the host's drift while the A/B ran) and the medians.
+changed it: the host's drift while the A/B ran), their ratio (the fusion CPU with the host's
+speed during that run taken out, when the front end is the same code) and the medians.
 
 Each side's code is `git archive` of that commit unpacked in a temporary directory and put first
 on PYTHONPATH for the bench and every process it starts, with the services moved into the
@@ -112,26 +113,31 @@ def main() -> int:
             sides.append((short, env))
         runs: dict[str, list[tuple[float, float]]] = {short: [] for short, _ in sides}
         rows = [
-            "| run | commit | fusion CPU ms / vehicle-epoch | loadgen front end ms / vehicle-epoch |",
-            "|---|---|---|---|",
+            "| run | commit | fusion CPU ms / vehicle-epoch | loadgen front end ms / vehicle-epoch "
+            "| fusion / front end |",
+            "|---|---|---|---|---|",
         ]
         for _ in range(args.repeats):
             for short, env in sides:
                 r = run_once(env, args)
                 fusion = 1e3 * sum(r["server_cpu_s"]) / max(1, r["solved"])
                 runs[short].append((fusion, r["front_end_ms_per_vehicle_epoch"]))
-                rows.append(
-                    f"| {len(rows) - 1} | {short} | {fusion:.2f} | {r['front_end_ms_per_vehicle_epoch']} |"
-                )
+                front = r["front_end_ms_per_vehicle_epoch"]
+                rows.append(f"| {len(rows) - 1} | {short} | {fusion:.2f} | {front} | {fusion / front:.3f} |")
                 print(rows[-1], file=sys.stderr, flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     (b, bv), (h, hv) = ((s, runs[s]) for s, _ in sides)
     med_b, med_h = (statistics.median(x[0] for x in v) for v in (bv, hv))
+    # the front end is the same code on both sides unless the commits changed it, so fusion over
+    # front end takes out how fast the host ran during each run (it drifts by 10-20 % between
+    # runs minutes apart on a slow day, more than a change of a few percent)
+    rel_b, rel_h = (statistics.median(x[0] / x[1] for x in v) for v in (bv, hv))
     rows += [
         "",
         f"median fusion CPU per vehicle-epoch: {b} {med_b:.2f} ms, {h} {med_h:.2f} ms, "
-        f"{h} / {b} = {med_h / med_b:.2f}",
+        f"{h} / {b} = {med_h / med_b:.2f}; median fusion / front end: {b} {rel_b:.3f}, {h} {rel_h:.3f}, "
+        f"{h} / {b} = {rel_h / rel_b:.2f}",
     ]
     head = (
         f"machine: {machine()}; city {args.vehicles} vehicles x {args.duration:.0f} s (seed 11), one server, "
