@@ -36,7 +36,10 @@ def test_a_20_mib_put_is_dropped_by_the_transport_and_small_ones_still_arrive() 
             time.sleep(0.3)
             got.clear()
             for n in (1000, MAX_PAYLOAD_BYTES, 20 << 20, 2000):
-                pub.put("size/x", b"a" * n)
+                # BLOCK: a put's default congestion control drops a message the transport cannot
+                # queue at once, which on a loaded host lost the 1 MiB one (CI, 2026-12-02); what
+                # this test checks is the size limit, not congestion
+                pub.put("size/x", b"a" * n, congestion_control=zenoh.CongestionControl.BLOCK)
                 time.sleep(0.5)
             deadline = time.monotonic() + 15.0
             while 2000 not in got and time.monotonic() < deadline:
