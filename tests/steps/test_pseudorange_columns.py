@@ -111,3 +111,28 @@ def test_numbers_beyond_a_float_are_counted_not_raised() -> None:
     got = validate_epoch(dataclasses.replace(epoch, vehicles={**epoch.vehicles, "v01": bad}))
     assert got.rejected == {"pseudorange": 1, "spp": 1, "antenna_height": 1, "clock_drift": 1}
     assert len(got.vehicles["v01"].pseudoranges) == len(v.pseudoranges) - 1
+
+
+def test_a_bad_id_among_good_rows_is_counted() -> None:
+    """Validation skips its row loop when every row is plausible and no satellite repeats: an
+    unknown system, a repeat or a non-string id among numerically good rows must still take the
+    loop, lose that row alone and count it."""
+    fleet = make_fleet(1, 1, seed=3)
+    good = columns(fleet.epochs[0].vehicles["v01"].pseudoranges)  # type: ignore[arg-type]
+    rejected: Counter[str] = Counter()
+    valid = _valid_pseudoranges(good, rejected)
+    assert not rejected and valid.sats == list(good.sats)
+    n = len(good)
+    others = list(range(1, n))
+    cases = (
+        ("X05", "unknown system", others),
+        (good.sats[1], "a repeat: the first of the two is kept", [0, *range(2, n)]),
+        (5, "not a string", others),
+    )
+    for first, why, rows in cases:
+        bad = dataclasses.replace(good, sats=(first, *good.sats[1:]))
+        rejected.clear()
+        valid = _valid_pseudoranges(bad, rejected)
+        assert rejected["pseudorange"] == 1, why
+        assert valid.sats == [bad.sats[i] for i in rows], why
+        assert np.array_equal(valid.rho, good.rho_m[rows]), why
