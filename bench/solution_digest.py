@@ -10,6 +10,11 @@ checkout can be fingerprinted with this script by putting that checkout's librar
 
 Each digest is sha256 over (vehicle, week, tow, position float64 bytes, covariance float64 bytes)
 in sorted order; "pc@0.4" is pc at 40 % ranging interruption.
+
+`--city N` fingerprints a simulated city of N vehicles instead (`coplane simulate --scenario city
+--vehicles N --duration 20 --seed 11`, made by the library being fingerprinted; default method
+`pc`): the per-vehicle paths a fusion server runs for hundreds of vehicles, with cluster splits
+and merges the 4-vehicle recording never has.
 """
 
 from __future__ import annotations
@@ -17,6 +22,9 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import coplane
@@ -29,8 +37,11 @@ DEFAULT = [
 ]  # fmt: skip
 
 
-def digest(method: str, interruption: float) -> str:
-    rec = open_recording(Path(coplane.__file__).parent / "data" / "recordings" / "default")
+BUNDLED = Path(coplane.__file__).parent / "data" / "recordings" / "default"
+
+
+def digest(method: str, interruption: float, recording: Path = BUNDLED) -> str:
+    rec = open_recording(recording)
     run = run_method(rec, method, interruption=interruption)
     h = hashlib.sha256()
     for vid in sorted(run.positions):
@@ -46,13 +57,21 @@ def digest(method: str, interruption: float) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="JSON file: method -> sha256")
-    ap.add_argument("methods", nargs="*", default=DEFAULT, help="method[@rate] (default: all)")
+    ap.add_argument("methods", nargs="*", help="method[@rate] (default: all; with --city, pc)")
+    ap.add_argument("--city", type=int, default=0, help="a simulated city of this many vehicles")
     args = ap.parse_args()
     out = {}
-    for arg in args.methods:
-        name, _, rate = arg.partition("@")
-        out[arg] = digest(name, float(rate or 0.0))
-        print(f"{arg:16s} {out[arg]}", flush=True)
+    with tempfile.TemporaryDirectory(prefix="coplane-digest-") as tmp:
+        recording, methods = BUNDLED, args.methods or DEFAULT
+        if args.city:
+            recording, methods = Path(tmp) / "city", args.methods or ["pc"]
+            cmd = [sys.executable, "-m", "coplane.cli", "simulate", "--scenario", "city", "--vehicles",
+                   str(args.city), "--duration", "20", "--seed", "11", "--out", str(recording)]  # fmt: skip
+            subprocess.run(cmd, check=True, capture_output=True)
+        for arg in methods:
+            name, _, rate = arg.partition("@")
+            out[arg] = digest(name, float(rate or 0.0), recording)
+            print(f"{arg:16s} {out[arg]}", flush=True)
     args.out.write_text(json.dumps(out, indent=1) + "\n")
     print(f"library: {Path(coplane.__file__).parent}")
 
