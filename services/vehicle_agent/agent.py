@@ -1,7 +1,8 @@
 """Vehicle agent: replays one vehicle of a recording through VehicleStep and talks to the bus.
 
-Lockstep: publish epoch t, wait for the fleet solution of t (resending t every `resend_s`, so a
-restarted fusion server picks it up), ingest it, go on with t+1; if its server went on without
+Lockstep: publish epoch t, wait for the fleet solution of t (re-sending t, so a restarted fusion
+server picks it up, every `resend.ResendTimer.timeout_s`: `resend_s`, or longer when answers take
+longer), ingest it, go on with t+1; if its server went on without
 it (a solution past t), go on with the epoch after that server's. Realtime: publish on the wall
 clock (scaled by `speed`) and ingest whatever solutions have arrived; never block on the server.
 
@@ -46,6 +47,7 @@ from coplane.steps import gps_time
 from coplane.steps.map_tiles import MapReceiver
 
 from .region import NODE_HISTORY, RegionKeys
+from .resend import ResendTimer
 from .settings import AgentSettings
 
 log = logging.getLogger("coplane.vehicle_agent")
@@ -89,6 +91,7 @@ class VehicleAgent:
         self.keys = KeySpace(self.fleet)
         # one gate per server: with regions each server is its own run (docs/scale.md)
         self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
+        self.resend = ResendTimer(settings.resend_s)
         self.step = setup.vehicle_step(rec, vid)
         self.region: RegionKeys | None = None
         if settings.regions:
@@ -333,7 +336,7 @@ class VehicleAgent:
         """Lockstep: wait until a solution answers epoch `t` (re-sending it); the epoch of the
         solution that released this agent without answering it, if it came from the server that
         answers this vehicle (the fleet went on without this vehicle, see `answered`), else None."""
-        last_send = time.monotonic()
+        start = last_send = time.monotonic()
         while not self.stop.is_set():
             ev = node.get(timeout=0.05)
             sol = None
@@ -342,7 +345,7 @@ class VehicleAgent:
             elif (released := self.gate.release(time.time())) is not None:
                 # a restarted server's first solution, held until the old one went quiet
                 sol = self._take(released, released)
-            elif time.monotonic() - last_send > self.s.resend_s:
+            elif time.monotonic() - last_send > self.resend.timeout_s():
                 for key in keys:
                     node.put(key, payload)  # the server dedups; a restarted server needs it
                 last_send = time.monotonic()
@@ -350,6 +353,7 @@ class VehicleAgent:
                 st = gps_time(sol.epoch)
                 if st == t and sol.answers(self.step.vehicle_id):
                     self.home_server = sol.server
+                    self.resend.answered(time.monotonic() - start)
                     return None
                 # past `t` on the server that answers this vehicle: it went on without it (with
                 # regions another server's fleet may just be ahead of this one's)

@@ -7,7 +7,8 @@ one process instead of 1000. Real deployments keep one agent per vehicle, each w
 certificate: a load generator speaks for every vehicle, so it runs only on an insecure test bus.
 
 Lockstep: every vehicle's epoch t is put, then the generator waits until a solution answered each
-of them (re-sending the unanswered every `resend_s`, giving up after `epoch_timeout_s`), then
+of them (re-sending the unanswered after a timeout learnt from the answers' round trips,
+`resend.ResendTimer`, at least `resend_s`; giving up after `epoch_timeout_s`), then
 t+1. Realtime: epochs are put on the wall clock (`speed`), solutions ingested as they come.
 """
 
@@ -41,6 +42,7 @@ from coplane.replay import BaseCorrections, replay_setup, uwb_for_vehicle, vehic
 from coplane.steps import SharedHistory, VehicleStep, gps_time
 
 from .region import RegionKeys
+from .resend import MAX_RESEND_S, ResendTimer
 from .settings import LoadgenSettings
 
 log = logging.getLogger("coplane.vehicle_agent.loadgen")
@@ -143,6 +145,8 @@ class LoadGenerator:
         self.times = sorted({t for v in self.vehicles.values() for t in v.schedule})
         self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=ids)
         self.stats = LoadStats(vehicles=len(ids), pace=settings.pace)
+        # re-sends stay well inside an epoch's timeout, so a lost message is sent again before it
+        self.resend = ResendTimer(settings.resend_s, min(MAX_RESEND_S, settings.epoch_timeout_s / 3.0))
         self._tokens: list[Any] = []
 
     def node(self) -> BusNode:
@@ -217,7 +221,7 @@ class LoadGenerator:
 
     def _await(self, node: BusNode, t: GpsTime, waiting: set[str], quiet_s: float | None = None) -> None:
         """Lockstep: until every vehicle of `waiting` is answered at `t` (or later), re-sending the
-        unanswered after `resend_s`, then twice as long each time; realtime end (`quiet_s`): until
+        unanswered after `ResendTimer.timeout_s`, then twice as long each time; realtime end (`quiet_s`): until
         nothing came for that long.
 
         `settle_s` counts only once some server has answered `t`: before that the servers may
@@ -230,7 +234,7 @@ class LoadGenerator:
         last_send = start
         last_answer: float | None = None
         settle = self.s.settle_s
-        resend_after = self.s.resend_s
+        resend_after = self.resend.timeout_s()
         while (waiting or quiet_s is not None) and not self.stop.is_set() and time.monotonic() < deadline:
             ev = node.get(timeout=0.05)
             if ev is None:
@@ -249,6 +253,7 @@ class LoadGenerator:
                 if not gps_time(sol.epoch) < t:
                     if last_answer is None:
                         settle = max(settle, time.monotonic() - start)
+                        self.resend.answered(time.monotonic() - start)
                     last_answer = time.monotonic()
                     waiting -= {v for v in waiting if sol.answers(v)}
         if quiet_s is None:

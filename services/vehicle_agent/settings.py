@@ -59,7 +59,11 @@ class AgentSettings(ServiceSettings, RegionOptions):
         ge=0.0,
         description="Map methods: wait this long at start for the fusion server's whole road map on the bus",
     )
-    resend_s: float = Field(default=1.0, gt=0.0, description="Lockstep: resend the pending node message")
+    resend_s: float = Field(
+        default=1.0,
+        gt=0.0,
+        description="Lockstep: re-send the unanswered node message after at least this (longer when answers take longer)",
+    )
     lease_ms: int = Field(default=2000, ge=500, description="Zenoh lease: how fast a dead peer is noticed")
     nmea_port: int | None = Field(
         default=None,
@@ -87,7 +91,9 @@ class LoadgenSettings(ServiceSettings, RegionOptions):
     speed: float = Field(default=1.0, gt=0.0, description="Realtime replay speed factor")
     seed: int = 0
     resend_s: float = Field(
-        default=1.0, gt=0.0, description="Lockstep: re-send unanswered node messages after this, doubling"
+        default=1.0,
+        gt=0.0,
+        description="Lockstep: re-send unanswered node messages after at least this (longer when answers take longer), doubling",
     )
     epoch_timeout_s: float = Field(
         default=30.0, gt=0.0, description="Lockstep: give up on an epoch's answers"
