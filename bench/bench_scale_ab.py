@@ -10,7 +10,9 @@ one server, lockstep, 1000 m regions) against the library and services of `--bas
 `--head` in turn (base, head, base, head, ...) and prints each run's fusion CPU per
 vehicle-epoch, the load generator's front end (the same code on both sides unless the commits
 changed it: the host's drift while the A/B ran), their ratio (the fusion CPU with the host's
-speed during that run taken out, when the front end is the same code) and the medians.
+speed during that run taken out, when the front end is the same code), the node messages the
+load generator re-sent per vehicle-epoch (lockstep, unanswered yet; "-" for a commit whose load
+generator did not count them) and the medians.
 
 Each side's code is `git archive` of that commit unpacked in a temporary directory and put first
 on PYTHONPATH for the bench and every process it starts, with the services moved into the
@@ -114,8 +116,8 @@ def main() -> int:
         runs: dict[str, list[tuple[float, float]]] = {short: [] for short, _ in sides}
         rows = [
             "| run | commit | fusion CPU ms / vehicle-epoch | loadgen front end ms / vehicle-epoch "
-            "| fusion / front end |",
-            "|---|---|---|---|---|",
+            "| fusion / front end | re-sent node messages / vehicle-epoch |",
+            "|---|---|---|---|---|---|",
         ]
         for _ in range(args.repeats):
             for short, env in sides:
@@ -123,7 +125,11 @@ def main() -> int:
                 fusion = 1e3 * sum(r["server_cpu_s"]) / max(1, r["solved"])
                 runs[short].append((fusion, r["front_end_ms_per_vehicle_epoch"]))
                 front = r["front_end_ms_per_vehicle_epoch"]
-                rows.append(f"| {len(rows) - 1} | {short} | {fusion:.2f} | {front} | {fusion / front:.3f} |")
+                # a load generator from before it counted its re-sends: "-"
+                resent = f"{r['resent'] / max(1, r['published']):.2f}" if "resent" in r else "-"
+                rows.append(
+                    f"| {len(rows) - 1} | {short} | {fusion:.2f} | {front} | {fusion / front:.3f} | {resent} |"
+                )
                 print(rows[-1], file=sys.stderr, flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -70,6 +70,7 @@ class LoadStats:
     # lockstep: why each epoch's wait ended (answered / settled / timeout / stopped) and, for the
     # epochs with unanswered vehicles, how many (by epoch index): where a lost epoch is, and why
     await_ends: Counter[str] = field(default_factory=Counter)
+    resent: int = 0  # lockstep: node messages put again because their epoch was not answered yet
     unanswered_by_epoch: dict[int, int] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
@@ -98,6 +99,7 @@ class LoadStats:
             "latency_p99_s": q(0.99),
             "rejected": dict(self.rejected),
             "await_ends": dict(self.await_ends),
+            "resent": self.resent,
             "unanswered_by_epoch": {str(i): n for i, n in sorted(self.unanswered_by_epoch.items())},
         }
 
@@ -244,6 +246,7 @@ class LoadGenerator:
                     for vid in sorted(waiting):
                         for key in self.vehicles[vid].keys:
                             node.put(key, self.vehicles[vid].payload)
+                    self.stats.resent += len(waiting)
                     last_send = time.monotonic()
                     resend_after *= 2.0
                 continue
