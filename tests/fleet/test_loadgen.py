@@ -57,7 +57,8 @@ def test_loadgen_equals_the_in_process_replay(tmp_path: Path, servers: int) -> N
                     region_size_m=600.0,
                     region_margin_m=250.0,
                 )
-                stats = LoadGenerator(settings).run()
+                gen = LoadGenerator(settings)
+                stats = gen.run()
                 wait_until(
                     lambda: c.epochs > 0 and all(len(p) == 20 for p in c.run.positions.values()), 10, "all"
                 )
@@ -66,6 +67,8 @@ def test_loadgen_equals_the_in_process_replay(tmp_path: Path, servers: int) -> N
             procs.stop_all()
     assert stats.published == 12 * 20 and stats.unanswered == 0
     assert stats.await_ends == {"answered": 20} and not stats.unanswered_by_epoch
+    # lockstep timed every epoch's answer: the re-send timeout is learnt, never below the setting
+    assert gen.resend.srtt_s is not None and gen.resend.timeout_s() >= settings.resend_s
     if servers == 1:  # one server: the in-process replay, bit for bit
         for vid, pos in ref.positions.items():
             for t, p in pos.items():
