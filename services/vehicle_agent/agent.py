@@ -119,6 +119,7 @@ class VehicleAgent:
             self.t0 = first_epoch(rec)  # the fleet's first epoch: the realtime origin
         self.skipped = 0
         self.published = 0
+        self.resent = 0  # lockstep: node messages put again while their epoch was unanswered
         self.ingested = 0
         self.bad_solutions = 0
         self.unplaced = 0  # regions: epochs not sent, no position to place them in a region yet
@@ -315,7 +316,13 @@ class VehicleAgent:
                 self.await_last_solution(node, self.schedule[-1][0], 2.0 + 3.0 * interval / s.speed)
             log.info(
                 "agent finished",
-                extra={"vehicle": self.step.vehicle_id, "published": self.published, "skipped": self.skipped},
+                extra={
+                    "vehicle": self.step.vehicle_id,
+                    "published": self.published,
+                    "skipped": self.skipped,
+                    "resent": self.resent,
+                    "resend_timeout_s": round(self.resend.timeout_s(), 3),
+                },
             )
             return self.published
 
@@ -348,6 +355,7 @@ class VehicleAgent:
             elif time.monotonic() - last_send > self.resend.timeout_s():
                 for key in keys:
                     node.put(key, payload)  # the server dedups; a restarted server needs it
+                self.resent += 1
                 last_send = time.monotonic()
             if sol is not None and self.answered(sol, t):
                 st = gps_time(sol.epoch)
