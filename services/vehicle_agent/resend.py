@@ -35,7 +35,12 @@ class ResendTimer:
 
     def answered(self, round_trip_s: float) -> None:
         """An epoch was answered `round_trip_s` after it was sent (its first send: a re-send does
-        not restart the server's solve, so the epoch's own time is the one to learn)."""
+        not restart the server's solve, so the epoch's own time is the one to learn).
+
+        Re-sent epochs are sampled too, unlike TCP's Karn rule: a fleet whose every epoch takes
+        longer than `resend_s` would otherwise never learn. The price is that an outage (a server
+        restarting) is one long sample, which raises the timeout, at most to `max_s`, until the
+        next quick answers bring it down again."""
         r = max(0.0, round_trip_s)
         if self.srtt_s is None:
             self.srtt_s, self.rttvar_s = r, r / 2.0
