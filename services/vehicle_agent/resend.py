@@ -11,6 +11,12 @@ its timeout follows a smoothed round-trip time and its variation (RFC 6298, Jaco
 this is that estimator over "epoch sent -> first answer". It lives here rather than in a library
 because nothing in the stack exposes one (Zenoh's reliability is per hop, not an application's
 answer), and it is a few lines.
+
+Within one epoch the load generator doubles the wait after each re-send, as TCP backs off
+(RFC 6298, 5.5): a round of its re-sends is one message per unanswered vehicle, hundreds at once,
+so a server that is only slow must not be buried in them. A lone agent re-sends one small message
+per timeout and does not back off: after a server restart its next copy is what lets the new
+server solve the epoch, so a doubled wait would be a doubled gap in the vehicle's solutions.
 """
 
 from __future__ import annotations
