@@ -62,6 +62,7 @@ from coplane.gtime import GpsTime, bdt_to_gpst, gpst_to_bdt
 from coplane.recording.broadcast import nearest_week, resolve_week, today
 from coplane.recording.compressed import read_log_bytes
 from coplane.recording.frames import Frame, Skipped, rtcm_frames
+from coplane.recording.lock_time import LockTimer
 from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems
 from coplane.recording.rinex_obs import (
@@ -130,22 +131,6 @@ def lock_indicator(ms: int) -> int:
     return min(704, 64 + 32 * k + (ms - start) // (2 << k))
 
 
-@dataclass
-class _MsmState:
-    lock_since: dict[str, GpsTime] = field(default_factory=dict)
-    last_seen: dict[str, GpsTime] = field(default_factory=dict)
-    interval: float = math.inf
-
-    def lock_ms(self, sat: str, t: GpsTime, has_phase: bool) -> int:
-        last = self.last_seen.get(sat)
-        if last is not None:
-            self.interval = min(self.interval, max(t - last, 1e-3))
-        if last is None or not has_phase or t - last > 1.5 * self.interval:
-            self.lock_since[sat] = t
-        self.last_seen[sat] = t
-        return round((t - self.lock_since[sat]) * 1000.0)
-
-
 def msm_tag(t: GpsTime) -> tuple[GpsTime, float]:
     """(whole-millisecond tag, d = t - tag in seconds) for an MSM epoch."""
     ms = round(t.tow * 1000.0)
@@ -158,13 +143,13 @@ def msm_frames(
     signals: Mapping[str, SignalCodes],
     station: int = 0,
     msm: int = 7,
-    state: _MsmState | None = None,
+    state: LockTimer | None = None,
 ) -> list[bytes]:
     """One epoch as MSM7 (or MSM4, 5, 6) frames: GPS then BeiDou, the multiple-message bit set on
     all but the last."""
     if msm not in MSM_IDS:
         raise ValueError(f"MSM{msm}: coplane writes MSM4 to MSM7")
-    state = state or _MsmState()
+    state = state or LockTimer()
     tag, shift = msm_tag(ep.time)
     by_sys: dict[str, list[SatObservation]] = {}
     for s in ep.sats:
@@ -189,7 +174,7 @@ def _msm_values(
     shift: float,
     sig: SignalCodes,
     msm: int,
-    state: _MsmState,
+    state: LockTimer,
 ) -> dict[str, int]:
     lam = C_LIGHT / FREQ_HZ[sys]
     tow_ms = round(tag.tow * 1000.0) if sys == "G" else round(gpst_to_bdt(tag)[1] * 1000.0)
@@ -210,7 +195,7 @@ def _msm_values(
         has_cp = math.isfinite(s.carrier_cycles)
         cp_ms = (s.carrier_cycles + shift * dop) * lam / LIGHT_MS if has_cp else math.nan
         cn0 = s.cn0_dbhz
-        lock = state.lock_ms(s.sat, tag, has_cp)
+        lock = state.ms(s.sat, tag, has_cp)
         if msm_extended(msm):
             v["DF405" + k] = round((pr_ms - rough) / _P2_29)
             fine_cp = round((cp_ms - rough) / _P2_31) if has_cp else -(1 << 23)
@@ -251,7 +236,7 @@ def write_rtcm3(
     """Write 1019/1042 for every ephemeris of `nav` (first), then one MSM set per epoch."""
     sig = dict(DEFAULT_SIGNALS if signals is None else signals)
     rep = WriteReport()
-    state = _MsmState()
+    state = LockTimer()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as f:

@@ -33,6 +33,7 @@ from pyubx2 import GET, UBXMessage, UBXReader
 from coplane.gtime import GpsTime
 from coplane.recording.compressed import read_log_bytes
 from coplane.recording.frames import Frame, ubx_frames
+from coplane.recording.lock_time import LockTimer
 from coplane.recording.model import NavData, ObsEpoch, ObsHeader, SatObservation
 from coplane.recording.problems import Problems, RecordingError
 from coplane.recording.rinex_obs import (
@@ -94,32 +95,16 @@ def _sig_ids(sys: str, sig: SignalCodes) -> tuple[int, ...]:
 # Writing
 
 
-class _Lock:
-    """Lock time per satellite: time since it was first seen without a gap of more than 1.5 intervals."""
-
-    def __init__(self) -> None:
-        self._since: dict[str, GpsTime] = {}
-        self._last: dict[str, GpsTime] = {}
-        self._interval = math.inf
-
-    def ms(self, sat: str, t: GpsTime, has_phase: bool) -> int:
-        last = self._last.get(sat)
-        if last is not None:
-            self._interval = min(self._interval, max(t - last, 1e-3))
-        if last is None or not has_phase or t - last > 1.5 * self._interval:
-            self._since[sat] = t
-        self._last[sat] = t
-        return int(min(MAX_LOCKTIME_MS, round((t - self._since[sat]) * 1000.0)))
-
-
-def rawx_message(ep: ObsEpoch, signals: Mapping[str, SignalCodes], lock: _Lock | None = None) -> UBXMessage:
+def rawx_message(
+    ep: ObsEpoch, signals: Mapping[str, SignalCodes], lock: LockTimer | None = None
+) -> UBXMessage:
     """One epoch as RXM-RAWX (satellites of systems without a RAWX signal are an error).
 
     pyubx2 builds the header and each 32-byte measurement block (a one-measurement RAWX each) and
     parses the joined payload: building one message from a few hundred keywords at once costs
     pyubx2 time quadratic in their number (25 ms an epoch; this way about 3 ms).
     """
-    lock = lock or _Lock()
+    lock = lock or LockTimer()
     leap = leap_seconds(ep.time)
     head = {
         "rcvTow": ep.time.tow,
@@ -146,7 +131,7 @@ def rawx_message(ep: ObsEpoch, signals: Mapping[str, SignalCodes], lock: _Lock |
             gnssId_01=GNSS_ID[sys],
             svId_01=int(s.sat[1:]),
             sigId_01=_sig_ids(sys, signals[sys])[0],
-            locktime_01=lock.ms(s.sat, ep.time, has_cp),
+            locktime_01=min(MAX_LOCKTIME_MS, lock.ms(s.sat, ep.time, has_cp)),
             cno_01=cno,
             prStd_01=_PR_STD,
             cpStd_01=_CP_STD,
@@ -168,7 +153,7 @@ def write_ubx(
     """Write one RXM-RAWX per epoch (GPS and BeiDou, the selected signal of each), after the
     ephemerides of `nav` as RXM-SFRBX subframes when given (as a receiver logs them)."""
     sig = dict(DEFAULT_SIGNALS if signals is None else signals)
-    lock = _Lock()
+    lock = LockTimer()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as f:
