@@ -194,6 +194,8 @@ class BaseCorrections:
     position: AnyArray | None
     nav: NavData
     _last: tuple[GpsTime, DgnssCorrections | None] | None = field(default=None, repr=False)
+    # every epoch's corrections once computed (`remembering`), for several runs over one recording
+    _memo: dict[GpsTime, DgnssCorrections | None] | None = field(default=None, repr=False)
 
     @classmethod
     def of(cls, recording: Recording, use_dgnss: bool) -> BaseCorrections:
@@ -203,15 +205,28 @@ class BaseCorrections:
             return cls({}, None, NavData())  # no corrections ever: the ephemerides are not needed
         return cls(base_by_epoch(recording), np.asarray(base.position_ecef_m), recording.nav)
 
+    def remembering(self) -> BaseCorrections:
+        """The same corrections, each epoch's kept once computed: every run of `coplane eval` or
+        the benchmark over one recording asks for every epoch, and computing them (the base's
+        satellites and their SPP residuals) was about a tenth of a method's run once the vehicles'
+        front ends were remembered (`evaluate.front_ends.FrontEndMemo`). Nothing downstream
+        changes a `DgnssCorrections`, so the runs share them."""
+        return BaseCorrections(self.by_t, self.position, self.nav, _memo={})
+
     def at(self, t: GpsTime) -> DgnssCorrections | None:
         """Computed once per epoch (several vehicles ask for the same one in a row)."""
         if self._last is not None and self._last[0] == t:
             return self._last[1]
-        from coplane.gnss.epoch_solver import base_corrections
+        if self._memo is not None and t in self._memo:
+            corr = self._memo[t]
+        else:
+            from coplane.gnss.epoch_solver import base_corrections
 
-        b = self.by_t.get(t)
-        corr = None
-        if b is not None and self.position is not None:
-            corr = base_corrections(b, self.position, self.nav)
+            b = self.by_t.get(t)
+            corr = None
+            if b is not None and self.position is not None:
+                corr = base_corrections(b, self.position, self.nav)
+            if self._memo is not None:
+                self._memo[t] = corr
         self._last = (t, corr)
         return corr

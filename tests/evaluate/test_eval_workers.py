@@ -91,6 +91,26 @@ def test_front_ends_are_remembered_per_setup_and_within_the_bound(rec30: Recordi
     assert small.n_epochs <= kept // 2
 
 
+def test_base_corrections_are_computed_once_for_every_run(
+    rec30: Recording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The base's corrections of an epoch are the same for every method: a memo computes each
+    epoch's once, whatever number of runs ask for it, and its runs keep the same bits."""
+    import coplane.gnss.epoch_solver as epoch_solver
+
+    calls: list[object] = []
+    compute = epoch_solver.base_corrections
+    monkeypatch.setattr(epoch_solver, "base_corrections", lambda *a: calls.append(a) or compute(*a))
+    memo = FrontEndMemo()
+    assert memo.base(rec30, True) is memo.base(rec30, True) is not memo.base(rec30, False)
+    runs = [run_method(rec30, m, jobs=1, front_ends=memo) for m in ("non-cp", "mci", "non-cp")]
+    epochs = len({t for p in runs[0].positions.values() for t in p})
+    assert 0 < len(calls) <= epochs  # once per epoch with a base epoch, not once per run
+    monkeypatch.undo()
+    _same(runs[2], run_method(rec30, "non-cp", jobs=1))
+    _same(runs[1], run_method(rec30, "mci", jobs=1))
+
+
 def test_a_recording_that_is_gone_frees_its_share_of_the_bound(rec30: Recording) -> None:
     memo = FrontEndMemo()
     other = open_recording(rec30.manifest.root)

@@ -24,6 +24,7 @@ from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult
 from coplane.gtime import GpsTime
 from coplane.recording.reader import Recording
+from coplane.replay import BaseCorrections
 from coplane.steps import VehicleStep
 
 # A remembered epoch is about 17 kB (its prepared satellites, SPP and Doppler solutions; tracemalloc
@@ -46,11 +47,22 @@ class FrontEndMemo:
         self.max_epochs = max_epochs
         self._kept: WeakKeyDictionary[Recording, dict[tuple[str, bool, str], dict[GpsTime, EpochResult]]]
         self._kept = WeakKeyDictionary()
+        self._bases: WeakKeyDictionary[Recording, dict[bool, BaseCorrections]] = WeakKeyDictionary()
 
     @property
     def n_epochs(self) -> int:
         """Vehicle-epochs remembered for the recordings still alive."""
         return sum(len(r) for per_rec in list(self._kept.values()) for r in per_rec.values())
+
+    def base(self, rec: Recording, dgnss: bool) -> BaseCorrections:
+        """The base station's corrections of `rec`, one object for every run (each epoch computed
+        once, `BaseCorrections.remembering`): the vehicles' front ends and the node messages of
+        every method need them. A base epoch's corrections are a few dozen floats, so they are
+        not bounded as the front ends are."""
+        per_rec = self._bases.setdefault(rec, {})
+        if dgnss not in per_rec:
+            per_rec[dgnss] = BaseCorrections.of(rec, dgnss).remembering()
+        return per_rec[dgnss]
 
     def fronts(
         self,

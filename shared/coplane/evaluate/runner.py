@@ -134,7 +134,12 @@ def run_method(
         for vid in ids
     }
     run = MethodRun(setup.method.name, interruption)
-    replay = _Replay(schedule, uwb, BaseCorrections.of(rec, setup.use_dgnss))
+    base = (
+        front_ends.base(rec, setup.use_dgnss)
+        if front_ends is not None
+        else BaseCorrections.of(rec, setup.use_dgnss)
+    )
+    replay = _Replay(schedule, uwb, base)
     n_jobs = default_jobs(len(ids)) if jobs is None else jobs
     workers_on = n_jobs > 1 and VehicleWorkers.available()
     # With workers this process runs the fusion step (as the server does on the bus) and a smaller
