@@ -194,8 +194,10 @@ class BaseCorrections:
     position: AnyArray | None
     nav: NavData
     _last: tuple[GpsTime, DgnssCorrections | None] | None = field(default=None, repr=False)
-    # every epoch's corrections once computed (`remembering`), for several runs over one recording
+    # every epoch's corrections once computed (`remembering`), for several runs over one recording,
+    # up to `_memo_max` epochs
     _memo: dict[GpsTime, DgnssCorrections | None] | None = field(default=None, repr=False)
+    _memo_max: int = field(default=0, repr=False)
 
     @classmethod
     def of(cls, recording: Recording, use_dgnss: bool) -> BaseCorrections:
@@ -205,13 +207,19 @@ class BaseCorrections:
             return cls({}, None, NavData())  # no corrections ever: the ephemerides are not needed
         return cls(base_by_epoch(recording), np.asarray(base.position_ecef_m), recording.nav)
 
-    def remembering(self) -> BaseCorrections:
-        """The same corrections, each epoch's kept once computed: every run of `coplane eval` or
-        the benchmark over one recording asks for every epoch, and computing them (the base's
-        satellites and their SPP residuals) was about a tenth of a method's run once the vehicles'
-        front ends were remembered (`evaluate.front_ends.FrontEndMemo`). Nothing downstream
-        changes a `DgnssCorrections`, so the runs share them."""
-        return BaseCorrections(self.by_t, self.position, self.nav, _memo={})
+    def remembering(self, max_epochs: int) -> BaseCorrections:
+        """The same corrections, each epoch's kept once computed, for the first `max_epochs`
+        epochs asked for (about 5 kB each; past them the rest are computed as before): every run
+        of `coplane eval` or the benchmark over one recording asks for every epoch, and computing
+        them (the base's satellites and their SPP residuals) was about a tenth of a method's run
+        once the vehicles' front ends were remembered (`evaluate.front_ends.FrontEndMemo`).
+        Nothing downstream changes a `DgnssCorrections`, so the runs share them."""
+        return BaseCorrections(self.by_t, self.position, self.nav, _memo={}, _memo_max=max_epochs)
+
+    @property
+    def remembered_epochs(self) -> int:
+        """How many epochs' corrections are kept (`remembering`; 0 without)."""
+        return len(self._memo) if self._memo is not None else 0
 
     def at(self, t: GpsTime) -> DgnssCorrections | None:
         """Computed once per epoch (several vehicles ask for the same one in a row)."""
@@ -226,7 +234,7 @@ class BaseCorrections:
             corr = None
             if b is not None and self.position is not None:
                 corr = base_corrections(b, self.position, self.nav)
-            if self._memo is not None:
+            if self._memo is not None and len(self._memo) < self._memo_max:
                 self._memo[t] = corr
         self._last = (t, corr)
         return corr

@@ -106,7 +106,11 @@ def test_base_corrections_are_computed_once_for_every_run(
     runs = [run_method(rec30, m, jobs=1, front_ends=memo) for m in ("non-cp", "mci", "non-cp")]
     epochs = len({t for p in runs[0].positions.values() for t in p})
     assert 0 < len(calls) <= epochs  # once per epoch with a base epoch, not once per run
+    assert memo.base(rec30, True).remembered_epochs == len(calls)
+    small = FrontEndMemo(max_epochs=epochs // 2)
     monkeypatch.undo()
+    _same(runs[0], run_method(rec30, "non-cp", jobs=1, front_ends=small))
+    assert small.base(rec30, True).remembered_epochs == epochs // 2  # the bound holds
     _same(runs[2], run_method(rec30, "non-cp", jobs=1))
     _same(runs[1], run_method(rec30, "mci", jobs=1))
 

@@ -57,11 +57,11 @@ class FrontEndMemo:
     def base(self, rec: Recording, dgnss: bool) -> BaseCorrections:
         """The base station's corrections of `rec`, one object for every run (each epoch computed
         once, `BaseCorrections.remembering`): the vehicles' front ends and the node messages of
-        every method need them. A base epoch's corrections are a few dozen floats, so they are
-        not bounded as the front ends are."""
+        every method need them. At most `max_epochs` epochs per recording and mode are kept
+        (about 5 kB each: 100 MB at the default bound)."""
         per_rec = self._bases.setdefault(rec, {})
         if dgnss not in per_rec:
-            per_rec[dgnss] = BaseCorrections.of(rec, dgnss).remembering()
+            per_rec[dgnss] = BaseCorrections.of(rec, dgnss).remembering(self.max_epochs)
         return per_rec[dgnss]
 
     def fronts(
