@@ -5,6 +5,8 @@ never the fleet's solution, so every method that runs it with the same solver op
 base corrections computes the same bits. `coplane eval` and the benchmark run five to ten methods
 on each recording, and the front end is about a third of a method's run: a `FrontEndMemo` passed
 to each run computes it once. Kept per `Recording` object (weakly: it goes with the recording).
+The base station's corrections, which every run's front ends and node messages ask for epoch by
+epoch, are kept the same way (`FrontEndMemo.base`).
 
 For runs in one process (`jobs=1`): there it takes a quarter to two fifths off a method's run on
 the bundled recording. With vehicle workers the front ends already run beside the fusion step, and
