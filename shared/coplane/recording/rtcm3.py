@@ -143,13 +143,13 @@ def msm_frames(
     signals: Mapping[str, SignalCodes],
     station: int = 0,
     msm: int = 7,
-    state: LockTimer | None = None,
+    lock: LockTimer | None = None,
 ) -> list[bytes]:
     """One epoch as MSM7 (or MSM4, 5, 6) frames: GPS then BeiDou, the multiple-message bit set on
     all but the last."""
     if msm not in MSM_IDS:
         raise ValueError(f"MSM{msm}: coplane writes MSM4 to MSM7")
-    state = state or LockTimer()
+    lock = lock or LockTimer()
     tag, shift = msm_tag(ep.time)
     by_sys: dict[str, list[SatObservation]] = {}
     for s in ep.sats:
@@ -161,7 +161,7 @@ def msm_frames(
     out: list[bytes] = []
     for n, sys in enumerate(systems):
         sats = sorted(by_sys.get(sys, []), key=lambda s: int(s.sat[1:]))
-        v = _msm_values(sys, sats, tag, shift, signals[sys], msm, state)
+        v = _msm_values(sys, sats, tag, shift, signals[sys], msm, lock)
         v |= {"DF003": station, "DF393": 1 if n < len(systems) - 1 else 0}
         out.append(build_frame(MSM_IDS[msm][sys], v))
     return out
@@ -174,7 +174,7 @@ def _msm_values(
     shift: float,
     sig: SignalCodes,
     msm: int,
-    state: LockTimer,
+    locks: LockTimer,
 ) -> dict[str, int]:
     lam = C_LIGHT / FREQ_HZ[sys]
     tow_ms = round(tag.tow * 1000.0) if sys == "G" else round(gpst_to_bdt(tag)[1] * 1000.0)
@@ -195,7 +195,7 @@ def _msm_values(
         has_cp = math.isfinite(s.carrier_cycles)
         cp_ms = (s.carrier_cycles + shift * dop) * lam / LIGHT_MS if has_cp else math.nan
         cn0 = s.cn0_dbhz
-        lock = state.ms(s.sat, tag, has_cp)
+        lock = locks.ms(s.sat, tag, has_cp)
         if msm_extended(msm):
             v["DF405" + k] = round((pr_ms - rough) / _P2_29)
             fine_cp = round((cp_ms - rough) / _P2_31) if has_cp else -(1 << 23)
@@ -236,7 +236,7 @@ def write_rtcm3(
     """Write 1019/1042 for every ephemeris of `nav` (first), then one MSM set per epoch."""
     sig = dict(DEFAULT_SIGNALS if signals is None else signals)
     rep = WriteReport()
-    state = LockTimer()
+    locks = LockTimer()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("wb") as f:
@@ -251,7 +251,7 @@ def write_rtcm3(
                     rep.skipped.append(f"{e.sat} toe {e.toe}: {exc}")
         for ep in epochs:
             try:
-                frames = msm_frames(ep, sig, station, msm, state)
+                frames = msm_frames(ep, sig, station, msm, locks)
             except FieldRangeError as exc:
                 rep.skipped.append(f"epoch {ep.time}: {exc}")
                 continue
