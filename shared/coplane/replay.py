@@ -209,11 +209,12 @@ class BaseCorrections:
 
     def remembering(self, max_epochs: int) -> BaseCorrections:
         """The same corrections, each epoch's kept once computed, for the first `max_epochs`
-        epochs asked for (about 5 kB each; past them the rest are computed as before): every run
-        of `coplane eval` or the benchmark over one recording asks for every epoch, and computing
-        them (the base's satellites and their SPP residuals) was about a tenth of a method's run
-        once the vehicles' front ends were remembered (`evaluate.front_ends.FrontEndMemo`).
-        Nothing downstream changes a `DgnssCorrections`, so the runs share them."""
+        epochs asked for (past them the rest are computed as before). Every run of `coplane eval`
+        or the benchmark over one recording asks for every epoch; once the vehicles' front ends
+        were remembered (`evaluate.front_ends.FrontEndMemo`), computing them (the base's
+        satellites and their SPP residuals) was about a tenth of a method's run, and one epoch's
+        take about 5 kB (one-off py-spy and tracemalloc looks at a simulated dense-urban drive,
+        2026-12-02). Nothing downstream changes a `DgnssCorrections`, so the runs share them."""
         return BaseCorrections(self.by_t, self.position, self.nav, _memo={}, _memo_max=max_epochs)
 
     @property
