@@ -110,7 +110,7 @@ def start_rows(rec: Recording, ref: RtkReference) -> list[str]:
     for t in shown:
         m = msgs.get(t)
         fix = m.spp.position_ecef_m if m is not None else None
-        sats = sum(s.used for s in m.satellites) if m is not None else 0
+        sats = sum(m.satellites.used) if m is not None else 0
         vdop = f"{m.spp.vdop:.1f}" if m is not None and m.spp.vdop is not None else "-"
         cells = " | ".join(h(r.positions[vid].get(t)) for r in runs.values())
         rows.append(

@@ -14,6 +14,7 @@ is several times above them, so 0 genuine messages are rejected.
 
 from __future__ import annotations
 
+import itertools
 import math
 import statistics
 
@@ -67,16 +68,17 @@ def spp_residual_m(msg: NodeMessage) -> float | None:
     same numbers as numpy's): numpy's call overhead made this check cost more than decoding the
     message."""
     p = msg.spp.position_ecef_m
-    used = [s for s in msg.satellites if s.used]
-    if p is None or len(used) < MIN_SATS_FOR_RESIDUAL:
+    s = msg.satellites
+    used = np.array(s.used, dtype=bool)
+    if p is None or int(used.sum()) < MIN_SATS_FOR_RESIDUAL:
         return None
     pos = np.asarray(p, dtype=float)
-    sat = np.array([s.sat_pos_ecef_m for s in used], dtype=float)
-    rho = np.array([s.rho_m + C * s.sat_clock_s for s in used], dtype=float)
+    sat = np.array(s.sat_pos_ecef_m, dtype=float)[used]
+    rho = np.array(s.rho_m, dtype=float)[used] + C * np.array(s.sat_clock_s, dtype=float)[used]
     res = (rho - row_norms(sat - pos)).tolist()
     by_system: dict[str, list[float]] = {}
-    for s, r in zip(used, res, strict=True):
-        by_system.setdefault(s.sat[0], []).append(r)
+    for sat_id, r in zip(itertools.compress(s.sat, s.used), res, strict=True):
+        by_system.setdefault(sat_id[0], []).append(r)
     clock_free: list[float] = []
     for values in by_system.values():
         m = statistics.median(values)

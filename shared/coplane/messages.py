@@ -13,7 +13,8 @@ another and share their bounds.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from collections.abc import Mapping, Sequence
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -35,7 +36,7 @@ from coplane.estimation.limits import (
 from coplane.ids import VEHICLE_ID_PATTERN
 from coplane.typing import Pace
 
-NODE_SCHEMA = "coplane.node/1"
+NODE_SCHEMA = "coplane.node/2"
 SOLUTION_SCHEMA = "coplane.solution/1"
 DIAGNOSTICS_SCHEMA = "coplane.diagnostics/1"
 
@@ -68,30 +69,117 @@ def _check_ecef(v: tuple[float, float, float], what: str, bounds: tuple[float, f
         raise ValueError(f"{what} is {r:.0f} m from the Earth's centre (expected {lo:.0f}..{hi:.0f})")
 
 
+# One satellite's values and their bounds, shared by the row (`SatelliteReport`) and the wire's
+# columns (`SatelliteColumns`), so that both check every value alike
+PseudorangeM = Annotated[float, Field(ge=PSEUDORANGE_M[0], le=PSEUDORANGE_M[1])]
+DopplerHz = Annotated[float, Field(ge=-1e5, le=1e5)]
+Cn0DbHz = Annotated[float, Field(ge=0.0, le=70.0)]
+ElevationDeg = Annotated[float, Field(ge=-90.0, le=90.0)]
+AzimuthDeg = Annotated[float, Field(ge=0.0, le=360.0)]
+SatClockS = Annotated[float, Field(ge=-MAX_SAT_CLOCK_S, le=MAX_SAT_CLOCK_S)]
+TgdM = Annotated[float, Field(ge=-100.0, le=100.0)]
+IonoM = Annotated[float, Field(ge=-100.0, le=200.0)]
+TropoM = Annotated[float, Field(ge=0.0, le=100.0)]
+DgnssM = Annotated[float, Field(ge=-500.0, le=500.0)]
+SigmaM = Annotated[float, Field(gt=0.0, le=MAX_SIGMA_M)]
+Reason = Annotated[str, Field(max_length=200)]
+
+
 class SatelliteReport(_Model):
-    """One tracked satellite: raw measurements, the states and corrections used, the factor input."""
+    """One tracked satellite: raw measurements, the states and corrections used, the factor input.
+
+    A row of `SatelliteColumns` (`SatelliteColumns.rows()`): what a reader of one satellite, a
+    test or a log line wants; the wire carries the columns."""
 
     sat: SatId
-    pseudorange_m: float = Field(ge=PSEUDORANGE_M[0], le=PSEUDORANGE_M[1])
-    doppler_hz: float | None = Field(default=None, ge=-1e5, le=1e5)
-    cn0_dbhz: float | None = Field(default=None, ge=0.0, le=70.0)
-    elevation_deg: float = Field(ge=-90.0, le=90.0)
-    azimuth_deg: float = Field(ge=0.0, le=360.0)
+    pseudorange_m: PseudorangeM
+    doppler_hz: DopplerHz | None = None
+    cn0_dbhz: Cn0DbHz | None = None
+    elevation_deg: ElevationDeg
+    azimuth_deg: AzimuthDeg
     sat_pos_ecef_m: Ecef  # in the ECEF frame at reception (Sagnac applied)
-    sat_clock_s: float = Field(ge=-MAX_SAT_CLOCK_S, le=MAX_SAT_CLOCK_S)
-    tgd_m: float = Field(ge=-100.0, le=100.0)
-    iono_m: float = Field(ge=-100.0, le=200.0)
-    tropo_m: float = Field(ge=0.0, le=100.0)
-    dgnss_m: float | None = Field(default=None, ge=-500.0, le=500.0)
-    rho_m: float = Field(ge=PSEUDORANGE_M[0], le=PSEUDORANGE_M[1])  # corrected, fed to the factor
-    sigma_m: float = Field(gt=0.0, le=MAX_SIGMA_M)
+    sat_clock_s: SatClockS
+    tgd_m: TgdM
+    iono_m: IonoM
+    tropo_m: TropoM
+    dgnss_m: DgnssM | None = None
+    rho_m: PseudorangeM  # corrected, fed to the factor
+    sigma_m: SigmaM
     used: bool = True  # False: excluded by the vehicle's RAIM
-    excluded_reason: str | None = Field(default=None, max_length=200)
+    excluded_reason: Reason | None = None
 
     @model_validator(mode="after")
     def _sat_far_away(self) -> SatelliteReport:
         _check_ecef(self.sat_pos_ecef_m, f"satellite {self.sat} position", SAT_RADIUS_M)
         return self
+
+
+def _column() -> Any:
+    """A column of `SatelliteColumns`: one value per satellite of the message."""
+    return Field(default_factory=list, max_length=MAX_SATELLITES)
+
+
+class SatelliteColumns(_Model):
+    """A node message's satellites, one list per `SatelliteReport` field, index i = satellite i.
+
+    Why columns, not an object per satellite: a fusion server decodes every vehicle's message
+    every epoch, and pydantic-core validates a list of numbers under one bound without making a
+    model per satellite; the server's self-check and the estimator then take arrays straight
+    from the lists. Measured (docs/performance-scale.md, "Node messages as columns"): decoding,
+    the SPP self-check and the estimator's columns cost about a tenth of the estimator's step
+    less, and the message is a third smaller. Every value keeps its row's bound; the lists must
+    have one value per satellite, the satellites must be unique and each orbit radius plausible."""
+
+    sat: list[SatId] = _column()
+    pseudorange_m: list[PseudorangeM] = _column()
+    doppler_hz: list[DopplerHz | None] = _column()
+    cn0_dbhz: list[Cn0DbHz | None] = _column()
+    elevation_deg: list[ElevationDeg] = _column()
+    azimuth_deg: list[AzimuthDeg] = _column()
+    sat_pos_ecef_m: list[Ecef] = _column()
+    sat_clock_s: list[SatClockS] = _column()
+    tgd_m: list[TgdM] = _column()
+    iono_m: list[IonoM] = _column()
+    tropo_m: list[TropoM] = _column()
+    dgnss_m: list[DgnssM | None] = _column()
+    rho_m: list[PseudorangeM] = _column()
+    sigma_m: list[SigmaM] = _column()
+    used: list[bool] = _column()
+    excluded_reason: list[Reason | None] = _column()
+
+    @model_validator(mode="after")
+    def _one_value_per_satellite(self) -> SatelliteColumns:
+        n = len(self.sat)
+        for name in type(self).model_fields:
+            if len(getattr(self, name)) != n:
+                got = len(getattr(self, name))
+                raise ValueError(f"satellite column {name} has {got} values, column sat has {n}")
+        if len(set(self.sat)) != n:
+            raise ValueError("duplicate satellite in one node message")
+        for sat, pos in zip(self.sat, self.sat_pos_ecef_m, strict=True):
+            _check_ecef(pos, f"satellite {sat} position", SAT_RADIUS_M)
+        return self
+
+    def __len__(self) -> int:
+        return len(self.sat)
+
+    @classmethod
+    def from_rows(cls, rows: Sequence[SatelliteReport | Mapping[str, Any]]) -> SatelliteColumns:
+        """The columns of satellites given one by one (reports, or dicts of their fields)."""
+        dicts = [r.model_dump() if isinstance(r, SatelliteReport) else r for r in rows]
+        defaults = {
+            n: f.get_default() for n, f in SatelliteReport.model_fields.items() if not f.is_required()
+        }
+        return cls.model_validate({n: [d.get(n, defaults.get(n)) for d in dicts] for n in cls.model_fields})
+
+    def rows(self) -> list[SatelliteReport]:
+        """One `SatelliteReport` per satellite (validated again: for readers of one satellite, not
+        for a per-epoch path)."""
+        names = list(type(self).model_fields)
+        return [
+            SatelliteReport.model_validate(dict(zip(names, vals, strict=True)))
+            for vals in zip(*(getattr(self, n) for n in names), strict=True)
+        ]
 
 
 class SppReport(_Model):
@@ -189,7 +277,8 @@ class RangeReport(_Model):
 class NodeMessage(_Model):
     """What one vehicle sends the fusion server for one epoch (paper Fig. 2, "node message")."""
 
-    schema_: Literal["coplane.node/1"] = Field(default="coplane.node/1", alias="schema")
+    # /2: the satellites as columns (`SatelliteColumns`); /1 had an object per satellite
+    schema_: Literal["coplane.node/2"] = Field(default="coplane.node/2", alias="schema")
     fleet: VehicleId
     vehicle_id: VehicleId
     seq: int = Field(ge=0)
@@ -198,7 +287,7 @@ class NodeMessage(_Model):
     antenna_height_m: float = Field(ge=0.0, le=MAX_ANTENNA_HEIGHT_M)
     spp: SppReport
     velocity: VelocityReport | None = None
-    satellites: list[SatelliteReport] = Field(default_factory=list, max_length=MAX_SATELLITES)
+    satellites: SatelliteColumns = Field(default_factory=SatelliteColumns)
     plane: PlaneReport | None = None
     ranges: list[RangeReport] = Field(default_factory=list, max_length=MAX_RANGES)
     sent_unix_s: float | None = Field(
@@ -209,9 +298,6 @@ class NodeMessage(_Model):
 
     @model_validator(mode="after")
     def _unique(self) -> NodeMessage:
-        sats = [s.sat for s in self.satellites]
-        if len(set(sats)) != len(sats):
-            raise ValueError("duplicate satellite in one node message")
         peers = [r.to for r in self.ranges]
         if len(set(peers)) != len(peers) or self.vehicle_id in peers:
             raise ValueError("ranges must name each peer once and not the vehicle itself")

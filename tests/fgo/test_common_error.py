@@ -21,7 +21,7 @@ from coplane.steps.wire import pseudorange_columns
 from tests.fgo.test_screen import RX, _epoch
 from tests.steps.test_pseudorange_columns import columns
 from tests.support.fgo_synthetic import make_fleet, run
-from tests.support.wire_payloads import node, sat
+from tests.support.wire_payloads import node, sat, satellites
 
 
 def test_the_model_per_satellite() -> None:
@@ -41,7 +41,9 @@ def test_the_model_per_satellite() -> None:
 def test_the_wire_builds_it_from_each_satellite_s_mode() -> None:
     """A satellite without a DGNSS correction gets the broadcast atmosphere's residual (from its
     own iono delay and elevation); one with a correction has none."""
-    msg = NodeMessage.model_validate(node(satellites=[sat(), sat(sat="G07", dgnss_m=3.0, iono_m=0.0)]))
+    msg = NodeMessage.model_validate(
+        node(satellites=satellites(sat(), sat(sat="G07", dgnss_m=3.0, iono_m=0.0)))
+    )
     c = pseudorange_columns(msg)
     assert c.common_sigma_m is not None
     el = math.radians(35.0)

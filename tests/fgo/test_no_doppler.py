@@ -23,7 +23,7 @@ from coplane.geo import up_vector
 from coplane.messages import NodeMessage
 from coplane.methods import get_method
 from coplane.steps.wire import doppler_observed
-from tests.support.wire_payloads import node, sat
+from tests.support.wire_payloads import node, sat, satellites
 
 
 def test_the_node_message_says_whether_the_receiver_gave_doppler() -> None:
@@ -31,9 +31,9 @@ def test_the_node_message_says_whether_the_receiver_gave_doppler() -> None:
     receiver with Doppler; satellites without any is one without; no satellite says nothing."""
     assert doppler_observed(NodeMessage.model_validate(node())) is True
     assert doppler_observed(NodeMessage.model_validate(node(velocity=None))) is True
-    none = [sat(doppler_hz=None), sat(sat="C14", doppler_hz=None)]
+    none = satellites(sat(doppler_hz=None), sat(sat="C14", doppler_hz=None))
     assert doppler_observed(NodeMessage.model_validate(node(velocity=None, satellites=none))) is False
-    assert doppler_observed(NodeMessage.model_validate(node(velocity=None, satellites=[]))) is None
+    assert doppler_observed(NodeMessage.model_validate(node(velocity=None, satellites=satellites()))) is None
 
 
 def _inputs(fleet: SyntheticFleet, observed: Any) -> list[EpochInput]:

@@ -34,7 +34,7 @@ from coplane.fusion_server.plausibility import (
 from coplane.fusion_server.server import FusionServer
 from coplane.fusion_server.settings import FusionSettings
 from coplane.gtime import GpsTime
-from coplane.messages import NodeMessage, PlaneReport, SolutionMessage, SppReport
+from coplane.messages import NodeMessage, PlaneReport, SatelliteColumns, SolutionMessage, SppReport
 from coplane.recording.reader import open_recording
 from coplane.sim import ensure_default_recording
 from coplane.sim.generate import simulate
@@ -383,7 +383,9 @@ def test_twenty_thousand_epochs_keep_pending_bounded(bundled: Genuine) -> None:
     """20,000 distinct on-grid epochs from one vehicle (consistent seqs, no rate limit): pending
     never grows past its bound, reported in the diagnostics; the genuine fleet goes on."""
     s = _server(bundled, rate_limit_burst=1e9)
-    lean = bundled.epochs[0]["u4"].model_copy(update={"satellites": [], "plane": None, "ranges": []})
+    lean = bundled.epochs[0]["u4"].model_copy(
+        update={"satellites": SatelliteColumns(), "plane": None, "ranges": []}
+    )
     t0 = gps_time(lean.epoch)
     limit = s.admission.config.pending_limit
     assert limit == 30 + HISTORY_DEPTH + 16

@@ -13,11 +13,11 @@ import numpy as np
 
 from coplane.estimation.contract import EpochInput, PseudorangeColumns, PseudorangeObs
 from coplane.estimation.validate import _valid_pseudoranges, validate_epoch
-from coplane.messages import NodeMessage
+from coplane.messages import NodeMessage, SatelliteColumns
 from coplane.methods import get_method
 from coplane.steps.wire import pseudorange_columns
 from tests.support.fgo_synthetic import make_fleet, run
-from tests.support.wire_payloads import SAT, node, sat
+from tests.support.wire_payloads import SAT, node, sat, satellites
 
 
 def columns(prs: Sequence[PseudorangeObs]) -> PseudorangeColumns:
@@ -82,19 +82,19 @@ def test_bad_columns_are_counted_not_raised() -> None:
 
 def test_columns_from_a_node_message() -> None:
     """The used satellites in the message's order; elevation in radians; no C/N0 is NaN."""
-    satellites = [
+    rows = satellites(
         sat(),
         sat(sat="E11", used=False),
         sat(sat="C14", elevation_deg=60.0, rho_m=3.8e7, cn0_dbhz=None),
-    ]
-    msg = NodeMessage.model_validate(node(satellites=satellites))
+    )
+    msg = NodeMessage.model_validate(node(satellites=rows))
     c = pseudorange_columns(msg)
     assert c.sats == ("G05", "C14")
     assert c.sat_pos_m.shape == (2, 3) and np.array_equal(c.sat_pos_m[1], SAT)
     assert np.array_equal(c.rho_m, [2.2e7 - 7.0, 3.8e7])
     assert c.elevation_rad.tolist() == [math.radians(35.0), math.radians(60.0)]
     assert c.cn0_dbhz[0] == 42.0 and math.isnan(c.cn0_dbhz[1])
-    empty = pseudorange_columns(msg.model_copy(update={"satellites": []}))
+    empty = pseudorange_columns(msg.model_copy(update={"satellites": SatelliteColumns()}))
     assert len(empty) == 0 and empty.sat_pos_m.shape == (0, 3)
 
 

@@ -23,7 +23,15 @@ from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import enu_to_ecef
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gtime import GpsTime
-from coplane.messages import EpochTime, NodeMessage, PlaneReport, RangeReport, SolutionMessage, VehicleState
+from coplane.messages import (
+    EpochTime,
+    NodeMessage,
+    PlaneReport,
+    RangeReport,
+    SatelliteColumns,
+    SolutionMessage,
+    VehicleState,
+)
 from coplane.methods import MethodSpec, get_method, interrupt_range
 from coplane.plane.config import PlaneConfig
 from coplane.plane.detect import construct_plane
@@ -149,7 +157,7 @@ def test_satellites_used_and_excluded_reasons(run: Run) -> None:
         for m in msgs.values():
             assert m.satellites, m.vehicle_id
             excluded = set(m.spp.excluded)
-            for s in m.satellites:
+            for s in m.satellites.rows():
                 assert s.used == (s.excluded_reason is None)
                 if s.excluded_reason is not None:
                     assert s.excluded_reason in REASONS
@@ -162,7 +170,7 @@ def test_satellites_used_and_excluded_reasons(run: Run) -> None:
                     assert s.sat not in excluded
                 if s.used:
                     assert s.elevation_deg >= 10.0
-            assert len({s.sat for s in m.satellites}) == len(m.satellites)
+            assert len(set(m.satellites.sat)) == len(m.satellites)
     assert {"excluded by RAIM", "below elevation mask"} <= seen  # the first epochs exercise both
 
 
@@ -172,7 +180,7 @@ def test_dgnss_satellites_carry_the_correction(run: Run) -> None:
         corr = run.corrections[k]
         assert corr is not None
         for m in msgs.values():
-            for s in m.satellites:
+            for s in m.satellites.rows():
                 assert s.dgnss_m == corr.corrections_m[s.sat]
                 assert s.rho_m == s.pseudorange_m - s.dgnss_m
                 assert s.iono_m == 0.0 and s.tropo_m == 0.0
@@ -185,7 +193,7 @@ def test_standalone_satellites_carry_the_models(rec: Recording) -> None:
     ep = rec.vehicle_epochs("u1")[0]
     m = _vehicle(rec, "u1", "non-cp").process(ep.time.round_to(1.0), ep)
     assert m.satellites
-    for s in m.satellites:
+    for s in m.satellites.rows():
         assert s.dgnss_m is None
         assert s.rho_m == s.pseudorange_m - s.tgd_m - s.iono_m - s.tropo_m
         if s.excluded_reason == "below elevation mask":
@@ -245,7 +253,7 @@ def test_missing_receiver_epoch(rec: Recording) -> None:
     m = _vehicle(rec, "u1", "pc").process(t, None)
     assert m.rx_time == m.epoch == epoch_time(t)
     assert not m.spp.ok and m.spp.reason
-    assert m.velocity is None and m.satellites == []
+    assert m.velocity is None and len(m.satellites) == 0
     assert m.plane is not None and m.plane.status == "unavailable"
     assert m.plane.reason == "no position to centre the fitting region"
 
@@ -338,7 +346,7 @@ def test_ingest_without_planes_keeps_no_history(run: Run) -> None:
     m = followed.process(run.times[1], few, run.corrections[1])
     assert not m.spp.ok and len(m.satellites) == 3
     m_alone = alone.process(run.times[1], few, run.corrections[1])
-    assert not m_alone.spp.ok and m_alone.satellites == []
+    assert not m_alone.spp.ok and len(m_alone.satellites) == 0
 
 
 def test_ingest_uses_fused_position_without_fix(run: Run) -> None:
@@ -400,7 +408,7 @@ def test_inputs_keep_only_used_satellites(run: Run) -> None:
     ep = f.inputs(run.times[k], run.messages[k])
     assert sorted(ep.vehicles) == list(IDS) and ep.time == run.times[k]
     for vid, m in run.messages[k].items():
-        used = [s for s in m.satellites if s.used]
+        used = [s for s in m.satellites.rows() if s.used]
         assert len(used) < len(m.satellites)  # some are excluded at this epoch
         prs = ep.vehicles[vid].pseudoranges
         assert isinstance(prs, PseudorangeColumns)  # the server's form: columns, not an object each
@@ -442,11 +450,13 @@ def test_inputs_without_fix_or_cn0(run: Run) -> None:
     """A vehicle without an SPP fix has no initial position; a satellite without C/N0 gets NaN."""
     f, _ = _fusion()
     m = run.messages[1]["u1"]
-    i = next(i for i, s in enumerate(m.satellites) if s.used)
-    sats = list(m.satellites)
+    i = m.satellites.used.index(True)
+    sats = m.satellites.rows()
     sats[i] = sats[i].model_copy(update={"cn0_dbhz": None})
     spp = m.spp.model_copy(update={"ok": False, "position_ecef_m": None})
-    bad = m.model_copy(update={"spp": spp, "satellites": sats, "velocity": None, "plane": None})
+    bad = m.model_copy(
+        update={"spp": spp, "satellites": SatelliteColumns.from_rows(sats), "velocity": None, "plane": None}
+    )
     v = f.inputs(run.times[1], {"u1": bad}).vehicles["u1"]
     assert v.spp_position is None and v.velocity is None and v.clock_drift_mps is None and v.plane is None
     prs = v.pseudoranges
@@ -534,7 +544,7 @@ def test_solve_wraps_estimates(run: Run) -> None:
         m = msgs[v.vehicle_id]
         assert v.position_ecef_m == m.spp.position_ecef_m
         assert v.antenna_height_m == m.antenna_height_m
-        assert v.n_satellites == sum(1 for s in m.satellites if s.used) == v.n_pseudoranges
+        assert v.n_satellites == sum(m.satellites.used) == v.n_pseudoranges
         assert v.spp_ok == m.spp.ok and v.clocks_s == {"G": 1e-7}
         assert m.plane is not None and v.plane_status == m.plane.status
         assert v.plane == plane_summary(m.plane)

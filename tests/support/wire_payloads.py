@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from coplane.messages import SatelliteReport
+
 RX = (-2169358.0, 4387164.0, 4076272.0)  # a receiver on the ground (about 6.37e6 m from the centre)
 SAT = (-1.2e7, 1.5e7, 1.8e7)  # a GNSS satellite (about 2.63e7 m)
 
@@ -25,6 +27,13 @@ def sat(**kw: Any) -> dict[str, Any]:
         "rho_m": 2.2e7 - 7.0,
         "sigma_m": 1.5,
     } | kw
+
+
+def satellites(*rows: dict[str, Any]) -> dict[str, list[Any]]:
+    """A node message's satellites as the wire carries them (`SatelliteColumns`): one list per
+    field, from rows such as `sat()` (fields a row leaves out take `SatelliteReport`'s default)."""
+    fields = SatelliteReport.model_fields
+    return {n: [r[n] if n in r else fields[n].get_default() for r in rows] for n in fields}
 
 
 def spp(**kw: Any) -> dict[str, Any]:
@@ -59,7 +68,7 @@ def node(**kw: Any) -> dict[str, Any]:
             "clock_drift_mps": 50.0,
             "n_used": 8,
         },
-        "satellites": [sat(), sat(sat="C14")],
+        "satellites": satellites(sat(), sat(sat="C14")),
         "plane": plane(),
         "ranges": [{"to": "u2", "range_m": 12.5, "sigma_m": 0.3}],
     } | kw

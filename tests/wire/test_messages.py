@@ -28,6 +28,7 @@ from coplane.messages import (
     PlaneReport,
     PlaneSummary,
     RangeReport,
+    SatelliteColumns,
     SatelliteReport,
     SolutionMessage,
     SppReport,
@@ -35,7 +36,7 @@ from coplane.messages import (
     VehicleState,
     VelocityReport,
 )
-from tests.support.wire_payloads import node, plane, sat, solution, spp, state
+from tests.support.wire_payloads import node, plane, sat, satellites, solution, spp, state
 
 JUST = 1.0 + 1e-9  # relative step just outside a bound
 
@@ -135,6 +136,34 @@ def test_satellite_radius_outside_rejected(r: float) -> None:
         sat(sat="C14", sat_pos_ecef_m=along_x(r)),
         r"satellite C14 position is \d+ m from the Earth's centre \(expected 10000000\.\.50000000\)",
     )
+
+
+def test_satellite_columns_keep_every_row_rule() -> None:
+    """The wire's columns check each value as its row would, naming the column and the satellite's
+    index; a satellite in the wrong orbit is named; the rows come back as they went in."""
+    rows = [sat(), sat(sat="C14", doppler_hz=None, used=False, excluded_reason="excluded by RAIM")]
+    cols = SatelliteColumns.model_validate(satellites(*rows))
+    assert len(cols) == 2 and cols.sat == ["G05", "C14"] and cols.used == [True, False]
+    assert [r.model_dump(exclude_defaults=True) for r in cols.rows()] == [
+        SatelliteReport.model_validate(r).model_dump(exclude_defaults=True) for r in rows
+    ]
+    assert SatelliteColumns.from_rows(cols.rows()) == cols == SatelliteColumns.from_rows(rows)
+    bad = satellites(*rows)
+    bad["sigma_m"][1] = -1.0
+    rejects(NodeMessage, node(satellites=bad), r"satellites\.sigma_m\.1")
+    far = satellites(sat(), sat(sat="C14", sat_pos_ecef_m=along_x(6.4e6)))
+    rejects(NodeMessage, node(satellites=far), r"satellite C14 position is \d+ m from the Earth's centre")
+
+
+@pytest.mark.parametrize("column", list(SatelliteReport.model_fields))
+def test_satellite_columns_of_another_length_rejected(column: str) -> None:
+    """Every column has one value per satellite: one short or long column is refused, by name."""
+    for cut in (-1, 1):
+        bad = satellites(sat(), sat(sat="C14"))
+        bad[column] = bad[column][:cut] if cut < 0 else [*bad[column], bad[column][0]]
+        # the odd column is named; when that is `sat` itself, the first column that disagrees with it
+        named = "column sat has" if column == "sat" else f"satellite column {column} has"
+        rejects(NodeMessage, node(satellites=bad), named)
 
 
 @pytest.mark.parametrize("field", ["pseudorange_m", "rho_m"])
@@ -348,7 +377,9 @@ def test_range_bounds() -> None:
 def test_duplicate_satellite_rejected() -> None:
     """The same satellite twice in one node message is rejected."""
     rejects(
-        NodeMessage, node(satellites=[sat(), sat(rho_m=2.3e7)]), "duplicate satellite in one node message"
+        NodeMessage,
+        node(satellites=satellites(sat(), sat(rho_m=2.3e7))),
+        "duplicate satellite in one node message",
     )
 
 
@@ -363,8 +394,8 @@ def test_duplicate_peer_and_self_range_rejected() -> None:
 def test_node_list_lengths() -> None:
     """At most MAX_SATELLITES satellites and MAX_RANGES ranges in one node message."""
     sats = [sat(sat=f"{s}{n:02d}") for s in "GCE" for n in range(1, 23)][: MAX_SATELLITES + 1]
-    NodeMessage.model_validate(node(satellites=sats[:MAX_SATELLITES]))
-    rejects(NodeMessage, node(satellites=sats), "satellites")
+    NodeMessage.model_validate(node(satellites=satellites(*sats[:MAX_SATELLITES])))
+    rejects(NodeMessage, node(satellites=satellites(*sats)), "satellites")
     ranges = [{"to": f"p{i}", "range_m": 10.0, "sigma_m": 0.3} for i in range(MAX_RANGES + 1)]
     NodeMessage.model_validate(node(ranges=ranges[:MAX_RANGES]))
     rejects(NodeMessage, node(ranges=ranges), "ranges")
@@ -388,10 +419,11 @@ def test_node_scalar_bounds() -> None:
 def test_schema_tag() -> None:
     """The schema tag defaults, is written as `schema`, and another version is rejected."""
     m = NodeMessage.model_validate(node())
-    assert json.loads(m.model_dump_json(by_alias=True))["schema"] == "coplane.node/1"
-    NodeMessage.model_validate({**node(), "schema": "coplane.node/1"})
-    rejects(NodeMessage, {**node(), "schema": "coplane.node/2"}, "schema")
-    rejects(SolutionMessage, {**solution(), "schema": "coplane.node/1"}, "schema")
+    assert json.loads(m.model_dump_json(by_alias=True))["schema"] == "coplane.node/2"
+    NodeMessage.model_validate({**node(), "schema": "coplane.node/2"})
+    # /1 carried an object per satellite: a sender of the old schema is refused, not misread
+    rejects(NodeMessage, {**node(), "schema": "coplane.node/1"}, "schema")
+    rejects(SolutionMessage, {**solution(), "schema": "coplane.node/2"}, "schema")
 
 
 # -- model-wide rules ---------------------------------------------------------------------------
@@ -418,7 +450,7 @@ def test_extra_fields_forbidden(model: type[BaseModel], data: dict[str, Any]) ->
 
 def test_nested_extra_field_forbidden() -> None:
     """An unknown field inside a nested model (a satellite of a node message) is refused too."""
-    rejects(NodeMessage, node(satellites=[{**sat(), "snr": 40}]), "snr")
+    rejects(NodeMessage, node(satellites={**satellites(sat()), "snr": [40]}), "snr")
 
 
 def test_models_are_frozen() -> None:
@@ -447,7 +479,7 @@ def test_non_finite_json_tokens_rejected() -> None:
     """A JSON payload with NaN or Infinity tokens is rejected on the JSON path too."""
     raw = NodeMessage.model_validate(node()).model_dump_json(by_alias=True)
     for token in ("NaN", "Infinity", "-Infinity"):
-        bad = raw.replace('"tgd_m":1.2', f'"tgd_m":{token}', 1)
+        bad = raw.replace('"tgd_m":[1.2', f'"tgd_m":[{token}', 1)
         assert bad != raw
         with pytest.raises(ValidationError):
             NodeMessage.model_validate_json(bad)
@@ -460,9 +492,9 @@ def test_json_round_trip_is_exact() -> None:
         node(
             antenna_height_m=1.0 / 3.0,
             spp=spp(covariance_m2=[*awkward, 1e-300, -0.0, 5e-324, 123456789.12345679]),
-            satellites=[
+            satellites=satellites(
                 sat(rho_m=22222222.222222224, sigma_m=0.1 + 0.2, sat_pos_ecef_m=(-1.2e7 / 7, 1.5e7, 1.8e7))
-            ],
+            ),
             sent_unix_s=1.7e9 + 1.0 / 3.0,
         )
     )
@@ -563,7 +595,7 @@ def _validated(sat_kw: dict[str, Any], spp_kw: dict[str, Any], range_m: float) -
 
     r = {"to": "u2", "range_m": range_m, "sigma_m": 0.3}
     m1 = NodeMessage.model_validate(
-        node(satellites=[sat(**sat_kw)], spp=spp(**spp_kw), ranges=[r], plane=None)
+        node(satellites=satellites(sat(**sat_kw)), spp=spp(**spp_kw), ranges=[r], plane=None)
     )
     m2 = NodeMessage.model_validate(node(vehicle_id="u2", ranges=[], plane=None))
     fusion = FusionStep("fleet-1", get_method("non-cp-ekf"))

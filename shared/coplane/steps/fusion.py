@@ -188,7 +188,7 @@ class FusionStep:
                     plane_status=msg.plane.status if msg.plane is not None else None,
                     plane=plane_summary(msg.plane),
                     has_gnss_fix=est.has_gnss_fix,
-                    n_satellites=sum(1 for s in msg.satellites if s.used),
+                    n_satellites=sum(msg.satellites.used),
                     spp_ok=msg.spp.ok,
                     dgnss_age_s=msg.spp.dgnss_age_s,
                     excluded_satellites=list(est.excluded_satellites),

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pydantic import TypeAdapter
 
 from coplane.estimation.limits import MAX_SPEED_MPS
 from coplane.geo import up_vector
@@ -29,7 +28,7 @@ from coplane.messages import (
     PlaneReport,
     PlaneSourceName,
     RangeReport,
-    SatelliteReport,
+    SatelliteColumns,
     SolutionMessage,
     SppReport,
     VehicleState,
@@ -51,10 +50,6 @@ from coplane.steps.wire import (
     tuple3,
 )
 from coplane.typing import AnyArray as Vec
-
-# An epoch's satellite reports are validated as one list: a model per satellite, each through its
-# own constructor call, cost nearly twice as much (issue 16, Agent cost).
-_SATELLITE_REPORTS = TypeAdapter(list[SatelliteReport])
 
 if TYPE_CHECKING:
     from coplane.roadmap import RoadMap
@@ -226,10 +221,11 @@ class VehicleStep:
 
     def _satellites(
         self, res: EpochResult, approx: Vec | None, corrections: DgnssCorrections | None
-    ) -> list[SatelliteReport]:
-        """Per-satellite factor inputs, modelled at the best position the vehicle has."""
+    ) -> SatelliteColumns:
+        """Per-satellite factor inputs, modelled at the best position the vehicle has, as the
+        wire's columns (validated once for the epoch)."""
         if approx is None:
-            return []  # no position at all yet: elevation, Sagnac and atmosphere are unknown
+            return SatelliteColumns()  # no position yet: elevation, Sagnac and atmosphere unknown
         prepared = res.prepared
         # the whole epoch's view and delays at `approx`: at SPP's, the ones it ended with (cached)
         view = sky_view(prepared.sat_pos, approx)
@@ -239,7 +235,7 @@ class VehicleStep:
             sel = np.ones(len(prepared.sats), dtype=bool)
         sats = [m for m, k in zip(prepared.sats, sel.tolist(), strict=True) if k]
         if not sats:
-            return []
+            return SatelliteColumns()
         systems = [m.system for m in sats]
         el_rad, az_rad = view.el_rad[sel], view.az_rad[sel]
         sat_rx = view.receive_frame_positions(prepared.sat_pos)[sel]
@@ -304,7 +300,7 @@ class VehicleStep:
                     excluded_reason=reason,
                 )
             )
-        return _SATELLITE_REPORTS.validate_python(out)  # one validation for the epoch's list
+        return SatelliteColumns.from_rows(out)  # one validation for the epoch's columns
 
     def _plane(self, t: GpsTime, centre: Vec | None) -> PlaneReport:
         if centre is None:

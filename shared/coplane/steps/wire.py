@@ -6,6 +6,7 @@ vectors, covariances, planes) in one place so both steps and the evaluator conve
 
 from __future__ import annotations
 
+import itertools
 import math
 import zlib
 from typing import TYPE_CHECKING
@@ -143,34 +144,24 @@ def doppler_observed(m: NodeMessage) -> bool | None:
         return True
     if not m.satellites:
         return None
-    return any(s.doppler_hz is not None for s in m.satellites)
+    return any(d is not None for d in m.satellites.doppler_hz)
 
 
 def pseudorange_columns(m: NodeMessage) -> PseudorangeColumns:
-    """The pseudoranges a node message marks used, as the estimator's columns: one pass over the
-    satellites and one array per kind of value, not an object per satellite (the fusion server
-    does this for every vehicle of every epoch)."""
-    used = [s for s in m.satellites if s.used]
-    n = len(used)
-    num = np.array(
-        [
-            (
-                s.rho_m,
-                s.sat_clock_s,
-                s.sigma_m,
-                s.elevation_deg,
-                math.nan if s.cn0_dbhz is None else s.cn0_dbhz,
-                s.iono_m,
-                s.dgnss_m is not None,
-            )
-            for s in used
-        ],
-        dtype=float,
-    ).reshape(n, 7)
+    """The pseudoranges a node message marks used, as the estimator's columns: arrays straight
+    from the message's own columns (the fusion server does this for every vehicle of every epoch).
+    The numbers go through one (n, 7) array, the layout the estimator has always been given."""
+    s = m.satellites
+    used = np.array(s.used, dtype=bool)
+    n = int(used.sum())
+    cn0 = [math.nan if c is None else c for c in s.cn0_dbhz]
+    dgnss = [d is not None for d in s.dgnss_m]
+    rows = np.array([s.rho_m, s.sat_clock_s, s.sigma_m, s.elevation_deg, cn0, s.iono_m, dgnss], dtype=float)
+    num = np.ascontiguousarray(rows.reshape(7, -1)[:, used].T)
     elevation = np.radians(num[:, 3])
     return PseudorangeColumns(
-        sats=tuple(s.sat for s in used),
-        sat_pos_m=np.array([s.sat_pos_ecef_m for s in used], dtype=float).reshape(n, 3),
+        sats=tuple(itertools.compress(s.sat, s.used)),
+        sat_pos_m=np.array(s.sat_pos_ecef_m, dtype=float).reshape(-1, 3)[used].reshape(n, 3),
         rho_m=num[:, 0],
         sat_clock_s=num[:, 1],
         sigma_m=num[:, 2],
