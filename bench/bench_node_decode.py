@@ -127,15 +127,20 @@ def collect(rec_dir: Path) -> tuple[list[bytes], float, int]:
     return payloads, float(cpu[0]), int(cpu[1])
 
 
-def per_item_us(fn: Callable[[Any], object], items: Sequence[Any], repeats: int) -> float:
-    """CPU microseconds per item, the best of `repeats` passes over all of them."""
-    best = float("inf")
+def per_item_us(
+    jobs: dict[str, tuple[Callable[[Any], object], Sequence[Any]]], repeats: int
+) -> dict[str, float]:
+    """CPU microseconds per item of each job (a function and its items), the best of `repeats`
+    rounds, each round running every job once in turn: the host's speed drifts within minutes,
+    so the two layouts are timed side by side, not one after the other."""
+    best = dict.fromkeys(jobs, float("inf"))
     for _ in range(repeats):
-        c0 = time.process_time()
-        for x in items:
-            fn(x)
-        best = min(best, time.process_time() - c0)
-    return 1e6 * best / len(items)
+        for name, (fn, items) in jobs.items():
+            c0 = time.process_time()
+            for x in items:
+                fn(x)
+            best[name] = min(best[name], time.process_time() - c0)
+    return {name: 1e6 * best[name] / len(jobs[name][1]) for name in jobs}
 
 
 def main() -> int:
@@ -164,14 +169,22 @@ def main() -> int:
     row_msgs = [rows_of.model_validate_json(p) for p in row_payloads]
     r = args.repeats
     step_us = 1e6 * step_cpu / n
+    us = per_item_us(
+        {
+            "decode /1": (lambda p: rows_of.model_validate_json(p), row_payloads),
+            "decode /2": (lambda p: NodeMessage.model_validate_json(p), payloads),
+            "gather /1": (gather_rows, row_msgs),
+            "gather /2": (gather_columns, msgs),
+            "SPP self-check": (lambda m: spp_problem(m, SPP_RESIDUAL_M), msgs),
+            "estimator columns": (pseudorange_columns, msgs),
+        },
+        r,
+    )
     parts = {
-        "decoding": (
-            per_item_us(lambda p: rows_of.model_validate_json(p), row_payloads, r),
-            per_item_us(lambda p: NodeMessage.model_validate_json(p), payloads, r),
-        ),
+        "decoding": (us["decode /1"], us["decode /2"]),
         "used satellites gathered into arrays (x2: self-check, columns)": (
-            2 * per_item_us(gather_rows, row_msgs, r),
-            2 * per_item_us(gather_columns, msgs, r),
+            2 * us["gather /1"],
+            2 * us["gather /2"],
         ),
     }
     rows = [
@@ -182,10 +195,7 @@ def main() -> int:
         rows.append(f"| {part} | {a:.1f} | {b:.1f} | {100 * (b - a) / step_us:+.1f} % |")
     ta, tb = (sum(v[i] for v in parts.values()) for i in (0, 1))
     rows.append(f"| **both** | **{ta:.1f}** | **{tb:.1f}** | **{100 * (tb - ta) / step_us:+.1f} %** |")
-    now = {
-        "SPP self-check": per_item_us(lambda m: spp_problem(m, SPP_RESIDUAL_M), msgs, r),
-        "estimator columns": per_item_us(pseudorange_columns, msgs, r),
-    }
+    now = {k: us[k] for k in ("SPP self-check", "estimator columns")}
     size = (sum(map(len, row_payloads)) / len(row_payloads), sum(map(len, payloads)) / len(payloads))
     rows += [
         "",
@@ -197,7 +207,7 @@ def main() -> int:
     head = (
         f"machine: {machine()}, malloc {malloc}; city of {args.vehicles} vehicles x {args.duration:.0f} s "
         f"(seed {args.seed}), method pc: {len(payloads)} node messages "
-        f"({np.mean([len(m.satellites) for m in msgs]):.1f} satellites each), best of {r} passes"
+        f"({np.mean([len(m.satellites) for m in msgs]):.1f} satellites each), best of {r} rounds, each timing every part in turn"
     )
     cmd = (
         f"python bench/bench_node_decode.py --vehicles {args.vehicles} --duration {args.duration:.0f} "
