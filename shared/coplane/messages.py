@@ -151,8 +151,8 @@ class SatelliteColumns(_Model):
     def _one_value_per_satellite(self) -> SatelliteColumns:
         n = len(self.sat)
         for name in type(self).model_fields:
-            if len(getattr(self, name)) != n:
-                got = len(getattr(self, name))
+            got = len(getattr(self, name))
+            if got != n:
                 raise ValueError(f"satellite column {name} has {got} values, column sat has {n}")
         if len(set(self.sat)) != n:
             raise ValueError("duplicate satellite in one node message")
