@@ -163,14 +163,18 @@ class SatelliteColumns(_Model):
     def __len__(self) -> int:
         return len(self.sat)
 
+    @staticmethod
+    def data_of(rows: Sequence[SatelliteReport | Mapping[str, Any]]) -> dict[str, list[Any]]:
+        """The columns of satellites given one by one (reports, or dicts of their fields), as
+        plain lists and not yet validated; a field a dict leaves out takes the row's default."""
+        dicts = [r.model_dump() if isinstance(r, SatelliteReport) else r for r in rows]
+        fields = SatelliteReport.model_fields
+        return {n: [d[n] if n in d else fields[n].get_default() for d in dicts] for n in fields}
+
     @classmethod
     def from_rows(cls, rows: Sequence[SatelliteReport | Mapping[str, Any]]) -> SatelliteColumns:
-        """The columns of satellites given one by one (reports, or dicts of their fields)."""
-        dicts = [r.model_dump() if isinstance(r, SatelliteReport) else r for r in rows]
-        defaults = {
-            n: f.get_default() for n, f in SatelliteReport.model_fields.items() if not f.is_required()
-        }
-        return cls.model_validate({n: [d.get(n, defaults.get(n)) for d in dicts] for n in cls.model_fields})
+        """The validated columns of satellites given one by one (`data_of`)."""
+        return cls.model_validate(cls.data_of(rows))
 
     def rows(self) -> list[SatelliteReport]:
         """One `SatelliteReport` per satellite (validated again: for readers of one satellite, not

@@ -153,15 +153,14 @@ def pseudorange_columns(m: NodeMessage) -> PseudorangeColumns:
     The numbers go through one (n, 7) array, the layout the estimator has always been given."""
     s = m.satellites
     used = np.array(s.used, dtype=bool)
-    n = int(used.sum())
     cn0 = [math.nan if c is None else c for c in s.cn0_dbhz]
     dgnss = [d is not None for d in s.dgnss_m]
     rows = np.array([s.rho_m, s.sat_clock_s, s.sigma_m, s.elevation_deg, cn0, s.iono_m, dgnss], dtype=float)
-    num = np.ascontiguousarray(rows.reshape(7, -1)[:, used].T)
+    num = np.ascontiguousarray(rows[:, used].T)
     elevation = np.radians(num[:, 3])
     return PseudorangeColumns(
         sats=tuple(itertools.compress(s.sat, s.used)),
-        sat_pos_m=np.array(s.sat_pos_ecef_m, dtype=float).reshape(-1, 3)[used].reshape(n, 3),
+        sat_pos_m=np.array(s.sat_pos_ecef_m, dtype=float).reshape(-1, 3)[used],  # (0, 3) when none
         rho_m=num[:, 0],
         sat_clock_s=num[:, 1],
         sigma_m=num[:, 2],
