@@ -160,17 +160,30 @@ def test_eval_of_a_drive_without_truth_says_so(real_data: Path, tmp_path: Path) 
     assert (tmp_path / "solutions" / "non-cp" / "klt1.csv").exists()
 
 
-def test_eval_format_tum_and_map_methods_need_a_map(tmp_path: Path) -> None:
-    """`--format tum` writes evo's files for every run and the truth; a map method without --map
-    is refused with a message that says how to make a map."""
+def test_eval_formats_and_map_methods_need_a_map(tmp_path: Path) -> None:
+    """`--format tum,pos` writes evo's files for every run and the truth, and RTKLIB .pos files
+    with the CSV's positions; a map method without --map is refused with a message that says how
+    to make a map."""
+    from coplane.recording.problems import Problems
+    from coplane.recording.trajectories import Q_DGPS, read_pos
     from coplane.sim.generate import simulate
 
     rec = simulate("urban-loop", tmp_path / "rec", vehicles=2, duration_s=10, seed=5)
     out = tmp_path / "eval"
-    r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--format", "tum", "--out", str(out)])
+    args = ["eval", str(rec), "--methods", "non-cp", "--format", "tum,pos", "--out", str(out)]
+    r = runner.invoke(app, args)
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in (out / "solutions" / "non-cp").glob("*.tum")) == ["u1.tum", "u2.tum"]
     assert sorted(p.name for p in (out / "truth").glob("*.tum")) == ["u1.tum", "u2.tum"]
+    pos = read_pos(out / "solutions" / "non-cp" / "u1.pos", Problems())
+    with (out / "solutions" / "non-cp" / "u1.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(pos) == len(rows) == 10
+    np.testing.assert_allclose(
+        [p.ecef for p in pos], [[float(x[k]) for k in ("x_m", "y_m", "z_m")] for x in rows], atol=1e-3
+    )
+    assert {p.quality for p in pos} == {Q_DGPS}  # the simulated drive has a base: DGNSS fixes
+    assert [p.n_sats for p in pos] == [int(x["n_pseudoranges"]) for x in rows]
     r = runner.invoke(app, ["eval", str(rec), "--methods", "non-cp", "--format", "kml", "--out", str(out)])
     assert r.exit_code != 0 and "kml" in r.output
     r = runner.invoke(app, ["eval", str(rec), "--methods", "pc-map", "--out", str(out)])

@@ -57,6 +57,8 @@ class MethodRun:
     dops: dict[str, dict[GpsTime, tuple[float | None, float | None]]] = field(
         default_factory=lambda: defaultdict(dict)
     )
+    # the age of the DGNSS corrections the agent's fix used (None: standalone), per vehicle and epoch
+    dgnss_age_s: dict[str, dict[GpsTime, float | None]] = field(default_factory=lambda: defaultdict(dict))
     solve_times_s: list[float] = field(default_factory=list)
     wall_time_s: float = 0.0
     n_epochs: int = 0
@@ -225,3 +227,4 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
         run.excluded[v.vehicle_id][t] = tuple(v.excluded_satellites)
         run.raim_excluded[v.vehicle_id][t] = tuple(v.raim_excluded)
         run.dops[v.vehicle_id][t] = (v.hdop, v.vdop)
+        run.dgnss_age_s[v.vehicle_id][t] = v.dgnss_age_s

@@ -12,7 +12,7 @@ import numpy as np
 from coplane import __version__
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
-from coplane.recording.trajectories import PosRecord
+from coplane.recording.trajectories import Q_DGPS, Q_DR, Q_SINGLE, PosRecord
 from coplane.typing import Vec
 
 if TYPE_CHECKING:
@@ -35,7 +35,7 @@ def write_pos(
     lines += [f"% inp file  : {p}" for p in inputs]
     lines += [
         f"% pos mode  : {mode}",
-        "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
+        "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,7:dr,ns=# of satellites)",
         "%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
         "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
     ]
@@ -50,10 +50,49 @@ def write_pos(
             f"{y:04d}/{mo:02d}/{d:02d} {hh:02d}:{mi:02d}:{s:06.3f} "
             f"{math.degrees(lat):14.9f} {math.degrees(lon):14.9f} {h:10.4f} {r.quality:3d} {r.n_sats:3d} "
             f"{_sq(q[1, 1]):8.4f} {_sq(q[0, 0]):8.4f} {_sq(q[2, 2]):8.4f} "
-            f"{_sq(q[1, 0]):8.4f} {_sq(q[0, 2]):8.4f} {_sq(q[2, 1]):8.4f} {0.0:6.2f} {0.0:6.1f}"
+            f"{_sq(q[1, 0]):8.4f} {_sq(q[0, 2]):8.4f} {_sq(q[2, 1]):8.4f} {r.age_s:6.2f} {0.0:6.1f}"
         )
     path.write_text("\n".join(lines) + "\n")
     return len(recs)
+
+
+def method_pos_records(run: MethodRun, vid: str) -> list[PosRecord]:
+    """One vehicle's solutions of a run as .pos rows. Q says what carried the epoch: 4 (DGPS) or 5
+    (single) when its own pseudoranges fix it, with or without the base's corrections; 7 (RTKLIB's
+    dead reckoning) when they do not and motion, ranges or the plane carry it. ns is the number of
+    pseudoranges the estimator kept; the standard deviations are its reported covariance (zeros
+    where it reported none); age is the corrections' age."""
+    covs = run.covariances.get(vid, {})
+    fixes = run.gnss_fix.get(vid, {})
+    ages = run.dgnss_age_s.get(vid, {})
+    kept = run.pseudoranges_used.get(vid, {})
+    out = []
+    for t, p in sorted(run.positions.get(vid, {}).items(), key=lambda tp: tp[0]):
+        age = ages.get(t)
+        quality = Q_DR if not fixes.get(t, True) else Q_SINGLE if age is None else Q_DGPS
+        cov = covs.get(t)
+        out.append(
+            PosRecord(
+                t,
+                np.asarray(p, dtype=float),
+                np.zeros((3, 3)) if cov is None else np.asarray(cov, dtype=float),
+                quality,
+                int(kept.get(t, 0)),
+                0.0 if age is None else float(age),
+            )
+        )
+    return out
+
+
+def write_method_pos(run: MethodRun, out_dir: Path, inputs: Iterable[str] = ()) -> list[Path]:
+    """solutions/<method>/<vehicle>.pos for every vehicle of a run: RTKPLOT (or any .pos reader)
+    then shows coplane's solutions beside RTKLIB's, with their quality flags and sigmas."""
+    paths = []
+    for vid in sorted(run.positions):
+        path = Path(out_dir) / "solutions" / run.label / f"{vid}.pos"
+        write_pos(path, method_pos_records(run, vid), inputs, mode=f"coplane {run.label}")
+        paths.append(path)
+    return paths
 
 
 # --------------------------------------------------------------------------------------------

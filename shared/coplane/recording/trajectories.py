@@ -32,9 +32,17 @@ from coplane.recording.model import TruthPoint
 from coplane.recording.problems import Problems, RecordingError
 from coplane.typing import Vec
 
-# RTKLIB solution quality flags (Q column)
-Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
-Q_NAMES = {Q_FIX: "fix", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps", Q_SINGLE: "single", Q_PPP: "ppp"}
+# RTKLIB solution quality flags (Q column; 7 is RTKLIB's SOLQ_DR, a dead-reckoned solution)
+Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP, Q_DR = 1, 2, 3, 4, 5, 6, 7
+Q_NAMES = {
+    Q_FIX: "fix",
+    Q_FLOAT: "float",
+    Q_SBAS: "sbas",
+    Q_DGPS: "dgps",
+    Q_SINGLE: "single",
+    Q_PPP: "ppp",
+    Q_DR: "dr",
+}
 JST_MINUS_UTC_S = 9 * 3600  # RTKLIB's third time system, Japan Standard Time
 _CALENDAR = re.compile(r"\d{4}/\d{1,2}/\d{1,2}")
 
@@ -42,13 +50,15 @@ _CALENDAR = re.compile(r"\d{4}/\d{1,2}/\d{1,2}")
 @dataclass(frozen=True)
 class PosRecord:
     """One solution of an RTKLIB .pos file: ECEF position, its 3x3 ECEF covariance (zeros when
-    the file gives none), quality flag and satellite count."""
+    the file gives none), quality flag, satellite count and the age of the differential
+    corrections (0 when none; `read_pos` does not read it back)."""
 
     time: GpsTime
     ecef: Vec
     covariance: Vec
     quality: int
     n_sats: int
+    age_s: float = 0.0
 
 
 @dataclass
