@@ -77,6 +77,8 @@ def test_bad_arguments_give_a_clear_error(tmp_path: Path) -> None:
         (["--interruption", "150"], "--interruption must be within 0..100 %, got 150"),
         (["--port", "70000"], "--port must be within 0..65535, got 70000"),
         (["--api-port", "-3"], "--api-port must be within 1..65535, got -3"),
+        (["--format", "pos,kml", "--out", str(tmp_path)], "unknown --format kml (expected tum, pos)"),
+        (["--format", "pos"], "--format writes its files into --out: give --out DIR"),
     ):
         r = runner.invoke(app, ["fleet", "--no-api", "--insecure", *args])
         assert r.exit_code == 2 and said in " ".join(r.output.split()), r.output

@@ -16,7 +16,9 @@ from coplane.evaluate.rtk_reference import use_rtk_truth
 from coplane.evaluate.truth import save_truth
 from coplane.fleet import FleetOptions, free_port, run_fleet
 from coplane.fleet.launcher import fleet_services
+from coplane.recording.problems import Problems
 from coplane.recording.reader import open_recording
+from coplane.recording.trajectories import Q_DGPS, read_pos
 
 pytestmark = [pytest.mark.slow, pytest.mark.realdata]
 
@@ -26,7 +28,8 @@ TST = "urbannav_hk_tst_20200603_static_f9p"
 
 def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_path: Path) -> None:
     """The table, the API (handed the launcher's reference, listening before the first epoch) and
-    `coplane eval` give the same numbers."""
+    `coplane eval` give the same numbers; `--out` with `--format pos` writes the solutions as
+    RTKLIB .pos too, one row per solved epoch, DGNSS (Q 4) with the base."""
     port, seen = free_port(), []
     res = run_fleet(
         FleetOptions(
@@ -37,6 +40,8 @@ def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_p
             map=Path("none"),
             port=0,
             truth="rtk",
+            out=tmp_path / "out",
+            formats=frozenset({"pos"}),
         ),
         serve=lambda _: seen.extend(
             httpx.get(f"http://127.0.0.1:{port}/accuracy", timeout=10).json()["entries"]
@@ -53,6 +58,8 @@ def test_fleet_measures_the_car_against_its_rtk_reference(real_data: Path, tmp_p
     assert (api["n_truth"], api["n_solved"]) == (st.n_truth, st.n_solved)
     assert api["h_rmse_m"] == pytest.approx(st.h_rmse_m, abs=1e-4)  # the files keep 0.1 mm
     assert api["v_rmse_m"] == pytest.approx(st.v_rmse_m, abs=1e-4)
+    pos = read_pos(tmp_path / "out" / "solutions" / "non-cp" / "klt1.pos", Problems())
+    assert len(pos) == len(res.run.positions["klt1"]) and {p.quality for p in pos} == {Q_DGPS}
 
 
 def test_the_api_and_the_launcher_carry_the_rtk_truth(real_data: Path, tmp_path: Path) -> None:

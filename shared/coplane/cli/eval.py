@@ -7,10 +7,15 @@ from typing import Annotated
 
 import typer
 
-from coplane.cli.options import interruption_rates, method_names, progress_bars, recording_or_default
+from coplane.cli.options import (
+    FORMAT_HELP,
+    interruption_rates,
+    method_names,
+    progress_bars,
+    recording_or_default,
+    solution_formats,
+)
 from coplane.cli.render import STRICT_HELP, check_input, console, print_accuracy, print_problems
-
-SOLUTION_FORMATS = frozenset({"tum", "pos"})  # --format: extra solution files beside the CSVs
 
 
 def eval_(
@@ -42,13 +47,7 @@ def eval_(
     strict: Annotated[bool, typer.Option(help=STRICT_HELP)] = False,
     fmt: Annotated[
         str,
-        typer.Option(
-            "--format",
-            help="Extra solution files, comma-separated: 'tum' (evo) writes solutions/<method>/<vehicle>.tum"
-            " and truth/<vehicle>.tum; 'pos' writes RTKLIB's solutions/<method>/<vehicle>.pos (RTKPLOT), Q 4 or"
-            " 5 for an epoch its own pseudoranges fix, with or without the base, 7 where motion, ranges or the"
-            " plane carry it.",
-        ),
+        typer.Option("--format", help=FORMAT_HELP),
     ] = "",
     fgo: Annotated[
         list[str] | None,
@@ -85,12 +84,7 @@ def eval_(
 
     rates = interruption_rates(interruption)
     fgo_changes = parse_fgo_overrides(fgo or [])
-    formats = {f.strip() for f in fmt.split(",") if f.strip()}
-    if formats - SOLUTION_FORMATS:
-        unknown = ", ".join(sorted(formats - SOLUTION_FORMATS))
-        raise typer.BadParameter(
-            f"unknown --format {unknown} (expected {', '.join(sorted(SOLUTION_FORMATS))})"
-        )
+    formats = solution_formats(fmt)
     truth_choice = parse_truth_choice(truth)
     road_map = None
     if map_file is not None:
@@ -98,8 +92,7 @@ def eval_(
 
         with RoadMapDb(map_file, readonly=True) as db:
             road_map = db.load()
-    rec_path = recording_or_default(recording)
-    rec = open_recording(rec_path)
+    rec = open_recording(recording_or_default(recording))
     ev = evaluate(
         rec,
         method_names(methods),
@@ -114,20 +107,10 @@ def eval_(
         fgo=fgo_changes,
         truth=truth_choice,
     )
-    if "tum" in formats:
-        from coplane.evaluate.solution_files import tum_origin, write_truth_tum, write_tum
+    if formats:
+        from coplane.evaluate.solution_files import write_solution_formats
 
-        origin = tum_origin(rec)
-        for r in ev.runs:
-            write_tum(r, out, origin)
-        write_truth_tum(rec, out, origin)
-    if "pos" in formats:
-        from coplane.evaluate.rtklib_row import RTKLIB_METHOD
-        from coplane.evaluate.solution_files import write_method_pos
-
-        for r in ev.runs:
-            if r.method != RTKLIB_METHOD:  # the rtklib row is RTKLIB's own solution, Q and all
-                write_method_pos(r, out, [str(rec_path)])
+        write_solution_formats(ev.runs, rec, out, formats)
     for note in ev.notes.values():
         typer.echo(note, err=True)
     print_accuracy(ev.recording, ev.stats, ev.shown)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from coplane.cli.options import progress_bars, recording_or_default
+from coplane.cli.options import FORMAT_HELP, progress_bars, recording_or_default, solution_formats
 from coplane.cli.render import STRICT_HELP, check_input, console, err_console, print_accuracy, print_problems
 from coplane.typing import Pace
 
@@ -33,6 +33,7 @@ def fleet(
     api_port: Annotated[int, typer.Option(help="API port.")] = 8000,
     port: Annotated[int, typer.Option(help="Zenoh router port (0: any free port).")] = 7447,
     out: Annotated[Path | None, typer.Option(help="Write solutions/<method>/<vehicle>.csv here.")] = None,
+    fmt: Annotated[str, typer.Option("--format", help=FORMAT_HELP + " Needs --out.")] = "",
     logs: Annotated[Path | None, typer.Option(help="Folder for each process's JSON log.")] = None,
     seed: Annotated[int, typer.Option(help="Seed (planes, interruption).")] = 0,
     interruption: Annotated[float, typer.Option(help="Ranging interruption rate in %.")] = 0.0,
@@ -138,6 +139,7 @@ def fleet(
         routers=routers,
         cluster_workers=cluster_workers,
         truth=parse_truth_choice(truth),
+        formats=frozenset(solution_formats(fmt)),
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

@@ -44,3 +44,24 @@ def interruption_rates(text: str) -> list[float]:
 def method_names(text: str) -> list[str]:
     """'pc, mci' -> ['pc', 'mci']; the names are checked by the evaluator."""
     return [m.strip() for m in text.split(",") if m.strip()]
+
+
+def solution_formats(text: str) -> set[str]:
+    """'tum,pos' -> {'tum', 'pos'}: the extra solution files `--format` asks for."""
+    from coplane.evaluate.solution_files import SOLUTION_FORMATS
+
+    formats = {f.strip() for f in text.split(",") if f.strip()}
+    unknown = formats - set(SOLUTION_FORMATS)
+    if unknown:
+        raise ConfigError(
+            f"unknown --format {', '.join(sorted(unknown))} (expected {', '.join(SOLUTION_FORMATS)})"
+        )
+    return formats
+
+
+FORMAT_HELP = (
+    "Extra solution files, comma-separated: 'tum' (evo) writes solutions/<method>/<vehicle>.tum and"
+    " truth/<vehicle>.tum; 'pos' writes RTKLIB's solutions/<method>/<vehicle>.pos (RTKPLOT): Q 4 or 5"
+    " where the epoch's own pseudoranges fix it, with or without the base, 7 where motion, ranges or the"
+    " plane carry it."
+)

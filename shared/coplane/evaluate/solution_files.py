@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,6 +18,9 @@ from coplane.typing import Vec
 if TYPE_CHECKING:
     from coplane.evaluate.runner import MethodRun
     from coplane.recording.reader import Recording
+
+
+SOLUTION_FORMATS = ("tum", "pos")  # `--format`: solution files beside the CSVs, for other tools
 
 
 def _sq(v: float) -> float:
@@ -165,3 +168,21 @@ def write_truth_tum(rec: Recording, out_dir: Path, origin_ecef: Vec | None = Non
             write_tum_file(path, [(p.time, np.asarray(p.ecef_m)) for p in truth], origin_ecef)
             paths.append(path)
     return paths
+
+
+def write_solution_formats(
+    runs: Sequence[MethodRun], rec: Recording, out_dir: Path, formats: Collection[str]
+) -> None:
+    """The extra solution files `--format` asks for (`SOLUTION_FORMATS`), for every run: what
+    `coplane eval` and `coplane fleet --out` write beside their CSVs."""
+    if "tum" in formats:
+        origin = tum_origin(rec)
+        for run in runs:
+            write_tum(run, out_dir, origin)
+        write_truth_tum(rec, out_dir, origin)
+    if "pos" in formats:
+        from coplane.evaluate.rtklib_row import RTKLIB_METHOD  # imports the runner: only when asked
+
+        for run in runs:
+            if run.method != RTKLIB_METHOD:  # the rtklib row is RTKLIB's own solution, Q and all
+                write_method_pos(run, out_dir, [str(rec.manifest.root)])

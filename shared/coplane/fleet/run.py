@@ -32,6 +32,7 @@ from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_exclusions, write_solutions
 from coplane.evaluate.runner import MethodRun
+from coplane.evaluate.solution_files import SOLUTION_FORMATS, write_solution_formats
 from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note, save_truth
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
@@ -87,6 +88,8 @@ class FleetOptions:
     # "rtk": RTKLIB's RTK reference; a TruthChoice's files: other tools' references (`evaluate.truth`)
     # for the accuracy table and the API alike
     truth: Truth | TruthChoice = "recording"
+    # extra solution files beside the CSVs in `out` (`evaluate.solution_files.SOLUTION_FORMATS`)
+    formats: frozenset[str] = frozenset()
     # how long the replay waits for the API to listen: it loads its solutions log first (up to
     # ~30 s at the default size); after that the replay starts anyway, with a warning
     api_start_timeout_s: float = 60.0
@@ -104,6 +107,13 @@ class FleetOptions:
                 raise ConfigError(f"{option} must be within {lowest}..{MAX_PORT}, got {port}")
         if self.pace not in PACES:
             raise ConfigError(f"--pace must be lockstep or realtime, got {self.pace!r}")
+        unknown = self.formats - set(SOLUTION_FORMATS)
+        if unknown:
+            raise ConfigError(
+                f"unknown --format {', '.join(sorted(unknown))} (expected {', '.join(SOLUTION_FORMATS)})"
+            )
+        if self.formats and self.out is None:
+            raise ConfigError("--format writes its files into --out: give --out DIR")
 
 
 MAX_FLEET_SERVERS = 16  # fusion server processes `coplane fleet` starts on one machine
@@ -303,6 +313,7 @@ def run_fleet(
             if o.out is not None:
                 write_solutions(collector.run, o.out)
                 write_exclusions([collector.run], o.out)
+                write_solution_formats([collector.run], rec, o.out, o.formats)
                 result.solutions_dir = o.out / "solutions" / collector.run.label
             if serve is not None and not stop.is_set():
                 serve(result)
