@@ -48,14 +48,10 @@ def method_names(text: str) -> list[str]:
 
 def solution_formats(text: str) -> set[str]:
     """'tum,pos' -> {'tum', 'pos'}: the extra solution files `--format` asks for."""
-    from coplane.evaluate.solution_files import SOLUTION_FORMATS
+    from coplane.evaluate.solution_files import check_formats
 
     formats = {f.strip() for f in text.split(",") if f.strip()}
-    unknown = formats - set(SOLUTION_FORMATS)
-    if unknown:
-        raise ConfigError(
-            f"unknown --format {', '.join(sorted(unknown))} (expected {', '.join(SOLUTION_FORMATS)})"
-        )
+    check_formats(formats)
     return formats
 
 

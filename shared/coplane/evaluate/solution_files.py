@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from coplane import __version__
+from coplane.errors import ConfigError
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
 from coplane.recording.trajectories import Q_DGPS, Q_DR, Q_SINGLE, PosRecord
@@ -21,6 +22,15 @@ if TYPE_CHECKING:
 
 
 SOLUTION_FORMATS = ("tum", "pos")  # `--format`: solution files beside the CSVs, for other tools
+
+
+def check_formats(formats: Collection[str]) -> None:
+    """ConfigError naming any format that is not one of `SOLUTION_FORMATS`."""
+    unknown = set(formats) - set(SOLUTION_FORMATS)
+    if unknown:
+        raise ConfigError(
+            f"unknown --format {', '.join(sorted(unknown))} (expected {', '.join(SOLUTION_FORMATS)})"
+        )
 
 
 def _sq(v: float) -> float:

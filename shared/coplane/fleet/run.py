@@ -32,7 +32,7 @@ from coplane.errors import ConfigError
 from coplane.evaluate.metrics import AccuracyStats
 from coplane.evaluate.report import run_stats, write_exclusions, write_solutions
 from coplane.evaluate.runner import MethodRun
-from coplane.evaluate.solution_files import SOLUTION_FORMATS, write_solution_formats
+from coplane.evaluate.solution_files import check_formats, write_solution_formats
 from coplane.evaluate.truth import Truth, TruthChoice, apply_truth, missing_truth_note, save_truth
 from coplane.fleet.collector import Collector
 from coplane.fleet.launcher import (
@@ -107,11 +107,7 @@ class FleetOptions:
                 raise ConfigError(f"{option} must be within {lowest}..{MAX_PORT}, got {port}")
         if self.pace not in PACES:
             raise ConfigError(f"--pace must be lockstep or realtime, got {self.pace!r}")
-        unknown = self.formats - set(SOLUTION_FORMATS)
-        if unknown:
-            raise ConfigError(
-                f"unknown --format {', '.join(sorted(unknown))} (expected {', '.join(SOLUTION_FORMATS)})"
-            )
+        check_formats(self.formats)
         if self.formats and self.out is None:
             raise ConfigError("--format writes its files into --out: give --out DIR")
 
