@@ -90,3 +90,22 @@ def test_a_road_raised_on_a_few_tiles_is_still_found(road: Road) -> None:
     flagged = drives(road, m, 2000.0, 20, np.random.default_rng(9), common_m=0.4, raise_e=up)
     assert raised <= flagged, (sorted(raised), sorted(flagged))
     assert flagged <= edge, sorted(flagged - edge)
+
+
+def test_apply_shows_each_pass_and_what_it_was_tested_against(road: Road) -> None:
+    """`RoadMap.apply(on_pass=...)` sees every pass with its update and the common residual it was
+    tested against: none while too few passes are at hand, and only usable tiles' passes feed it."""
+    cfg = RoadMapConfig(change_reference_min_passes=5)
+    m = RoadMap(cfg)
+    seen: list[tuple[float, bool, float | None]] = []
+    rng = np.random.default_rng(5)
+    for k in range(12):
+        passes = drive(road, 5.0 * k, f"v{k % 4}", rng)
+        m.apply(
+            passes,
+            on_pass=lambda p, upd, ref, usable: seen.append((upd.residual_m, usable, ref and ref.offset_m)),
+        )
+    assert len(seen) == sum(t.n_passes + t.outlier_passes for t in m.tiles.values())
+    assert seen[0][2] is None and seen[-1][2] is not None  # the reference comes once passes are at hand
+    usable_residuals = [r for r, usable, _ in seen if usable]
+    assert usable_residuals and all(np.isfinite(usable_residuals))

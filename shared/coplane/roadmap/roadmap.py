@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,9 +19,13 @@ from coplane.plane.fit import antenna_offset
 from coplane.plane.history import project_to_road
 from coplane.roadmap.config import RoadMapConfig
 from coplane.roadmap.grid import TileKey, tile_frame, tile_of_ecef
-from coplane.roadmap.reference import CommonResidual
-from coplane.roadmap.tile import ChangeEvent, PassEvidence, TilePlane
+from coplane.roadmap.reference import CommonResidual, ZReference
+from coplane.roadmap.tile import ChangeEvent, PassEvidence, TilePlane, TileUpdate
 from coplane.typing import Vec
+
+# a pass, its outcome, the common residual it was tested against (None: not known yet, so not
+# tested) and whether its tile was usable when it came (only those passes feed the common residual)
+PassObserver = Callable[[PassEvidence, TileUpdate, ZReference | None, bool], None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,10 +81,12 @@ class RoadMap:
         last = self.mapped_until.get(vehicle_id)
         return last is not None and time_s <= last
 
-    def apply(self, passes: Iterable[PassEvidence]) -> list[ChangeEvent]:
+    def apply(self, passes: Iterable[PassEvidence], on_pass: PassObserver | None = None) -> list[ChangeEvent]:
         """Add passes in (time, vehicle, tile) order, creating tiles as needed (h0 from the first
         pass's mean height); returns the changes they caused. Touched tiles become dirty. Each
-        pass is tested for a change against the fleet's common residual of the passes before it."""
+        pass is tested for a change against the fleet's common residual of the passes before it.
+        `on_pass(pass, update, reference, usable)` sees every pass's test (what the change detector
+        was given: bench/roadmap_change_evidence.py)."""
         ordered = sorted(passes, key=_order)
         changes: list[ChangeEvent] = []
         for p in ordered:
@@ -93,9 +99,12 @@ class RoadMap:
                 u = np.asarray(p.points_enu, dtype=float)[:, 2]
                 tile = self.tiles[key] = TilePlane(key, float(p.h_ref_m + float(u.mean())))
             usable = tile.usable(self.config)
-            upd = tile.add_pass(p, self.config, self.common.reference(p.time_s))
+            ref = self.common.reference(p.time_s)
+            upd = tile.add_pass(p, self.config, ref)
             if usable:
                 self.common.add(p.time_s, upd.residual_m)
+            if on_pass is not None:
+                on_pass(p, upd, ref, usable)
             self.dirty.add(key)
             self.mapped_until[p.vehicle_id] = max(self.mapped_until.get(p.vehicle_id, -math.inf), p.time_s)
             if upd.change is not None:

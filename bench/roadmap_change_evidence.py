@@ -1,0 +1,137 @@
+"""What a raised-road run shows the map's change detector (docs/roadmap.md, "What the fleet shares
+is not a change").
+
+    .venv/bin/python bench/roadmap_change_evidence.py [--seeds training|report] [--work DIR]
+        [--out docs/roadmap.md]
+
+The runs of bench/roadmap_acceptance.py's experiments 2 and 3 (six sharpening drives, then four
+over a road raised by 0.5 m) are solved with `pc` and their passes applied in order to a map with
+the defaults, as `bench/roadmap_change_reference.py` does. Each pass's residual against its tile
+(before it is added) is kept with the fleet's common residual it was tested against. Per
+raised-road run, on the raised tiles: how many passes, when in the drive (s after its first
+pass), how many came before the common residual was known (so were not tested), each vehicle's
+mean corrected residual (residual - common residual) over its tested passes there, and the
+raised tiles' mean; for scale, the spread of the same per-vehicle means over stretches of other
+tiles of the run (each vehicle's passes cut into runs of as many passes as it made on the raised
+tiles), and how many of the raised tiles' passes the tiles refused as outliers. A vehicle's passes over neighbouring tiles seconds apart share its error, so a stretch is
+worth about one sample per vehicle, not one per pass: a 0.5 m raise stands out of a run only if
+that spread is well below 0.5 m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import roadmap_acceptance as acceptance
+from docblock import write_block
+from roadmap_change_reference import passes_of
+
+from coplane.roadmap import PassEvidence, RoadMap, RoadMapConfig, TileKey, TileUpdate
+from coplane.roadmap.reference import ZReference
+
+MARK = "roadmap_change_evidence"
+
+# vehicle, time s, residual m, common residual m (None: unknown), added to the tile (False: an outlier)
+Row = tuple[str, float, float, float | None, bool]
+
+
+def applied(road_map: RoadMap, passes: list[PassEvidence]) -> list[tuple[TileKey, Row]]:
+    """`RoadMap.apply`, keeping each pass on a usable tile with its residual and the common
+    residual it was tested against."""
+    out: list[tuple[TileKey, Row]] = []
+
+    def keep(p: PassEvidence, upd: TileUpdate, ref: ZReference | None, usable: bool) -> None:
+        if usable and p.key is not None:
+            offset = None if ref is None else ref.offset_m
+            out.append((p.key, (p.vehicle_id, p.time_s, upd.residual_m, offset, upd.accepted)))
+
+    road_map.apply(passes, on_pass=keep)
+    return out
+
+
+def stretch_means(rows: list[Row], length: int) -> list[float]:
+    """Each vehicle's tested passes (in time order) cut into stretches of `length`: their mean
+    corrected residuals."""
+    by_vehicle: dict[str, list[float]] = defaultdict(list)
+    for vid, _, r, off, _ in sorted(rows, key=lambda x: x[1]):
+        if off is not None:
+            by_vehicle[vid].append(r - off)
+    out = []
+    for vals in by_vehicle.values():
+        out += [statistics.fmean(vals[i : i + length]) for i in range(0, len(vals) - length + 1, length)]
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", choices=("training", "report"), default="report")
+    ap.add_argument("--work", type=Path, default=None, help="folder for the recordings (kept, reused)")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    seeds = acceptance.SEEDS[args.seeds]
+    work = args.work or Path(tempfile.mkdtemp(prefix="coplane-change-"))
+    cfg = RoadMapConfig()
+    road_map = RoadMap(cfg)
+    sharpen = [
+        acceptance.simulate(work / f"sharpen-{s}", s, 300.0, offset_s=600.0 * k)
+        for k, s in enumerate(seeds["sharpen"])
+    ]
+    base = acceptance.truth_planes(acceptance.truth_points(sharpen, cfg.tile_size_m), cfg.tile_size_m)
+    for rec in sharpen:
+        road_map.apply(passes_of(rec, cfg))
+    rows_md = [
+        "| run (seed) | raised tiles | passes on them | s into the drive | untested (no common residual yet)"
+        " | each vehicle's mean corrected residual there (m) | raised tiles' mean (m) | per-vehicle stretch"
+        " means elsewhere: SD (m) | beyond `outlier_z`, not added |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for k, seed in enumerate(seeds["change"]):
+        offset = acceptance.CHANGE_OFFSET_S + 600.0 * k
+        rec = acceptance.simulate(
+            work / f"change-{seed}-{offset:.0f}", seed, 300.0, offset_s=offset, raises=(acceptance.RAISE,)
+        )
+        points = acceptance.truth_points([rec], cfg.tile_size_m)
+        raised = {key for key, p in points.items() if key in base and acceptance.rise_at(base[key], p) > 0.25}
+        got = applied(road_map, passes_of(rec, cfg))
+        t0 = min(row[1] for _, row in got)
+        on = [row for key, row in got if key in raised]
+        off = [row for key, row in got if key not in raised]
+        tested = [row for row in on if row[3] is not None]
+        per_vehicle: dict[str, list[float]] = defaultdict(list)
+        for vid, _, r, ref, _ in tested:
+            assert ref is not None
+            per_vehicle[vid].append(r - ref)
+        means = {vid: statistics.fmean(v) for vid, v in sorted(per_vehicle.items())}
+        length = max(1, round(len(tested) / max(1, len(means))))
+        spread = statistics.pstdev(stretch_means(off, length))
+        times = [row[1] - t0 for row in on]
+        rows_md.append(
+            f"| {k + 1} ({seed}) | {len(raised)} | {len(on)} | {min(times):.0f}-{max(times):.0f} "
+            f"| {len(on) - len(tested)} | {', '.join(f'{v} {m:+.2f}' for v, m in means.items())} "
+            f"| {statistics.fmean([r - ref for _, _, r, ref, _ in tested if ref is not None]):+.2f} | {spread:.2f} "
+            f"| {sum(1 for row in on if not row[4])} |"
+        )
+    table = (
+        f"{args.seeds} seeds: sharpening {', '.join(map(str, seeds['sharpen']))}, raised road "
+        f"{', '.join(map(str, seeds['change']))} (4 vehicles, 300 s each, `pc`, the map's defaults; the raise "
+        f"is {acceptance.RAISE.dz_m} m)\n\n" + "\n".join(rows_md)
+    )
+    print(table)
+    if args.out is not None:
+        write_block(
+            args.out,
+            f"{MARK}_{args.seeds}",
+            f"python bench/roadmap_change_evidence.py --seeds {args.seeds} --out {args.out}",
+            table,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
