@@ -121,6 +121,13 @@ class TrackPoint(_Out):
     )
     raim_excluded: list[str] = Field(default_factory=list, description="The ones the agent's RAIM excluded")
     vdop: float | None = Field(default=None, description="VDOP of the satellites the agent's fix used")
+    has_gnss_fix: bool = Field(
+        default=True,
+        description="The epoch's own pseudoranges fix it (false: motion, ranges or the plane carry it)",
+    )
+    dgnss_age_s: float | None = Field(
+        default=None, description="Age of the DGNSS corrections the agent's fix used (null: standalone)"
+    )
 
 
 class Track(_Out):

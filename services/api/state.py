@@ -95,6 +95,8 @@ class StoredPoint:
     raim_excluded: tuple[str, ...] = ()
     vdop: float | None = None
     error_v: float | None = None
+    gnss_fix: bool = True  # the epoch's own pseudoranges fixed it (False: motion, ranges or plane)
+    dgnss_age: float | None = None  # age of the DGNSS corrections the agent's fix used (None: none)
 
 
 @dataclass
@@ -300,6 +302,8 @@ class FleetState:
                 tuple(vs.raim_excluded) if vs.raim_excluded else (),
                 vs.vdop,
                 err[1] if err else None,
+                vs.has_gnss_fix,
+                vs.dgnss_age_s,
             )
         )
 

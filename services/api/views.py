@@ -10,6 +10,8 @@ import datetime as dt
 import math
 from collections import Counter
 
+import numpy as np
+
 from coplane import __version__
 from coplane.gtime import gpst_to_utc
 from coplane.messages import EpochTime, PlaneSummary
@@ -147,6 +149,8 @@ def track(st: FleetState, vid: str, since: float | None = None, limit: int | Non
                 excluded_satellites=list(p.excluded),
                 raim_excluded=list(p.raim_excluded),
                 vdop=p.vdop,
+                has_gnss_fix=p.gnss_fix,
+                dgnss_age_s=p.dgnss_age,
             )
             for p in pts
         ],
@@ -193,6 +197,30 @@ def track_gpx(st: FleetState, vid: str, since: float | None = None, limit: int |
     trk.segments.append(seg)
     gpx.tracks.append(trk)
     return gpx.to_xml(version="1.1")
+
+
+def track_pos(st: FleetState, vid: str, since: float | None = None, limit: int | None = None) -> str | None:
+    """RTKLIB's .pos layout (what `coplane eval --format pos` writes, for RTKPLOT): Q 4 / 5 / 7 by
+    `solution_files.pos_quality`, ns the pseudoranges the estimator kept, the reported covariance,
+    the DGNSS corrections' age."""
+    from coplane.evaluate.solution_files import pos_quality, pos_text  # only when a track is asked for
+    from coplane.recording.trajectories import PosRecord
+
+    pts = _points(st, vid, since, limit)
+    if pts is None:
+        return None
+    records = [
+        PosRecord(
+            p.t,
+            np.asarray(p.ecef, dtype=float),
+            np.zeros((3, 3)) if p.cov is None else np.asarray(p.cov, dtype=float).reshape(3, 3),
+            pos_quality(p.gnss_fix, p.dgnss_age),
+            p.n_pseudoranges,
+            0.0 if p.dgnss_age is None else p.dgnss_age,
+        )
+        for p in pts
+    ]
+    return pos_text(records, mode=f"coplane {st.fleet}/{vid} (the API's track)")
 
 
 def _counts(c: Counter[str]) -> PlaneCounts:

@@ -1,4 +1,4 @@
-"""Vehicles: latest state per vehicle and its bounded track (JSON, GeoJSON or GPX)."""
+"""Vehicles: latest state per vehicle and its bounded track (JSON, GeoJSON, GPX or RTKLIB .pos)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ router = APIRouter(tags=["vehicles"])
 VehicleIdPath = Annotated[str, Path(pattern=VEHICLE_ID_PATTERN, description="Vehicle id as on the bus")]
 GEOJSON = "application/geo+json"
 GPX = "application/gpx+xml"
+POS = "text/plain"  # RTKLIB's solution files have no media type of their own
 # the bounds of a track request, the same for every track format
 SinceQuery = Annotated[
     float | None,
@@ -122,3 +123,29 @@ async def get_track_gpx(
     if xml is None:
         raise _unknown(vehicle_id)
     return Response(xml, media_type=GPX)
+
+
+@router.get(
+    "/vehicles/{vehicle_id}/track.pos",
+    responses={
+        200: {
+            "description": "The track in RTKLIB's .pos layout (GPST, WGS-84 latitude / longitude /"
+            " ellipsoidal height; Q 4 DGNSS, 5 standalone, 7 carried without a GNSS fix; ns the"
+            " pseudoranges kept; the reported covariance; the corrections' age)",
+            "content": {POS: {}},
+        },
+        **problems(404, 422),
+    },
+    response_class=Response,
+    summary="Recent positions of one vehicle as an RTKLIB .pos file (for RTKPLOT)",
+)
+async def get_track_pos(
+    vehicle_id: VehicleIdPath,
+    state: StateDep,
+    since: SinceQuery = None,
+    limit: LimitQuery = None,
+) -> Response:
+    text = views.track_pos(state, vehicle_id, since, limit)
+    if text is None:
+        raise _unknown(vehicle_id)
+    return Response(text, media_type=POS)

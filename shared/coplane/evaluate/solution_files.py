@@ -38,12 +38,8 @@ def _sq(v: float) -> float:
     return math.copysign(math.sqrt(abs(v)), v)
 
 
-def write_pos(
-    path: Path, records: Iterable[PosRecord], inputs: Iterable[str] = (), mode: str = "single"
-) -> int:
-    """Write RTKLIB's llh .pos layout (GPST calendar time); returns the number of records."""
-    recs = list(records)
-    path.parent.mkdir(parents=True, exist_ok=True)
+def pos_text(records: Iterable[PosRecord], inputs: Iterable[str] = (), mode: str = "single") -> str:
+    """RTKLIB's llh .pos layout (GPST calendar time) of these records: what RTKPLOT reads."""
     lines = [f"% program   : coplane {__version__}"]
     lines += [f"% inp file  : {p}" for p in inputs]
     lines += [
@@ -52,7 +48,7 @@ def write_pos(
         "%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
         "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio",
     ]
-    for r in recs:
+    for r in records:
         lat, lon, h = ecef_to_geodetic(r.ecef)
         rot = enu_rotation(lat, lon)
         q = rot @ np.asarray(r.covariance, dtype=float) @ rot.T
@@ -65,16 +61,32 @@ def write_pos(
             f"{_sq(q[1, 1]):8.4f} {_sq(q[0, 0]):8.4f} {_sq(q[2, 2]):8.4f} "
             f"{_sq(q[1, 0]):8.4f} {_sq(q[0, 2]):8.4f} {_sq(q[2, 1]):8.4f} {r.age_s:6.2f} {0.0:6.1f}"
         )
-    path.write_text("\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
+
+
+def write_pos(
+    path: Path, records: Iterable[PosRecord], inputs: Iterable[str] = (), mode: str = "single"
+) -> int:
+    """Write `pos_text` to `path`; returns the number of records."""
+    recs = list(records)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(pos_text(recs, inputs, mode))
     return len(recs)
 
 
+def pos_quality(gnss_fix: bool, dgnss_age_s: float | None) -> int:
+    """RTKLIB's Q of a fused solution: 4 (DGPS) or 5 (single) when the epoch's own pseudoranges fix
+    it, with or without the base's corrections; 7 (RTKLIB's dead reckoning) when they do not and
+    motion, ranges or the plane carry it."""
+    if not gnss_fix:
+        return Q_DR
+    return Q_SINGLE if dgnss_age_s is None else Q_DGPS
+
+
 def method_pos_records(run: MethodRun, vid: str) -> list[PosRecord]:
-    """One vehicle's solutions of a run as .pos rows. Q says what carried the epoch: 4 (DGPS) or 5
-    (single) when its own pseudoranges fix it, with or without the base's corrections; 7 (RTKLIB's
-    dead reckoning) when they do not and motion, ranges or the plane carry it. ns is the number of
-    pseudoranges the estimator kept; the standard deviations are its reported covariance (zeros
-    where it reported none); age is the corrections' age."""
+    """One vehicle's solutions of a run as .pos rows: Q by `pos_quality`, ns the number of
+    pseudoranges the estimator kept, the standard deviations its reported covariance (zeros where
+    it reported none), age the corrections' age."""
     covs = run.covariances.get(vid, {})
     fixes = run.gnss_fix.get(vid, {})
     ages = run.dgnss_age_s.get(vid, {})
@@ -82,14 +94,13 @@ def method_pos_records(run: MethodRun, vid: str) -> list[PosRecord]:
     out = []
     for t, p in sorted(run.positions.get(vid, {}).items(), key=lambda tp: tp[0]):
         age = ages.get(t)
-        quality = Q_DR if not fixes.get(t, True) else Q_SINGLE if age is None else Q_DGPS
         cov = covs.get(t)
         out.append(
             PosRecord(
                 t,
                 np.asarray(p, dtype=float),
                 np.zeros((3, 3)) if cov is None else np.asarray(cov, dtype=float),
-                quality,
+                pos_quality(fixes.get(t, True), age),
                 int(kept.get(t, 0)),
                 0.0 if age is None else float(age),
             )
