@@ -23,14 +23,13 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import roadmap_acceptance as acceptance
 from docblock import write_block
-from roadmap_change_reference import passes_of
+from roadmap_change_reference import experiment_passes
 
 from coplane.roadmap import PassEvidence, RoadMap, RoadMapConfig, TileKey, TileUpdate
 from coplane.roadmap.reference import ZReference
@@ -75,30 +74,19 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     seeds = acceptance.SEEDS[args.seeds]
-    work = args.work or Path(tempfile.mkdtemp(prefix="coplane-change-"))
     cfg = RoadMapConfig()
+    sharpen_passes, change = experiment_passes(args.seeds, args.work, cfg)
     road_map = RoadMap(cfg)
-    sharpen = [
-        acceptance.simulate(work / f"sharpen-{s}", s, 300.0, offset_s=600.0 * k)
-        for k, s in enumerate(seeds["sharpen"])
-    ]
-    base = acceptance.truth_planes(acceptance.truth_points(sharpen, cfg.tile_size_m), cfg.tile_size_m)
-    for rec in sharpen:
-        road_map.apply(passes_of(rec, cfg))
+    for passes in sharpen_passes:
+        road_map.apply(passes)
     rows_md = [
         "| run (seed) | raised tiles | passes on them | s into the drive | untested (no common residual yet)"
         " | each vehicle's mean corrected residual there (m) | raised tiles' mean (m) | per-vehicle stretch"
         " means elsewhere: SD (m) | beyond `outlier_z`, not added |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for k, seed in enumerate(seeds["change"]):
-        offset = acceptance.CHANGE_OFFSET_S + 600.0 * k
-        rec = acceptance.simulate(
-            work / f"change-{seed}-{offset:.0f}", seed, 300.0, offset_s=offset, raises=(acceptance.RAISE,)
-        )
-        points = acceptance.truth_points([rec], cfg.tile_size_m)
-        raised = {key for key, p in points.items() if key in base and acceptance.rise_at(base[key], p) > 0.25}
-        got = applied(road_map, passes_of(rec, cfg))
+    for k, (seed, (passes, raised)) in enumerate(zip(seeds["change"], change, strict=True)):
+        got = applied(road_map, passes)
         t0 = min(row[1] for _, row in got)
         on = [row for key, row in got if key in raised]
         off = [row for key, row in got if key not in raised]

@@ -44,15 +44,14 @@ def passes_of(rec: Recording, config: RoadMapConfig) -> list[PassEvidence]:
     return builder.flush()
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", choices=("training", "report"), default="training")
-    ap.add_argument("--work", type=Path, default=None, help="folder for the recordings (kept, reused)")
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
-    seeds = acceptance.SEEDS[args.seeds]
-    work = args.work or Path(tempfile.mkdtemp(prefix="coplane-change-"))
-    cfg = RoadMapConfig()
+def experiment_passes(
+    seeds_name: str, work: Path | None, cfg: RoadMapConfig
+) -> tuple[list[list[PassEvidence]], list[tuple[list[PassEvidence], set[TileKey]]]]:
+    """The passes of experiment 2's sharpening runs, then of experiment 3's raised-road runs each
+    with the tiles the raise lifts by more than 0.25 m (recordings made in `work`, or a temporary
+    folder, and reused when there)."""
+    seeds = acceptance.SEEDS[seeds_name]
+    work = work or Path(tempfile.mkdtemp(prefix="coplane-change-"))
     sharpen = [
         acceptance.simulate(work / f"sharpen-{s}", s, 300.0, offset_s=600.0 * k)
         for k, s in enumerate(seeds["sharpen"])
@@ -68,6 +67,18 @@ def main() -> int:
         points = acceptance.truth_points([rec], cfg.tile_size_m)
         raised = {key for key, p in points.items() if key in base and acceptance.rise_at(base[key], p) > 0.25}
         change.append((passes_of(rec, cfg), raised))
+    return sharpen_passes, change
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", choices=("training", "report"), default="training")
+    ap.add_argument("--work", type=Path, default=None, help="folder for the recordings (kept, reused)")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    seeds = acceptance.SEEDS[args.seeds]
+    cfg = RoadMapConfig()
+    sharpen_passes, change = experiment_passes(args.seeds, args.work, cfg)
     runs = " | ".join(f"run {k + 1}: raised / other" for k in range(len(change)))
     rows = [
         f"| variant | false changes, sharpening | {runs} |",

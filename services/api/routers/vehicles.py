@@ -119,10 +119,7 @@ async def get_track_gpx(
     since: SinceQuery = None,
     limit: LimitQuery = None,
 ) -> Response:
-    xml = views.track_gpx(state, vehicle_id, since, limit)
-    if xml is None:
-        raise _unknown(vehicle_id)
-    return Response(xml, media_type=GPX)
+    return _track_file(views.track_gpx(state, vehicle_id, since, limit), vehicle_id, GPX)
 
 
 @router.get(
@@ -145,7 +142,11 @@ async def get_track_pos(
     since: SinceQuery = None,
     limit: LimitQuery = None,
 ) -> Response:
-    text = views.track_pos(state, vehicle_id, since, limit)
+    return _track_file(views.track_pos(state, vehicle_id, since, limit), vehicle_id, POS)
+
+
+def _track_file(text: str | None, vehicle_id: str, media_type: str) -> Response:
+    """A track rendered as a file other tools read; 404 when the vehicle is unknown (None)."""
     if text is None:
         raise _unknown(vehicle_id)
-    return Response(text, media_type=POS)
+    return Response(text, media_type=media_type)
