@@ -128,7 +128,7 @@ class VehicleAgent:
         # the vehicle's own fused position for the car's other systems (`live.nmea_out`)
         self.nmea: NmeaServer | None = None
         if settings.nmea_port is not None:
-            self.nmea = NmeaServer([vid], settings.nmea_port, dgnss=setup.use_dgnss)
+            self.nmea = NmeaServer([vid], settings.nmea_port)
             log.info("NMEA 0183 out", extra={"vehicle": vid, "port": self.nmea.ports[vid]})
 
     def node(self) -> BusNode:

@@ -38,7 +38,7 @@ def _read_all(port: int, out: list) -> None:
 def test_every_vehicle_gets_gga_and_rmc_for_every_epoch(tmp_path: Path) -> None:
     rec = simulate("urban-loop", tmp_path / "r", vehicles=3, duration_s=20, seed=4)
     _, vehicles = fleet_of(rec)
-    server = NmeaServer(vehicles, 0, dgnss=True)
+    server = NmeaServer(vehicles, 0)
     got: dict[str, list] = {v: [] for v in vehicles}
     readers = [
         threading.Thread(target=_read_all, args=(server.ports[v], got[v]), daemon=True) for v in vehicles
@@ -127,7 +127,7 @@ def test_a_taken_port_is_a_clear_error() -> None:
     with socket.create_server(("127.0.0.1", 0)) as taken:
         port = taken.getsockname()[1]
         with pytest.raises(ConfigError, match=f"NMEA output for u1: cannot listen on 127.0.0.1:{port} "):
-            NmeaServer(["u1"], port, dgnss=False)
+            NmeaServer(["u1"], port)
 
 
 def test_ports_past_65535_are_a_clear_error() -> None:
@@ -138,6 +138,6 @@ def test_ports_past_65535_are_a_clear_error() -> None:
     with pytest.raises(
         ConfigError, match=r"ports 65535\.\.65536 for 2 vehicle\(s\) are not all within 1\.\.65535"
     ):
-        NmeaServer(["u1", "u2"], 65535, dgnss=False)
+        NmeaServer(["u1", "u2"], 65535)
     with pytest.raises(ConfigError, match=r"ports -5\.\.-5 for 1 vehicle"):
-        NmeaServer(["u1"], -5, dgnss=False)
+        NmeaServer(["u1"], -5)

@@ -223,7 +223,7 @@ def run_fleet(
             wait_for_port(extra)
             mesh.append(f"{scheme}/127.0.0.1:{extra}")
         if o.nmea_port is not None:
-            nmea = NmeaServer(vehicles, o.nmea_port, dgnss=rec.manifest.base is not None)
+            nmea = NmeaServer(vehicles, o.nmea_port)
             log.info("NMEA output", extra={"ports": ", ".join(f"{v}:{p}" for v, p in nmea.ports.items())})
             if on_nmea is not None:
                 on_nmea(nmea.ports)

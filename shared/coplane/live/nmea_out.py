@@ -6,8 +6,10 @@ NMEA has no vehicle field, so each vehicle gets its own port: the recording's ve
 order on P, P+1, ... (printed at start). What the fields hold:
 * time: UTC (GPS time minus the leap seconds, coplane.gtime.gpst_to_utc), centiseconds;
 * lat/lon: 7 decimals of minutes (pynmeagps' high-precision mode, about 0.2 mm);
-* GGA quality: 2 when the vehicle's fix used DGNSS corrections, 1 standalone, 6 (estimated) for an
-  epoch the graph carried without a GNSS fix; numSV: satellites used; HDOP: of the satellites the
+* GGA quality: 2 when the vehicle's epoch had the base's DGNSS corrections, 1 without them (a base
+  that lags or drops out leaves epochs standalone), 6 (estimated) for an epoch the graph carried
+  without a GNSS fix (the same rule as RTKLIB's Q in `solution_files.pos_quality`); RMC's mode
+  D / A / E alike; numSV: satellites used; HDOP: of the satellites the
   vehicle agent's own fix used (empty without one); age of differential corrections: the age of
   the base's corrections that fix used (empty standalone);
 * GST: the fused solution's reported covariance as 1-sigma latitude / longitude / altitude errors
@@ -54,8 +56,7 @@ def _hemi(value: float, pos: str, neg: str) -> tuple[float, str]:
 class NmeaFormatter:
     """Per vehicle: GGA + GST + RMC bytes for each solution (keeps the previous fix for speed/course)."""
 
-    def __init__(self, dgnss: bool) -> None:
-        self.dgnss = dgnss
+    def __init__(self) -> None:
         self.previous: dict[str, tuple[float, np.ndarray]] = {}
 
     def sentences(self, sol: SolutionMessage) -> dict[str, bytes]:
@@ -74,7 +75,8 @@ class NmeaFormatter:
         lat, ns = _hemi(math.degrees(lat_r), "N", "S")
         lon, ew = _hemi(math.degrees(lon_r), "E", "W")
         when = utc.time()
-        quality = (2 if self.dgnss else 1) if v.has_gnss_fix else 6
+        dgnss = v.dgnss_age_s is not None  # this epoch's corrections, not the fleet's setting
+        quality = (2 if dgnss else 1) if v.has_gnss_fix else 6
         gga = NMEAMessage(
             "GN", "GGA", GET, hpnmeamode=True, time=when, lat=lat, NS=ns, lon=lon, EW=ew,
             quality=quality, numSV=v.n_satellites, HDOP="" if v.hdop is None else round(v.hdop, 2),
@@ -94,7 +96,7 @@ class NmeaFormatter:
         rmc = NMEAMessage(
             "GN", "RMC", GET, hpnmeamode=True, time=when, status="A" if v.has_gnss_fix else "V",
             lat=lat, NS=ns, lon=lon, EW=ew, spd=spd, cog=cog, date=utc.date(), mv="", mvEW="",
-            posMode=("D" if self.dgnss else "A") if v.has_gnss_fix else "E", navStatus="V",
+            posMode=("D" if dgnss else "A") if v.has_gnss_fix else "E", navStatus="V",
         )  # fmt: skip
         return bytes(gga.serialize()) + gst + bytes(rmc.serialize())
 
@@ -119,10 +121,8 @@ class NmeaFormatter:
 class NmeaServer:
     """One listening TCP socket per vehicle; every connected client gets that vehicle's sentences."""
 
-    def __init__(
-        self, vehicles: Sequence[str], first_port: int, dgnss: bool, host: str = "127.0.0.1"
-    ) -> None:
-        self.formatter = NmeaFormatter(dgnss)
+    def __init__(self, vehicles: Sequence[str], first_port: int, host: str = "127.0.0.1") -> None:
+        self.formatter = NmeaFormatter()
         self.ports: dict[str, int] = {}
         self.listeners: dict[str, socket.socket] = {}
         self.clients: dict[str, list[socket.socket]] = {v: [] for v in vehicles}
