@@ -10,8 +10,6 @@ import datetime as dt
 import math
 from collections import Counter
 
-import numpy as np
-
 from coplane import __version__
 from coplane.gtime import gpst_to_utc
 from coplane.messages import EpochTime, PlaneSummary
@@ -200,26 +198,14 @@ def track_gpx(st: FleetState, vid: str, since: float | None = None, limit: int |
 
 
 def track_pos(st: FleetState, vid: str, since: float | None = None, limit: int | None = None) -> str | None:
-    """RTKLIB's .pos layout (what `coplane eval --format pos` writes, for RTKPLOT): Q 4 / 5 / 7 by
-    `solution_files.pos_quality`, ns the pseudoranges the estimator kept, the reported covariance,
-    the DGNSS corrections' age."""
-    from coplane.evaluate.solution_files import pos_quality, pos_text  # only when a track is asked for
-    from coplane.recording.trajectories import PosRecord
+    """RTKLIB's .pos layout, the rows `coplane eval --format pos` writes (`fused_pos_record`), for
+    RTKPLOT."""
+    from coplane.evaluate.solution_files import fused_pos_record, pos_text  # only when a track is asked for
 
     pts = _points(st, vid, since, limit)
     if pts is None:
         return None
-    records = [
-        PosRecord(
-            p.t,
-            np.asarray(p.ecef, dtype=float),
-            np.zeros((3, 3)) if p.cov is None else np.asarray(p.cov, dtype=float).reshape(3, 3),
-            pos_quality(p.gnss_fix, p.dgnss_age),
-            p.n_pseudoranges,
-            0.0 if p.dgnss_age is None else p.dgnss_age,
-        )
-        for p in pts
-    ]
+    records = [fused_pos_record(p.t, p.ecef, p.cov, p.gnss_fix, p.dgnss_age, p.n_pseudoranges) for p in pts]
     return pos_text(records, mode=f"coplane {st.fleet}/{vid} (the API's track)")
 
 

@@ -139,7 +139,7 @@ def fleet(
         routers=routers,
         cluster_workers=cluster_workers,
         truth=parse_truth_choice(truth),
-        formats=frozenset(solution_formats(fmt)),
+        formats=solution_formats(fmt),
     )
     bars: list[Any] = []  # the progress bar, once the replay's length is known
 

@@ -46,11 +46,11 @@ def method_names(text: str) -> list[str]:
     return [m.strip() for m in text.split(",") if m.strip()]
 
 
-def solution_formats(text: str) -> set[str]:
+def solution_formats(text: str) -> frozenset[str]:
     """'tum,pos' -> {'tum', 'pos'}: the extra solution files `--format` asks for."""
     from coplane.evaluate.solution_files import check_formats
 
-    formats = {f.strip() for f in text.split(",") if f.strip()}
+    formats = frozenset(f.strip() for f in text.split(",") if f.strip())
     check_formats(formats)
     return formats
 

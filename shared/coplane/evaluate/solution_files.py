@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from coplane import __version__
 from coplane.errors import ConfigError
@@ -83,29 +84,32 @@ def pos_quality(gnss_fix: bool, dgnss_age_s: float | None) -> int:
     return Q_SINGLE if dgnss_age_s is None else Q_DGPS
 
 
+def fused_pos_record(
+    t: GpsTime, ecef: ArrayLike, cov: ArrayLike | None, gnss_fix: bool, dgnss_age_s: float | None, n_kept: int
+) -> PosRecord:
+    """One fused solution as a .pos row: Q by `pos_quality`, ns the pseudoranges the estimator
+    kept, the standard deviations its reported covariance (zeros where it reported none, as RTKLIB
+    writes them), age the corrections' age (0 without)."""
+    return PosRecord(
+        t,
+        np.asarray(ecef, dtype=float),
+        np.zeros((3, 3)) if cov is None else np.asarray(cov, dtype=float).reshape(3, 3),
+        pos_quality(gnss_fix, dgnss_age_s),
+        int(n_kept),
+        0.0 if dgnss_age_s is None else float(dgnss_age_s),
+    )
+
+
 def method_pos_records(run: MethodRun, vid: str) -> list[PosRecord]:
-    """One vehicle's solutions of a run as .pos rows: Q by `pos_quality`, ns the number of
-    pseudoranges the estimator kept, the standard deviations its reported covariance (zeros where
-    it reported none), age the corrections' age."""
+    """One vehicle's solutions of a run as .pos rows (`fused_pos_record`)."""
     covs = run.covariances.get(vid, {})
     fixes = run.gnss_fix.get(vid, {})
     ages = run.dgnss_age_s.get(vid, {})
     kept = run.pseudoranges_used.get(vid, {})
-    out = []
-    for t, p in sorted(run.positions.get(vid, {}).items(), key=lambda tp: tp[0]):
-        age = ages.get(t)
-        cov = covs.get(t)
-        out.append(
-            PosRecord(
-                t,
-                np.asarray(p, dtype=float),
-                np.zeros((3, 3)) if cov is None else np.asarray(cov, dtype=float),
-                pos_quality(fixes.get(t, True), age),
-                int(kept.get(t, 0)),
-                0.0 if age is None else float(age),
-            )
-        )
-    return out
+    return [
+        fused_pos_record(t, p, covs.get(t), fixes.get(t, True), ages.get(t), kept.get(t, 0))
+        for t, p in sorted(run.positions.get(vid, {}).items(), key=lambda tp: tp[0])
+    ]
 
 
 def write_method_pos(run: MethodRun, out_dir: Path, inputs: Iterable[str] = ()) -> list[Path]:
