@@ -20,7 +20,6 @@ that spread is well below 0.5 m.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 from collections import defaultdict
@@ -28,8 +27,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import roadmap_acceptance as acceptance
-from docblock import write_block
-from roadmap_change_reference import experiment_passes
+from docblock import publish
+from roadmap_change_reference import experiment_args, experiment_passes, seeds_line
 
 from coplane.roadmap import PassEvidence, RoadMap, RoadMapConfig, TileKey, TileUpdate
 from coplane.roadmap.reference import ZReference
@@ -68,11 +67,7 @@ def stretch_means(rows: list[Row], length: int) -> list[float]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", choices=("training", "report"), default="report")
-    ap.add_argument("--work", type=Path, default=None, help="folder for the recordings (kept, reused)")
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
+    args = experiment_args(__doc__, "report")
     seeds = acceptance.SEEDS[args.seeds]
     cfg = RoadMapConfig()
     sharpen_passes, change = experiment_passes(args.seeds, args.work, cfg)
@@ -105,19 +100,13 @@ def main() -> int:
             f"| {statistics.fmean([r - ref for _, _, r, ref, _ in tested if ref is not None]):+.2f} | {spread:.2f} "
             f"| {sum(1 for row in on if not row[4])} |"
         )
-    table = (
-        f"{args.seeds} seeds: sharpening {', '.join(map(str, seeds['sharpen']))}, raised road "
-        f"{', '.join(map(str, seeds['change']))} (4 vehicles, 300 s each, `pc`, the map's defaults; the raise "
-        f"is {acceptance.RAISE.dz_m} m)\n\n" + "\n".join(rows_md)
+    publish(
+        args.out,
+        f"{MARK}_{args.seeds}",
+        f"python bench/roadmap_change_evidence.py --seeds {args.seeds} --out {args.out}",
+        seeds_line(args.seeds) + f", the map's defaults; the raise is {acceptance.RAISE.dz_m} m)",
+        rows_md,
     )
-    print(table)
-    if args.out is not None:
-        write_block(
-            args.out,
-            f"{MARK}_{args.seeds}",
-            f"python bench/roadmap_change_evidence.py --seeds {args.seeds} --out {args.out}",
-            table,
-        )
     return 0
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import roadmap_acceptance as acceptance
-from docblock import write_block
+from docblock import publish
 
 from coplane.evaluate.map_build import run_samples
 from coplane.evaluate.runner import run_method
@@ -70,13 +70,26 @@ def experiment_passes(
     return sharpen_passes, change
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", choices=("training", "report"), default="training")
+def experiment_args(doc: str | None, default_seeds: str) -> argparse.Namespace:
+    """--seeds training|report, --work DIR (recordings kept and reused), --out DOC."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", choices=("training", "report"), default=default_seeds)
     ap.add_argument("--work", type=Path, default=None, help="folder for the recordings (kept, reused)")
     ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
-    seeds = acceptance.SEEDS[args.seeds]
+    return ap.parse_args()
+
+
+def seeds_line(seeds_name: str) -> str:
+    """The head of a table: which drives it comes from."""
+    seeds = acceptance.SEEDS[seeds_name]
+    return (
+        f"{seeds_name} seeds: sharpening {', '.join(map(str, seeds['sharpen']))}, raised road "
+        f"{', '.join(map(str, seeds['change']))} (4 vehicles, 300 s each, `pc`"
+    )
+
+
+def main() -> int:
+    args = experiment_args(__doc__, "training")
     cfg = RoadMapConfig()
     sharpen_passes, change = experiment_passes(args.seeds, args.work, cfg)
     runs = " | ".join(f"run {k + 1}: raised / other" for k in range(len(change)))
@@ -96,18 +109,13 @@ def main() -> int:
             flagged = {key for key, t in road_map.tiles.items() if t.changes > before.get(key, 0)}
             cells.append(f"{len(flagged & raised)} of {len(raised)} / {len(flagged - raised)}")
         rows.append(f"| {label} | {sharpening} | " + " | ".join(cells) + " |")
-    table = (
-        f"{args.seeds} seeds: sharpening {', '.join(map(str, seeds['sharpen']))}, raised road "
-        f"{', '.join(map(str, seeds['change']))} (4 vehicles, 300 s each, `pc`)\n\n" + "\n".join(rows)
+    publish(
+        args.out,
+        f"{MARK}_{args.seeds}",
+        f"python bench/roadmap_change_reference.py --seeds {args.seeds} --out {args.out}",
+        seeds_line(args.seeds) + ")",
+        rows,
     )
-    print(table)
-    if args.out is not None:
-        write_block(
-            args.out,
-            f"{MARK}_{args.seeds}",
-            f"python bench/roadmap_change_reference.py --seeds {args.seeds} --out {args.out}",
-            table,
-        )
     return 0
 
 
