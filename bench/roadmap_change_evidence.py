@@ -20,6 +20,7 @@ that spread is well below 0.5 m.
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import sys
 from collections import defaultdict
@@ -67,7 +68,7 @@ def stretch_means(rows: list[Row], length: int) -> list[float]:
 
 
 def main() -> int:
-    args = experiment_args(__doc__, "report")
+    args: argparse.Namespace = experiment_args(__doc__, "report")  # --help prints the usage, runs nothing
     seeds = acceptance.SEEDS[args.seeds]
     cfg = RoadMapConfig()
     sharpen_passes, change = experiment_passes(args.seeds, args.work, cfg)
