@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.e2e_fleet import agents_done, live_fleet, wait_until
+from support.e2e_fleet import agents_done, live_fleet, wait_settled, wait_until
 
 from coplane.errors import ConfigError
 from coplane.evaluate.map_build import extend_map, plane_sources
@@ -111,11 +111,15 @@ def test_servers_by_region_share_one_map(tmp_path: Path) -> None:
             with RoadMapDb(p, readonly=True) as db:
                 return {k: t.version for k, t in db.load().tiles.items()}
 
-        # the last passes close 3 s after their vehicle left the tile, then a commit, then the bus
-        wait_until(
-            lambda: versions(replicas[0]) == versions(replicas[1]) != base, 30, "the replicas to agree"
+        # the last passes close 3 s after their vehicle left the tile, then a commit (every 1 s),
+        # then the bus: the replicas agree for good once neither has changed for a few commits
+        got = wait_settled(
+            lambda: [versions(p) for p in replicas],
+            lambda g: g[0] == g[1] != base,
+            5.0,
+            60,
+            "the replicas to agree and settle",
         )
-        got = [versions(p) for p in replicas]
     assert sum(d.epochs_solved > 0 for d in diags.values()) == 2  # both servers solved
     # as often as in-process with the map at start (the servers' map learns during the run)
     assert sources["map"] / sum(sources.values()) >= 0.9 * ref["map"] / sum(ref.values()) > 0, (sources, ref)

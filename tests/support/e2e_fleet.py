@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 from coplane.bus import MONITOR, BusSecurity, use_security
 from coplane.bus.certs import init_certs
@@ -31,6 +32,8 @@ from coplane.fleet import (
     wait_for_port,
 )
 from coplane.messages import SolutionMessage
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -140,6 +143,26 @@ def wait_until(cond: Callable[[], bool], timeout: float, what: str) -> None:
             return
         time.sleep(0.05)
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def wait_settled(
+    read: Callable[[], T], ok: Callable[[T], bool], settle_s: float, timeout: float, what: str
+) -> T:
+    """`read()`'s value once `ok` holds of it and it has stayed the same for `settle_s` seconds.
+
+    For state that several processes move, such as two servers' replicas of the road map: it can
+    satisfy `ok` for a moment while a commit or a peer's batch is still on its way, and move on
+    (tests/fleet/test_fleet_map.py failed so in CI on 2026-12-03), so a single look is not enough."""
+    deadline = time.monotonic() + timeout
+    value, since = read(), time.monotonic()
+    while time.monotonic() < deadline:
+        time.sleep(0.2)
+        now = read()
+        if now != value:
+            value, since = now, time.monotonic()
+        elif ok(value) and time.monotonic() - since >= settle_s:
+            return value
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}; last seen: {value!r}")
 
 
 def agents_done(procs: FleetProcesses) -> bool:
