@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from coplane.messages import EpochTime, PlaneStatusName, PlaneSummary, VehicleCounters
+from coplane.messages import EpochTime, PlaneSourceName, PlaneStatusName, PlaneSummary, VehicleCounters
 
 Vec3 = tuple[float, float, float]
 
@@ -128,6 +128,14 @@ class TrackPoint(_Out):
     dgnss_age_s: float | None = Field(
         default=None, description="Age of the DGNSS corrections the agent's fix used (null: standalone)"
     )
+    n_ranges: int = Field(default=0, description="Ranges to other vehicles the estimator used")
+    plane_used: bool = Field(default=False, description="A road plane constrained the estimate")
+    plane_source: PlaneSourceName | None = Field(
+        default=None,
+        description="Where the vehicle's plane came from: fleet (fitted from the fleet's history), "
+        "self (from its own) or map (the road-surface map); null: no plane",
+    )
+    hdop: float | None = Field(default=None, description="HDOP of the satellites the agent's fix used")
 
 
 class Track(_Out):

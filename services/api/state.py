@@ -17,6 +17,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import get_args
 
 import numpy as np
 
@@ -26,10 +27,12 @@ from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
 from coplane.messages import (
     DiagnosticsMessage,
+    PlaneSourceName,
     SolutionMessage,
     VehicleCounters,
     VehicleState,
     merge_diagnostics,
+    plane_source,
 )
 from coplane.typing import Mat
 
@@ -76,6 +79,10 @@ class Histogram:
         return out
 
 
+# one string object per plane source, shared by every track point that names it
+PLANE_SOURCES: dict[str, PlaneSourceName] = {s: s for s in get_args(PlaneSourceName)}
+
+
 @dataclass(slots=True)
 class StoredPoint:
     """One track point as taken, in every frame a view serves (converted once, not per request)."""
@@ -97,6 +104,12 @@ class StoredPoint:
     error_v: float | None = None
     gnss_fix: bool = True  # the epoch's own pseudoranges fixed it (False: motion, ranges or plane)
     dgnss_age: float | None = None  # age of the DGNSS corrections the agent's fix used (None: none)
+    # what else held it: ranges to other vehicles, a road plane (and where the plane came from: one
+    # of the PLANE_SOURCES strings, shared, not a copy per point), the fix's HDOP
+    n_ranges: int = 0
+    plane_used: bool = False
+    plane_source: PlaneSourceName | None = None
+    hdop: float | None = None
 
 
 @dataclass
@@ -287,6 +300,7 @@ class FleetState:
         v.plane_counts[vs.plane_status or "none"] += 1
         v.plane_t = t
         cov = tuple(vs.covariance_m2) if vs.covariance_m2 is not None else None
+        source = plane_source(vs.plane)
         v.track.append(
             StoredPoint(
                 t,
@@ -304,6 +318,10 @@ class FleetState:
                 err[1] if err else None,
                 vs.has_gnss_fix,
                 vs.dgnss_age_s,
+                vs.n_ranges,
+                vs.plane_used,
+                None if source is None else PLANE_SOURCES[source],
+                vs.hdop,
             )
         )
 

@@ -149,6 +149,10 @@ def track(st: FleetState, vid: str, since: float | None = None, limit: int | Non
                 vdop=p.vdop,
                 has_gnss_fix=p.gnss_fix,
                 dgnss_age_s=p.dgnss_age,
+                n_ranges=p.n_ranges,
+                plane_used=p.plane_used,
+                plane_source=p.plane_source,
+                hdop=p.hdop,
             )
             for p in pts
         ],

@@ -323,6 +323,15 @@ class PlaneSummary(_Model):
     map_tile: str | None = Field(default=None, max_length=32)
 
 
+def plane_source(plane: PlaneReport | PlaneSummary | None) -> PlaneSourceName | None:
+    """Where the plane a vehicle had came from, or None when it had none: an unavailable plane's
+    `source` only says where the agent looked. The rule of the solution CSV's `plane_source` column
+    and of the API's track points, so that both say the same of an epoch."""
+    if plane is None or plane.status == "unavailable":
+        return None
+    return plane.source
+
+
 class VehicleState(_Model):
     vehicle_id: VehicleId
     position_ecef_m: Ecef

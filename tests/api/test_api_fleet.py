@@ -15,6 +15,7 @@ import math
 import signal
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -185,6 +186,7 @@ def test_vehicles_equal_the_last_solution(run: Run) -> None:
 
 def test_tracks_equal_the_solution_csvs(run: Run) -> None:
     assert run.csv_dir is not None
+    seen: Counter[str] = Counter()  # the fields compared below are filled somewhere
     for vid in run.vehicles:
         rows = _csv_rows(run.csv_dir / f"{vid}.csv")
         pts = run.get(f"/vehicles/{vid}/track").json()["points"]
@@ -209,9 +211,17 @@ def test_tracks_equal_the_solution_csvs(run: Run) -> None:
                 row["excluded"],
                 row["raim_excluded"],
             )
-            assert (p["vdop"] is None) == (row["vdop"] == "") and (
-                p["vdop"] is None or f"{p['vdop']:.2f}" == row["vdop"]
+            for dop in ("hdop", "vdop"):
+                assert (p[dop] is None) == (row[dop] == "") and (
+                    p[dop] is None or f"{p[dop]:.2f}" == row[dop]
+                )
+            # and what else held it: ranges, the plane and where it came from
+            assert (p["n_ranges"], p["plane_used"], p["plane_source"] or "") == (
+                int(row["n_ranges"]),
+                row["plane"] == "used",
+                row["plane_source"],
             )
+            seen.update(k for k in ("n_ranges", "plane_used", "plane_source", "hdop") if p[k])
         since = pts[-4]["gps_s"]
         assert len(run.get(f"/vehicles/{vid}/track", since=since).json()["points"]) == 3
         gj = run.get(f"/vehicles/{vid}/track", format="geojson").json()
@@ -220,6 +230,7 @@ def test_tracks_equal_the_solution_csvs(run: Run) -> None:
         lat, lon, h = ecef_to_geodetic([float(rows[-1][k]) for k in ("x_m", "y_m", "z_m")])
         assert coords[-1][:2] == pytest.approx([math.degrees(lon), math.degrees(lat)], abs=1e-8)  # ~1 mm
         assert coords[-1][2] == pytest.approx(h, abs=2e-4)  # the CSV keeps 0.1 mm
+    assert set(seen) == {"n_ranges", "plane_used", "plane_source", "hdop"}, seen
 
 
 def test_accuracy_equals_offline_metrics(run: Run) -> None:

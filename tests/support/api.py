@@ -58,6 +58,7 @@ def vehicle_state(
             sigma_m=0.3,
             n_points_initial=20,
             n_points_used=18,
+            source="fleet",
         )
     return VehicleState(
         vehicle_id=vid,
@@ -73,6 +74,8 @@ def vehicle_state(
         has_gnss_fix=True,
         n_satellites=10,
         spp_ok=True,
+        hdop=0.9,
+        vdop=1.6,
     )
 
 

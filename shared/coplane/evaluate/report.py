@@ -16,6 +16,7 @@ from coplane.evaluate.metrics import AccuracyStats, PooledStats, accuracy, accur
 from coplane.evaluate.runner import MethodRun
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
+from coplane.messages import plane_source
 from coplane.recording.reader import Recording
 from coplane.typing import Vec
 
@@ -105,14 +106,14 @@ def _why(run: MethodRun, vid: str, t: GpsTime, p: Vec, cov: Vec | None) -> list[
 
     fix = run.gnss_fix.get(vid, {}).get(t)
     used = run.plane_used.get(vid, {}).get(t)
-    plane = run.planes.get(vid, {}).get(t)
+    plane = run.plane_summaries.get(vid, {}).get(t)
     if used:
         state = "used"
     elif plane is None:
         state = "" if used is None else "none"
     else:
         state = plane.status if plane.status != "unavailable" else f"unavailable: {plane.reason or '-'}"
-    source = plane.source or "" if plane is not None and plane.status != "unavailable" else ""
+    source = plane_source(plane) or ""
     hdop, vdop = run.dops.get(vid, {}).get(t, (None, None))
     return [
         *sigmas,

@@ -22,7 +22,7 @@ from coplane.evaluate.vehicle_workers import VehicleWorkers, default_jobs, split
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult, EpochSolverOptions
 from coplane.gtime import GpsTime
-from coplane.messages import NodeMessage, PlaneReport, SolutionMessage
+from coplane.messages import NodeMessage, PlaneReport, PlaneSummary, SolutionMessage
 from coplane.methods import MethodSpec
 from coplane.plane.config import PlaneConfig
 from coplane.recording.reader import Recording
@@ -43,6 +43,9 @@ class MethodRun:
     positions: dict[str, dict[GpsTime, Vec]] = field(default_factory=lambda: defaultdict(dict))
     covariances: dict[str, dict[GpsTime, Vec]] = field(default_factory=lambda: defaultdict(dict))
     planes: dict[str, dict[GpsTime, PlaneReport]] = field(default_factory=lambda: defaultdict(dict))
+    # what the solution said of each vehicle's plane (status, reason, source): all a run over the
+    # bus has of it, since `coplane fleet` collects solutions and not the agents' node messages
+    plane_summaries: dict[str, dict[GpsTime, PlaneSummary]] = field(default_factory=lambda: defaultdict(dict))
     plane_used: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
     ranges_used: dict[str, dict[GpsTime, int]] = field(default_factory=lambda: defaultdict(dict))
     gnss_fix: dict[str, dict[GpsTime, bool]] = field(default_factory=lambda: defaultdict(dict))
@@ -220,6 +223,8 @@ def record_solution(run: MethodRun, sol: SolutionMessage, msgs: dict[str, NodeMe
         if v.covariance_m2 is not None:
             run.covariances[v.vehicle_id][t] = np.array(v.covariance_m2).reshape(3, 3)
         run.plane_used[v.vehicle_id][t] = v.plane_used
+        if v.plane is not None:
+            run.plane_summaries[v.vehicle_id][t] = v.plane
         run.ranges_used[v.vehicle_id][t] = v.n_ranges
         run.gnss_fix[v.vehicle_id][t] = v.has_gnss_fix
         run.satellites[v.vehicle_id][t] = v.n_satellites
