@@ -31,7 +31,8 @@ from .models import (
     VehicleList,
     VehicleSummary,
 )
-from .state import FleetState, StoredPoint, StoredVehicle, horizontal_sigma_m
+from .records import StoredPoint, StoredVehicle
+from .state import FleetState, horizontal_sigma_m
 
 
 def _summary_fields(v: StoredVehicle, now: float) -> dict[str, object]:
