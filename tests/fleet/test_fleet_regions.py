@@ -70,7 +70,15 @@ def test_servers_in_one_region_equal_the_single_server(tmp_path: Path) -> None:
     ref = run_method(open_recording(rec_path), "pc")
     with live_fleet(rec_path, "pc", log_dir=tmp_path / "logs", servers=3) as lf:
         wait_until(lambda: agents_done(lf.procs), 120, "agents to finish")
-        time.sleep(1.0)  # the diagnostics of every server
+        # each server reports once a second (`diagnostics_period_s`): a fixed wait of one period
+        # can end just before the report that counts the last epoch
+        wait_until(
+            lambda: (
+                len(d := dict(lf.collector.diags)) == 3 and max(x.epochs_solved for x in d.values()) == 40
+            ),
+            15,
+            "every server's diagnostics after the last epoch",
+        )
         got = _positions(lf.collector.run)
         diags = dict(lf.collector.diags)
     for vid, pos in ref.positions.items():
