@@ -60,6 +60,9 @@ class VehicleSummary(_Out):
     spp_ok: bool | None = None
     plane_status: PlaneStatusName | None = None
     plane_used: bool | None = None
+    plane_source: PlaneSourceName | None = Field(
+        default=None, description="Where the vehicle's plane came from: fleet, self or map (null: no plane)"
+    )
     n_satellites: int | None = None
     n_pseudoranges: int | None = None
     excluded_satellites: list[str] | None = Field(

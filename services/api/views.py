@@ -12,7 +12,7 @@ from collections import Counter
 
 from coplane import __version__
 from coplane.gtime import gpst_to_utc
-from coplane.messages import EpochTime, PlaneSummary
+from coplane.messages import EpochTime, PlaneSummary, plane_source
 
 from .models import (
     AccuracyReport,
@@ -62,6 +62,7 @@ def _summary_fields(v: StoredVehicle, now: float) -> dict[str, object]:
         spp_ok=s.spp_ok,
         plane_status=s.plane_status,
         plane_used=s.plane_used,
+        plane_source=plane_source(s.plane),
         n_satellites=s.n_satellites,
         n_pseudoranges=s.n_pseudoranges,
         excluded_satellites=list(s.excluded_satellites),

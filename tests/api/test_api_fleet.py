@@ -40,7 +40,7 @@ from coplane.fleet import (
     wait_for_port,
 )
 from coplane.geo import ecef_to_geodetic
-from coplane.messages import SolutionMessage
+from coplane.messages import SolutionMessage, plane_source
 from coplane.recording.reader import open_recording
 
 pytestmark = pytest.mark.slow
@@ -170,11 +170,15 @@ def test_vehicles_equal_the_last_solution(run: Run) -> None:
     assert body["epoch"] == last.epoch.model_dump()
     got = {v["vehicle_id"]: v for v in body["vehicles"]}
     assert sorted(got) == sorted(run.vehicles)
-    assert any(vs.vdop is not None for vs in last.vehicles)  # the fields compared below are filled
+    # the fields compared below are filled
+    assert any(vs.vdop is not None for vs in last.vehicles) and any(
+        plane_source(vs.plane) for vs in last.vehicles
+    )
     for vs in last.vehicles:
         v = got[vs.vehicle_id]
         assert tuple(v["position_ecef_m"]) == vs.position_ecef_m  # JSON floats round-trip exactly
         assert v["seq"] == last.seq and v["plane_status"] == vs.plane_status
+        assert (v["plane_used"], v["plane_source"]) == (vs.plane_used, plane_source(vs.plane))
         assert v["excluded_satellites"] == vs.excluded_satellites  # the estimator's, by name
         assert (v["raim_excluded"], v["vdop"]) == (vs.raim_excluded, vs.vdop)  # the agent's
         assert v["online"] is False  # the agents have finished: their tokens are gone
