@@ -29,5 +29,6 @@ phase() {
         exit "$rc"
     fi
 }
-phase -n auto --dist loadscope --no-loadscope-reorder -m "not serial" "$@"
+# --durations: the CI log names the slowest tests, the first place to look when CI nears 20 min.
+phase -n auto --dist loadscope --no-loadscope-reorder -m "not serial" --durations=15 "$@"
 phase -m serial "$@"
