@@ -323,6 +323,19 @@ class PlaneSummary(_Model):
     map_tile: str | None = Field(default=None, max_length=32)
 
 
+FixKind = Literal["dgnss", "single", "dead-reckoned"]
+
+
+def fix_kind(has_gnss_fix: bool, dgnss_age_s: float | None) -> FixKind:
+    """What kind of fix a fused solution is: "dgnss" or "single" when the epoch's own pseudoranges
+    fix it, with or without the base's corrections at that epoch; "dead-reckoned" when they do not
+    and motion, ranges or the plane carry it. The one rule behind RTKLIB's Q in the .pos files
+    (`evaluate.solution_files.pos_quality`) and NMEA's GGA quality and RMC mode (`live.nmea_out`)."""
+    if not has_gnss_fix:
+        return "dead-reckoned"
+    return "single" if dgnss_age_s is None else "dgnss"
+
+
 def plane_source(plane: PlaneReport | PlaneSummary | None) -> PlaneSourceName | None:
     """Where the plane a vehicle had came from, or None when it had none: an unavailable plane's
     `source` only says where the agent looked. The rule of the solution CSV's `plane_source` column

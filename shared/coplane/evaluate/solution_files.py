@@ -14,6 +14,7 @@ from coplane import __version__
 from coplane.errors import ConfigError
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
+from coplane.messages import FixKind, fix_kind
 from coplane.recording.trajectories import Q_DGPS, Q_DR, Q_SINGLE, PosRecord
 from coplane.typing import Vec
 
@@ -75,13 +76,14 @@ def write_pos(
     return len(recs)
 
 
+# RTKLIB's Q of each kind of fused solution (7 is RTKLIB's dead reckoning, SOLQ_DR)
+POS_QUALITY: dict[FixKind, int] = {"dgnss": Q_DGPS, "single": Q_SINGLE, "dead-reckoned": Q_DR}
+
+
 def pos_quality(gnss_fix: bool, dgnss_age_s: float | None) -> int:
-    """RTKLIB's Q of a fused solution: 4 (DGPS) or 5 (single) when the epoch's own pseudoranges fix
-    it, with or without the base's corrections; 7 (RTKLIB's dead reckoning) when they do not and
-    motion, ranges or the plane carry it."""
-    if not gnss_fix:
-        return Q_DR
-    return Q_SINGLE if dgnss_age_s is None else Q_DGPS
+    """RTKLIB's Q of a fused solution: 4 (DGPS), 5 (single) or 7 (dead reckoning) by
+    `messages.fix_kind`."""
+    return POS_QUALITY[fix_kind(gnss_fix, dgnss_age_s)]
 
 
 def fused_pos_record(

@@ -8,7 +8,7 @@ order on P, P+1, ... (printed at start). What the fields hold:
 * lat/lon: 7 decimals of minutes (pynmeagps' high-precision mode, about 0.2 mm);
 * GGA quality: 2 when the vehicle's epoch had the base's DGNSS corrections, 1 without them (a base
   that lags or drops out leaves epochs standalone), 6 (estimated) for an epoch the graph carried
-  without a GNSS fix (the same rule as RTKLIB's Q in `solution_files.pos_quality`); RMC's mode
+  without a GNSS fix (`messages.fix_kind`, the rule of RTKLIB's Q in the .pos files); RMC's mode
   D / A / E alike; numSV: satellites used; HDOP: of the satellites the
   vehicle agent's own fix used (empty without one); age of differential corrections: the age of
   the base's corrections that fix used (empty standalone);
@@ -41,12 +41,15 @@ from coplane.errors import ConfigError
 from coplane.geo import ecef_to_enu, ecef_to_geodetic, enu_rotation
 from coplane.gtime import gpst_to_utc
 from coplane.live.urls import MAX_PORT
-from coplane.messages import SolutionMessage, VehicleState
+from coplane.messages import FixKind, SolutionMessage, VehicleState, fix_kind
 from coplane.steps.wire import gps_time
 
 log = logging.getLogger("coplane.live.nmea_out")
 KNOTS_PER_MPS = 3600.0 / 1852.0
 SEND_TIMEOUT_S = 0.2
+# GGA's quality and RMC's mode of each kind of fused solution (6 / E: estimated, dead reckoning)
+GGA_QUALITY: dict[FixKind, int] = {"dgnss": 2, "single": 1, "dead-reckoned": 6}
+RMC_MODE: dict[FixKind, str] = {"dgnss": "D", "single": "A", "dead-reckoned": "E"}
 
 
 def _hemi(value: float, pos: str, neg: str) -> tuple[float, str]:
@@ -75,11 +78,10 @@ class NmeaFormatter:
         lat, ns = _hemi(math.degrees(lat_r), "N", "S")
         lon, ew = _hemi(math.degrees(lon_r), "E", "W")
         when = utc.time()
-        dgnss = v.dgnss_age_s is not None  # this epoch's corrections, not the fleet's setting
-        quality = (2 if dgnss else 1) if v.has_gnss_fix else 6
+        kind = fix_kind(v.has_gnss_fix, v.dgnss_age_s)  # this epoch's corrections, not the fleet's
         gga = NMEAMessage(
             "GN", "GGA", GET, hpnmeamode=True, time=when, lat=lat, NS=ns, lon=lon, EW=ew,
-            quality=quality, numSV=v.n_satellites, HDOP="" if v.hdop is None else round(v.hdop, 2),
+            quality=GGA_QUALITY[kind], numSV=v.n_satellites, HDOP="" if v.hdop is None else round(v.hdop, 2),
             alt=round(h, 3), altUnit="M", sep=0.0, sepUnit="M",
             diffAge="" if v.dgnss_age_s is None else round(v.dgnss_age_s, 1), diffStation="",
         )  # fmt: skip
@@ -96,7 +98,7 @@ class NmeaFormatter:
         rmc = NMEAMessage(
             "GN", "RMC", GET, hpnmeamode=True, time=when, status="A" if v.has_gnss_fix else "V",
             lat=lat, NS=ns, lon=lon, EW=ew, spd=spd, cog=cog, date=utc.date(), mv="", mvEW="",
-            posMode=("D" if dgnss else "A") if v.has_gnss_fix else "E", navStatus="V",
+            posMode=RMC_MODE[kind], navStatus="V",
         )  # fmt: skip
         return bytes(gga.serialize()) + gst + bytes(rmc.serialize())
 
