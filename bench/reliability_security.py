@@ -8,7 +8,9 @@ A Zenoh router with TLS listeners, client certificates required and coplane's ac
 identity and tries every put, liveliness token and subscription on the fleet's keys, recording
 whether a legitimate listener (or the prober, for subscriptions) received it; and it tries to
 connect without a certificate, with another CA's certificate and over plain TCP. `vehicle-u9` has a
-certificate from the fleet's CA but is not one of the fleet's vehicles.
+certificate from the fleet's CA but is not one of the fleet's vehicles. `fusion-s1` and `fusion-s2`
+are two fusion servers of a fleet with regions, each with its own identity (docs/bus.md): each may
+speak only for itself.
 
 Writes docs/reliability/security.md.
 """
@@ -34,12 +36,13 @@ REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "docs" / "reliability" / "security.md"
 FLEET = "bench"
 VEHICLES = ["u1", "u2", "u3", "u4"]
-IDENTITIES = ["vehicle-u1", "vehicle-u2", "vehicle-u9", "fusion", "api", "monitor"]
+SERVERS = ["s1", "s2"]  # fusion servers with identities of their own (regions)
+IDENTITIES = ["vehicle-u1", "vehicle-u2", "vehicle-u9", "fusion", "fusion-s1", "fusion-s2", "api", "monitor"]
 
 
 def run(work: Path) -> tuple[list[Attempt], list[Attempt], float]:
     certs = work / "certs"
-    init_certs(certs, [*VEHICLES, "u9"])
+    init_certs(certs, [*VEHICLES, "u9"], servers=SERVERS)  # the router finds the servers' in the folder
     (certs / "vehicle-u9.crt").rename(work / "vehicle-u9.crt")  # the router's ACL names the folder's
     (certs / "vehicle-u9.key").rename(work / "vehicle-u9.key")  # vehicles: u9 must not be one
     port = free_port()
@@ -95,6 +98,10 @@ def render(access: list[Attempt], connections: list[Attempt], seconds: float) ->
         "combination below through it and records whether a legitimate listener received it "
         "(for subscriptions: whether the subscriber received the legitimate publisher's sample). "
         "`vehicle-u9` holds a certificate from the fleet's CA but is not one of its vehicles. "
+        f"{' and '.join(f'`fusion-{s}`' for s in SERVERS)} are fusion servers of a fleet with regions, "
+        "each with its own identity, which may put only that server's solution, diagnostics and tile "
+        "keys and declare only its liveliness token; `fusion` is the identity of a fleet's one "
+        "server (or one that all servers share). "
         "Keys are relative to `coplane/v1/<fleet>/`. The same matrix, on a smaller fleet, is "
         "`tests/bus/test_access_control.py`.",
         "",

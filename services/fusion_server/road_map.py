@@ -158,16 +158,22 @@ class LiveRoadMap:
                 self.counts["publish-errors"] += 1
                 log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
 
-    def take_peer(self, payload: bytes) -> int:
+    def take_peer(self, payload: bytes, sender: str | None = None) -> int:
         """Regions: another server's tiles from the bus into this map and its file; the number
         taken. Its own batches (which the subscription also hears) and other fleets' are skipped; a
         bad batch or tile is counted by reason and never raises. Only a tile's writer is believed
         about it (`tile_writers`): a server's snapshot also carries its replicas of the others'
-        tiles (skipped, `peer-not-writer`), and no server overwrites the tiles another writes."""
+        tiles (skipped, `peer-not-writer`), and no server overwrites the tiles another writes.
+        `sender`: the server the batch's key names; a batch that says it is another server's is
+        dropped (`peer-rejected:wrong-sender`), since only the key is tied to the writer's
+        certificate (docs/scale.md)."""
         try:
             msg = decode(MapTilesMessage, payload)
         except BadMessage as exc:
             self.counts[f"peer-rejected:{exc.kind}"] += 1
+            return 0
+        if sender is not None and msg.server != sender:
+            self.counts["peer-rejected:wrong-sender"] += 1
             return 0
         if msg.server == self.server or msg.fleet != self.fleet:
             return 0

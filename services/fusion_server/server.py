@@ -22,10 +22,12 @@ from coplane.bus import (
     Publication,
     RepeatDecoder,
     Subscription,
+    current_security,
     decode,
     encode,
     session_config,
 )
+from coplane.bus.security import check_server_identity
 from coplane.estimation.contract import seed_estimator
 from coplane.gtime import GpsTime
 from coplane.messages import DiagnosticsMessage, NodeMessage, SolutionMessage, VehicleCounters
@@ -110,12 +112,9 @@ class FusionServer(Pacing):
                 window * man.interval_s,
                 settings.expected_servers,
             )
-        self.solution_key = (
-            self.keys.server_solution(settings.server_id) if settings.regions else self.keys.solution
-        )
-        self.diagnostics_key = (
-            f"{self.keys.diagnostics}/{settings.server_id}" if settings.regions else self.keys.diagnostics
-        )
+        # with regions the keys name the server, which its own identity is held to (docs/bus.md)
+        own = self.keys.server_keys(settings.server_id if settings.regions else None)
+        self.solution_key, self.diagnostics_key, self.tiles_key = own.solution, own.diagnostics, own.tiles
 
     def node(self) -> BusNode:
         """The server's place on the bus: every vehicle's node key and the agents' tokens in,
@@ -125,7 +124,7 @@ class FusionServer(Pacing):
                 Subscription(self.keys.all_alive("fusion"), liveliness=True),
                 Subscription(self.keys.all_solutions),  # the other servers': hand-over seeds
                 # the other servers' map tiles, their caches too (docs/scale.md)
-                *([Subscription(self.keys.map_tiles, history=True)] if self.road_map is not None else []),
+                *([Subscription(self.keys.all_map_tiles, history=True)] if self.road_map is not None else []),
             ]
         else:
             listen = [Subscription(self.keys.all_nodes, history=True)]  # agents' caches, after a restart
@@ -139,7 +138,7 @@ class FusionServer(Pacing):
                 Publication(self.diagnostics_key, must_deliver=True),
                 # the road map's tiles, cached for agents that start later (docs/roadmap.md)
                 *(
-                    [Publication(self.keys.map_tiles, must_deliver=True, history=self.road_map.cache_size)]
+                    [Publication(self.tiles_key, must_deliver=True, history=self.road_map.cache_size)]
                     if self.road_map is not None
                     else []
                 ),
@@ -152,9 +151,9 @@ class FusionServer(Pacing):
         """The one dispatch of bus events; a bad event is logged and never stops the server."""
         try:
             if isinstance(event, Payload):
-                if event.key == self.keys.map_tiles:
+                if (tiles_from := KeySpace.server_of_tiles_key(event.key)) is not None:
                     if self.road_map is not None:  # regions: the other servers' tiles
-                        self.road_map.take_peer(event.data)
+                        self.road_map.take_peer(event.data, tiles_from)
                 elif self.regions is not None and KeySpace.vehicle_of_node_key(event.key) is None:
                     self.handle_peer_solution(event.key, event.data)
                 else:
@@ -344,6 +343,7 @@ class FusionServer(Pacing):
 
     def run(self) -> None:
         s = self.s
+        check_server_identity(current_security(), s.server_id if s.regions else None)  # start error
         path = map_path(s.map, self.fleet)
         if path is not None:  # before the node: its tile publisher's cache is sized by the map
             regions = self.regions  # with regions: its own file and tiles (docs/scale.md)
@@ -381,7 +381,7 @@ class FusionServer(Pacing):
                     self.durable.tick(self, node, self.solution_key)
                     if self.road_map is not None:
                         self.road_map.tick(now)
-                        self.road_map.publish(node, self.keys.map_tiles)
+                        self.road_map.publish(node, self.tiles_key)
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.diagnostics_key, encode(self.diagnostics()))
                         last_diag = now
@@ -390,7 +390,7 @@ class FusionServer(Pacing):
                     self.handle(event)
                 if self.road_map is not None:
                     self.road_map.close()  # the last passes: committed, then on the bus
-                    self.road_map.publish(node, self.keys.map_tiles)
+                    self.road_map.publish(node, self.tiles_key)
                 node.put(self.diagnostics_key, encode(self.diagnostics()))
                 log.info(
                     "fusion server stopped",

@@ -147,7 +147,8 @@ class VehicleAgent:
                 Subscription(self.keys.all_solutions),
                 # the servers' tokens: a restarted server's solutions are taken at once (`GateSet`)
                 Subscription(self.keys.all_alive("fusion"), liveliness=True),
-                *([Subscription(self.keys.map_tiles, history=True)] if self.tiles is not None else []),
+                # the single server's tiles and, with regions, each server's own key's
+                *([Subscription(self.keys.all_map_tiles, history=True)] if self.tiles is not None else []),
             ],
         )
 
@@ -167,8 +168,8 @@ class VehicleAgent:
             return None if released is None else self._take(released, released)
         if not isinstance(ev, Payload):
             return None
-        if ev.key == self.keys.map_tiles:
-            self._take_tiles(ev.data)
+        if (tiles_from := KeySpace.server_of_tiles_key(ev.key)) is not None:
+            self._take_tiles(ev.data, tiles_from)
             return None
         try:
             sol = decode(SolutionMessage, ev.data)
@@ -204,8 +205,9 @@ class VehicleAgent:
             return False
         return sol.answers(self.step.vehicle_id) or st - t >= 2 * self.interval_s
 
-    def _take_tiles(self, data: bytes) -> None:
-        """One batch of road-map tiles from the fusion server (bad ones counted, never fatal)."""
+    def _take_tiles(self, data: bytes, sender: str) -> None:
+        """One batch of road-map tiles from the fusion server its key names, `sender` (bad ones
+        counted, never fatal)."""
         assert self.tiles is not None
         try:
             msg = decode(MapTilesMessage, data)
@@ -213,7 +215,7 @@ class VehicleAgent:
             self.bad_tiles += 1
             self.warn.log(logging.WARNING, ("tiles", exc.kind), "rejected map tiles", {"reason": str(exc)})
             return
-        self.tiles.take(msg)
+        self.tiles.take(msg, sender)
         rejected = {k: n for k, n in self.tiles.counts.items() if k.startswith("rejected")}
         if rejected:
             self.warn.log(logging.WARNING, ("tiles", "rejected"), "map tiles rejected", rejected)

@@ -7,28 +7,49 @@ one delivered. Clients without an acceptable certificate do not connect at all.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
 
-from coplane.bus import BusSecurity, router_config
+from coplane.bus import (
+    BusNode,
+    BusSecurity,
+    KeySpace,
+    Payload,
+    Presence,
+    Publication,
+    Subscription,
+    router_config,
+    session_config,
+)
 from coplane.bus.certs import init_certs
-from coplane.bus.probe import allowed, anonymous_tls_config, client_config, probe_access, probe_connections
+from coplane.bus.probe import (
+    SETTLE_S,
+    allowed,
+    anonymous_tls_config,
+    client_config,
+    probe_access,
+    probe_connections,
+)
 from coplane.fleet import free_port
 
 FLEET = "f1"
 VEHICLES = ["u1", "u2", "u3"]
+SERVERS = ["s1", "s2"]  # fusion servers with identities of their own (regions)
 # vehicle-u9 has a certificate from the fleet's CA but no grant: default deny
-IDENTITIES = ["vehicle-u1", "vehicle-u2", "vehicle-u9", "fusion", "api", "monitor"]
+IDENTITIES = ["vehicle-u1", "vehicle-u2", "vehicle-u9", "fusion", "fusion-s1", "fusion-s2", "api", "monitor"]
 
 
 @pytest.fixture(scope="module")
 def secure_router(tmp_path_factory: pytest.TempPathFactory):
     root = tmp_path_factory.mktemp("acl")
     certs = root / "certs"
-    init_certs(certs, [*VEHICLES, "u9"])
+    init_certs(certs, [*VEHICLES, "u9"], servers=SERVERS)
     ep = f"tls/127.0.0.1:{free_port()}"
+    # the servers' identities from the folder, as a router started by `coplane fleet` finds them
     router = zenoh.open(router_config([ep], BusSecurity(certs=certs), vehicles=VEHICLES, fleet=FLEET))
     try:
         yield ep, certs, root
@@ -52,6 +73,14 @@ def test_policy_table() -> None:
     assert allowed("vehicle-u1", "map/tiles", "subscribe", v) and not allowed(
         "vehicle-u9", "map/tiles", "subscribe", v
     )
+    # a server's own identity speaks for it alone; it hears what every fusion server hears
+    for key in ("solution/s1", "diagnostics/s1", "map/tiles/s1"):
+        assert allowed("fusion-s1", key, "put", v) and not allowed("fusion-s2", key, "put", v)
+    assert not any(allowed("fusion-s1", k, "put", v) for k in ("solution", "diagnostics", "map/tiles"))
+    assert allowed("fusion-s1", "alive/fusion/s1", "token", v)
+    assert not allowed("fusion-s1", "alive/fusion/s2", "token", v)
+    assert allowed("fusion-s2", "vehicle/u1/node", "subscribe", v)
+    assert allowed("fusion-s2", "map/tiles/s1", "subscribe", v)
 
 
 def test_every_identity_key_operation(secure_router: tuple[str, Path, Path]) -> None:
@@ -87,3 +116,61 @@ def test_clients_without_an_acceptable_certificate_cannot_connect(
     assert probe_connections({"fusion": client_config(ep, BusSecurity(certs=certs, identity="fusion"))})[
         0
     ].delivered
+
+
+def test_a_server_identity_reaches_the_consumers_wildcards(secure_router: tuple[str, Path, Path]) -> None:
+    """A fusion server with its own identity publishes as the services do (declared publishers,
+    the tiles with a history cache): an agent subscribed to every server's solutions and tiles
+    (`solution/**`, `map/tiles/**`, with history) gets them, live and from the cache. The
+    publishers send only once the router forwards the consumers' wildcard declarations to them,
+    which the probe's plain puts above do not need; and one server's identity cannot declare
+    another's liveliness token or put on its keys."""
+    ep, certs, _ = secure_router
+    k = KeySpace(FLEET)
+    own = k.server_keys("s1")
+    base = BusSecurity(certs=certs)
+
+    def node(identity: str, **kw: Any) -> BusNode:
+        return BusNode(session_config("client", [ep], security=base.as_identity(identity)), **kw)
+
+    server = node(
+        "fusion-s1",
+        token=k.alive("fusion", "s1"),
+        publish=[
+            Publication(own.solution, must_deliver=True),
+            Publication(own.tiles, must_deliver=True, history=4),
+        ],
+    )
+    with server:
+        server.put(own.tiles, b"cached")  # before the agent exists: only the cache can give it
+        time.sleep(0.3)
+        agent = node(
+            "vehicle-u1",
+            subscribe=[
+                Subscription(k.all_solutions),
+                Subscription(k.all_map_tiles, history=True),
+                Subscription(k.all_alive("fusion"), liveliness=True),
+            ],
+        )
+        with agent, node("fusion-s2", publish=[Publication(own.solution)]) as impostor:
+            time.sleep(0.5)
+            server.put(own.solution, b"live")
+            impostor.put(own.solution, b"forged")  # a well-formed put from the wrong server
+            got: set[tuple[str, bytes]] = set()
+            presence: set[str] = set()
+            deadline = time.monotonic() + 5.0
+            while (
+                time.monotonic() < deadline and not {(own.solution, b"live"), (own.tiles, b"cached")} <= got
+            ):
+                ev = agent.get(timeout=0.1)
+                if isinstance(ev, Payload):
+                    got.add((ev.key, ev.data))
+                elif isinstance(ev, Presence) and ev.alive:
+                    presence.add(ev.key)
+            time.sleep(SETTLE_S)
+            while (ev := agent.poll()) is not None:
+                if isinstance(ev, Payload):
+                    got.add((ev.key, ev.data))
+    assert (own.solution, b"live") in got and (own.tiles, b"cached") in got, got
+    assert (own.solution, b"forged") not in got
+    assert k.alive("fusion", "s1") in presence

@@ -128,7 +128,9 @@ def test_compose_scales_to_a_router_mesh_and_several_servers(tmp_path: Path) -> 
     svc = doc["services"]
     routers = ["zenoh-router", "zenoh-router-2", "zenoh-router-3"]
     assert all(r in svc for r in routers) and "fusion-server" not in svc
-    assert svc["certs"]["command"][-2:] == ["--dns", "zenoh-router-2,zenoh-router-3"]
+    certs = svc["certs"]["command"]
+    assert certs[certs.index("--dns") + 1] == "zenoh-router-2,zenoh-router-3"
+    assert certs[certs.index("--servers") + 1] == "s1,s2"  # each server its own identity
     assert "ports" in svc["zenoh-router"] and "ports" not in svc["zenoh-router-2"]
     for r in routers[1:]:
         assert (
@@ -141,10 +143,16 @@ def test_compose_scales_to_a_router_mesh_and_several_servers(tmp_path: Path) -> 
         assert cfg.get_json("access_control") == zenoh.Config.from_file(
             str(tmp_path / "deploy" / "zenoh" / "router.json5")
         ).get_json("access_control")
+    acl = zenoh.Config.from_file(str(tmp_path / "deploy" / "zenoh" / "router.json5")).get_json(
+        "access_control"
+    )
     for k in (1, 2):
         s = svc[f"fusion-server-{k}"]
         assert "--regions" in s["command"] and s["environment"]["COPLANE_STATE_DIR"] == "/state"
         assert all(r in s["depends_on"] for r in routers)
+        assert s["command"][s["command"].index("--server_id") + 1] == f"s{k}"
+        assert s["environment"]["COPLANE_BUS_IDENTITY"] == f"fusion-s{k}"
+        assert f'"fusion-s{k}"' in acl  # the routers know the identity
     connects = {
         svc[f"agent-{v}"]["command"][svc[f"agent-{v}"]["command"].index("--connect") + 1]
         for v in ("u1", "u2", "u3", "u4")

@@ -192,3 +192,21 @@ def test_only_a_tiles_writer_is_believed_about_it(tmp_path: Path) -> None:
     b.tile_writers = lambda _key, _size: None  # the grace time after a change of the servers
     assert b.take_peer(encode(snap)) == 1 and b.map.tiles[TileKey(100, 1)].version == 9
     b.close()
+
+
+def test_a_batch_is_believed_only_from_the_server_its_key_names(tmp_path: Path) -> None:
+    """The router's ACL ties a server's tiles key, `map/tiles/<id>`, to its own certificate;
+    the batch's `server` field is what the sender says. A batch whose field names another server
+    than its key (a server speaking for another) is dropped whole, by servers and agents alike."""
+    base = _base(tmp_path)
+    b = LiveRoadMap(server_map(base, "s2"), {}, fleet="f1", server="s2", owns_tile=_odd_cols)
+    b.take_outbox()
+    says_s1 = tiles_messages("f1", [_tile(0, 9)], CFG, 1, False, "s1")[0]
+    assert b.take_peer(encode(says_s1), "s3") == 0 and b.counts["peer-rejected:wrong-sender"] == 1
+    assert b.map.tiles[TileKey(100, 0)].version == 3
+    assert b.take_peer(encode(says_s1), "s1") == 1  # from the key it names: taken
+    b.close()
+    rx = MapReceiver("f1")
+    assert rx.take(says_s1, "s3") == 0 and rx.counts["rejected:wrong-sender"] == 1
+    assert rx.take(says_s1, "") == 0  # the single server's key names no server
+    assert rx.take(says_s1, "s1") == 1 and rx.map.tiles[TileKey(100, 0)].version == 9

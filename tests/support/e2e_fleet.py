@@ -31,6 +31,7 @@ from coplane.fleet import (
     router_spec,
     wait_for_port,
 )
+from coplane.fleet.launcher import server_ids
 from coplane.messages import SolutionMessage
 
 T = TypeVar("T")
@@ -78,7 +79,7 @@ def live_fleet(
     security = BusSecurity(insecure=True)
     if secure:
         certs = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="coplane-certs-")))
-        init_certs(certs, vehicles)
+        init_certs(certs, vehicles, servers=server_ids(servers))  # each server its own identity
         security = BusSecurity(certs=certs)
         stack.enter_context(use_security(security.as_identity(MONITOR)))
     else:

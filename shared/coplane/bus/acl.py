@@ -7,8 +7,9 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 
 | identity | sends (ingress) | receives (egress) |
 | --- | --- | --- |
-| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution` and the servers' tokens `P/alive/fusion/*`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe `P/map/tiles` with history queries to its cache | `P/solution`; the servers' tokens; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
-| `fusion` | put `P/solution`, `P/diagnostics`, `P/map/tiles`; token `P/alive/fusion/*`; subscribe every node key and the agents' tokens; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/@adv/**`); with regions, the other servers' tiles as a vehicle subscribes to them | every node put, cache reply and token; agent tokens; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache; the other servers' tiles, their caches' replies and tokens |
+| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution` and the servers' tokens `P/alive/fusion/*`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe the map tiles `P/map/tiles/**` with history queries to their caches | `P/solution`; the servers' tokens; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
+| `fusion` (a fleet's one server, or a certificate all servers share) | put `P/solution/**`, `P/diagnostics/**`, `P/map/tiles/**`; token `P/alive/fusion/*`; subscribe every node key, the agents' and servers' tokens and the other servers' solutions; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/**/@adv/**`); the other servers' tiles as a vehicle subscribes to them | every node put, cache reply and token; agent and server tokens; other servers' solutions; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache; the other servers' tiles, their caches' replies and tokens |
+| `fusion-<id>` (one server of a fleet with regions, `--server_id <id>`) | as `fusion`, but put only `P/solution/<id>`, `P/diagnostics/<id>` and `P/map/tiles/<id>`, token only `P/alive/fusion/<id>`, its map cache only under `P/map/tiles/<id>/@adv/**` | as `fusion` |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
 | `router` | everything under `P` (another router of the mesh, docs/scale.md) | everything under `P` |
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from coplane.bus.keys import KeySpace
-from coplane.bus.security import API, FUSION, MONITOR, ROUTER, vehicle_identity
+from coplane.bus.security import API, FUSION, MONITOR, ROUTER, server_identity, vehicle_identity
 
 Grant = tuple[str, tuple[str, ...], tuple[str, ...]]  # (flow, messages, key expressions)
 
@@ -39,8 +40,9 @@ ALL_MESSAGES = (
 )  # fmt: skip
 
 
-def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
-    """Every identity's grants (see the module docstring)."""
+def grants(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = ()) -> dict[str, list[Grant]]:
+    """Every identity's grants (see the module docstring); `servers`: the ids of the fusion
+    servers with identities of their own (`fusion-<id>`)."""
     k = KeySpace(fleet)
     p = k.prefix
     # regions (docs/scale.md): node keys under shard/region, several servers' solution keys
@@ -48,7 +50,9 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     rnodes, rnodes_adv = k.all_region_nodes, f"{k.all_region_nodes}/@adv/**"
     sols, diags = k.all_solutions, f"{k.diagnostics}/**"
     alive_all = f"{p}/alive/*/*"
-    tiles, tiles_adv = k.map_tiles, f"{k.map_tiles}/@adv/**"
+    # the road map: the single server's `map/tiles` and each server's `map/tiles/<id>` (`**`
+    # matches no chunk too), with their cached publishers' verbatim @adv chunks
+    tiles, tiles_adv = k.all_map_tiles, f"{k.all_map_tiles}/@adv/**"
     # the road map: the fusion server's cached publisher, the agents' history subscribers
     tile_reader: list[Grant] = [
         ("ingress", ("declare_subscriber",), (tiles, tiles_adv)),
@@ -78,9 +82,9 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
             ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv)),
             *tile_reader,
         ]
-    out[FUSION] = [
-        ("ingress", ("put",), (k.solution, k.diagnostics, sols, diags)),
-        ("ingress", ("liveliness_token",), (k.all_alive("fusion"),)),
+    # what every fusion server hears: the agents' nodes (and their caches), tokens, the other
+    # servers' solutions (hand-over seeds) and, with regions, their tiles (docs/scale.md)
+    server_hears: list[Grant] = [
         ("ingress", ("declare_subscriber",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv, sols)),
         (
             "ingress",
@@ -95,15 +99,26 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
             ("liveliness_token",),
             (k.all_alive("agent"), k.all_alive("fusion"), nodes_adv, rnodes_adv),
         ),
-        ("egress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags)),
-        ("ingress", ("put",), (tiles,)),
-        ("ingress", ("liveliness_token",), (tiles_adv,)),
-        ("ingress", ("declare_queryable",), (tiles_adv,)),
-        ("ingress", ("reply",), (tiles, tiles_adv)),
+        *tile_reader,
+        # the subscriber declarations and history queries that reach its publishers: the
+        # consumers declare wildcards (every server's solutions, tiles), which a grant on one
+        # server's keys alone would not include, and its publishers would then never send
+        ("egress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags, tiles, tiles_adv)),
         ("egress", ("query",), (tiles_adv,)),
-        ("egress", ("declare_subscriber",), (tiles, tiles_adv)),
-        *tile_reader,  # regions: each server replicates the others' tiles (docs/scale.md)
     ]
+    # the shared `fusion` identity speaks for any server; `fusion-<id>` only for its own
+    out[FUSION] = [
+        *server_hears,
+        *_server_speaks((k.solution, k.diagnostics, sols, diags), k.all_alive("fusion"), tiles, tiles_adv),
+    ]
+    for sid in servers:
+        keys = k.server_keys(sid)
+        out[server_identity(sid)] = [
+            *server_hears,
+            *_server_speaks(
+                (keys.solution, keys.diagnostics), k.alive("fusion", sid), keys.tiles, f"{keys.tiles}/@adv/**"
+            ),
+        ]
     readers = [
         ("ingress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags)),
         ("ingress", SUBSCRIBE_LIVELINESS, (alive_all,)),
@@ -119,12 +134,23 @@ def grants(vehicles: Sequence[str], fleet: str = "*") -> dict[str, list[Grant]]:
     return out
 
 
-def access_control(vehicles: Sequence[str], fleet: str = "*") -> dict[str, Any]:
+def _server_speaks(puts: tuple[str, ...], token: str, tiles: str, tiles_adv: str) -> list[Grant]:
+    """What a fusion server sends: `puts` (solutions, diagnostics), its liveliness `token`, and
+    its tiles with their cached publisher (queryable, replies, token under `tiles_adv`)."""
+    return [
+        ("ingress", ("put",), (*puts, tiles)),
+        ("ingress", ("liveliness_token",), (token, tiles_adv)),
+        ("ingress", ("declare_queryable",), (tiles_adv,)),
+        ("ingress", ("reply",), (tiles, tiles_adv)),
+    ]
+
+
+def access_control(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = ()) -> dict[str, Any]:
     """The router's `access_control` section: default deny, one subject per identity."""
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for identity, granted in grants(vehicles, fleet).items():
+    for identity, granted in grants(vehicles, fleet, servers).items():
         ids = []
         for i, (flow, messages, keys) in enumerate(granted):
             rid = f"{identity}-{i}"

@@ -5,6 +5,7 @@ Layout of a certificates folder (what `BusSecurity.certs` points at)::
     ca.crt  ca.key                   the fleet's own CA (its key signs; keep it off the vehicles)
     router.crt  router.key           the Zenoh router's TLS server certificate
     fusion.crt  api.crt  monitor.crt the services' client certificates (and their .key files)
+    fusion-<server id>.crt  ...      one per fusion server of a fleet with regions (`servers`)
     vehicle-<id>.crt  ...            one per vehicle
 
 The certificate's common name is the identity: the router's access control (coplane.bus.acl)
@@ -32,7 +33,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from coplane.bus.security import SERVICE_IDENTITIES, check_identity, vehicle_identity
+from coplane.bus.security import SERVICE_IDENTITIES, check_identity, server_identity, vehicle_identity
 from coplane.errors import ConfigError
 
 CA = "ca"
@@ -61,9 +62,13 @@ def key_path(folder: Path, identity: str) -> Path:
     return folder / f"{identity}.key"
 
 
-def identities_for(vehicles: Iterable[str]) -> list[str]:
-    """The router, the services and one identity per vehicle, in that order."""
-    return [*SERVICE_IDENTITIES, *(vehicle_identity(v) for v in vehicles)]
+def identities_for(vehicles: Iterable[str], servers: Iterable[str] = ()) -> list[str]:
+    """The router, the services, one identity per fusion server id and one per vehicle, in that order."""
+    return [
+        *SERVICE_IDENTITIES,
+        *(server_identity(s) for s in servers),
+        *(vehicle_identity(v) for v in vehicles),
+    ]
 
 
 def init_certs(
@@ -71,17 +76,19 @@ def init_certs(
     vehicles: Sequence[str],
     extra_dns: Sequence[str] = (),
     owner: tuple[int, int] | None = None,
+    servers: Sequence[str] = (),
 ) -> CertsResult:
     """Create (or complete) the certificates folder for these vehicles; see the module docstring.
 
     `extra_dns`: more names the router is reached by. `owner`: (uid, gid) to give the key files
     (the one-shot docker-compose service runs as root and hands them to the services' user).
+    `servers`: the ids of a fleet's fusion servers with regions, each given its own identity.
     """
     folder.mkdir(parents=True, exist_ok=True)
     ca_key, ca_cert, ca_created = _load_or_make_ca(folder)
     result = CertsResult(folder, ca_created)
     dns = (*DNS_NAMES, *extra_dns)
-    for identity in identities_for(vehicles):
+    for identity in identities_for(vehicles, servers):
         check_identity(identity)
         crt, key = cert_path(folder, identity), key_path(folder, identity)
         if crt.exists() or key.exists():

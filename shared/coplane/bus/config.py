@@ -19,7 +19,13 @@ import zenoh
 
 from coplane.bus.acl import access_control
 from coplane.bus.codec import MAX_PAYLOAD_BYTES
-from coplane.bus.security import ROUTER, BusSecurity, current_security, vehicle_of_identity
+from coplane.bus.security import (
+    ROUTER,
+    BusSecurity,
+    current_security,
+    server_of_identity,
+    vehicle_of_identity,
+)
 from coplane.errors import ConfigError
 
 # Zenoh's defragmentation bound (`transport/link/rx/max_message_size`, default 1 GiB): a larger
@@ -101,19 +107,26 @@ def vehicles_in(certs: Path) -> list[str]:
     return sorted(v for p in certs.glob("vehicle-*.crt") if (v := vehicle_of_identity(p.stem)) is not None)
 
 
+def servers_in(certs: Path) -> list[str]:
+    """The fusion server ids with a certificate of their own in a certificates folder."""
+    return sorted(s for p in certs.glob("fusion-*.crt") if (s := server_of_identity(p.stem)) is not None)
+
+
 def router_config(
     listen: Sequence[str],
     security: BusSecurity | None = None,
     vehicles: Sequence[str] | None = None,
     fleet: str = "*",
     connect: Sequence[str] = (),
+    servers: Sequence[str] | None = None,
 ) -> zenoh.Config:
     """A router listening on `listen` (what `python -m coplane.bus.router` opens).
 
     Secure: TLS listeners with the `router` certificate, client certificates required, and the
-    access control of coplane.bus.acl for `vehicles` (default: every vehicle certificate in the
-    certificates folder) in `fleet` (default: any). `connect`: other routers to form a mesh with,
-    retried until they are up, over mutual TLS with the same `router` certificate.
+    access control of coplane.bus.acl for `vehicles` and the fusion servers' own identities
+    `servers` (default: every vehicle and server certificate in the certificates folder) in `fleet`
+    (default: any). `connect`: other routers to form a mesh with, retried until they are up, over
+    mutual TLS with the same `router` certificate.
     """
     sec = security if security is not None else current_security()
     if sec.secure:
@@ -129,7 +142,8 @@ def router_config(
     if sec.secure:
         assert sec.certs is not None
         names = list(vehicles) if vehicles is not None else vehicles_in(sec.certs)
-        c.insert_json5("access_control", json.dumps(access_control(names, fleet)))
+        ids = list(servers) if servers is not None else servers_in(sec.certs)
+        c.insert_json5("access_control", json.dumps(access_control(names, fleet, ids)))
     return c
 
 
@@ -139,10 +153,12 @@ def router_document(
     vehicles: Sequence[str],
     fleet: str = "*",
     connect: Sequence[str] = (),
+    servers: Sequence[str] = (),
 ) -> dict[str, Any]:
     """A zenohd configuration file's content (docker-compose's routers): the same TLS listener and
     access control as `router_config`, with the certificates at `certs` inside the container.
-    `connect`: routers to form a mesh with, as `router_config` does (mutual TLS, retried forever)."""
+    `connect`: routers to form a mesh with, as `router_config` does (mutual TLS, retried forever).
+    `servers`: the ids of fusion servers with identities of their own."""
     files = (f"{certs}/ca.crt", f"{certs}/{ROUTER}.crt", f"{certs}/{ROUTER}.key")
     tls = tls_section(*files, "listen")
     doc: dict[str, Any] = {
@@ -159,6 +175,6 @@ def router_document(
     doc |= {
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"rx": {"max_message_size": MAX_TRANSPORT_MESSAGE_BYTES}, "tls": tls}},
-        "access_control": access_control(vehicles, fleet),
+        "access_control": access_control(vehicles, fleet, servers),
     }
     return doc

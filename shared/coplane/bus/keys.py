@@ -9,6 +9,8 @@
     coplane/v1/<fleet>/solution                 SolutionMessage, server -> vehicles, API
     coplane/v1/<fleet>/solution/<server>        the same, from one of several servers (regions)
     coplane/v1/<fleet>/diagnostics              DiagnosticsMessage, server -> API
+    coplane/v1/<fleet>/map/tiles                MapTilesMessage, the road map's tiles, server -> agents
+    coplane/v1/<fleet>/map/tiles/<server>       the same, from one of several servers (regions)
     coplane/v1/<fleet>/alive/<role>/<id>        liveliness tokens (role: agent | fusion | api)
 
 With regions, a vehicle publishes under the shard and region of its position (and a copy to each
@@ -23,6 +25,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 KEY_ROOT = "coplane/v1"
+
+
+@dataclass(frozen=True)
+class ServerKeys:
+    """The keys one fusion server puts on: the fleet's one server's plain keys, or with regions
+    the keys that name it (which the router's ACL ties to its identity, coplane.bus.acl)."""
+
+    solution: str
+    diagnostics: str
+    tiles: str
 
 
 @dataclass(frozen=True)
@@ -76,10 +88,28 @@ class KeySpace:
     def diagnostics(self) -> str:
         return f"{self.prefix}/diagnostics"
 
+    def server_keys(self, server: str | None) -> ServerKeys:
+        """Server `server`'s keys with regions; None: the fleet's one server's."""
+        if server is None:
+            return ServerKeys(self.solution, self.diagnostics, self.map_tiles)
+        return ServerKeys(
+            self.server_solution(server), f"{self.diagnostics}/{server}", self.server_tiles(server)
+        )
+
     @property
     def map_tiles(self) -> str:
         """The road map's tiles, from the fusion server (docs/roadmap.md, on the bus)."""
         return f"{self.prefix}/map/tiles"
+
+    def server_tiles(self, server: str) -> str:
+        """One server's tiles when several share the fleet (regions): the key names the writer,
+        so the router's ACL can hold each server's identity to its own (coplane.bus.acl)."""
+        return f"{self.prefix}/map/tiles/{server}"
+
+    @property
+    def all_map_tiles(self) -> str:
+        """The single server's `map/tiles` and every server's `map/tiles/<server>`."""
+        return f"{self.prefix}/map/tiles/**"
 
     def alive(self, role: str, ident: str) -> str:
         return f"{self.prefix}/alive/{role}/{ident}"
@@ -114,6 +144,15 @@ class KeySpace:
         """The <server> chunk of a solution key; "" for the single server's `solution`."""
         parts = key.split("/")
         return parts[4] if len(parts) == 5 and parts[3] == "solution" else ""
+
+    @staticmethod
+    def server_of_tiles_key(key: str) -> str | None:
+        """The <server> chunk of a tiles key, "" for the single server's `map/tiles`; None for a
+        key that is not a tiles key."""
+        parts = key.split("/")
+        if len(parts) < 5 or parts[3:5] != ["map", "tiles"]:
+            return None
+        return parts[5] if len(parts) == 6 else "" if len(parts) == 5 else None
 
     @staticmethod
     def id_of_alive_key(key: str) -> tuple[str, str] | None:

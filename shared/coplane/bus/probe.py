@@ -24,7 +24,7 @@ import zenoh
 
 from coplane.bus.config import session_config
 from coplane.bus.keys import KeySpace
-from coplane.bus.security import API, FUSION, MONITOR, BusSecurity, vehicle_of_identity
+from coplane.bus.security import API, FUSION, MONITOR, BusSecurity, server_of_identity, vehicle_of_identity
 
 SETTLE_S = 0.6  # how long a denied message gets to show up anyway (a delivered one takes ms)
 
@@ -42,17 +42,25 @@ class Attempt:
 
 def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) -> bool:
     """The policy, key relative to `coplane/v1/<fleet>/` (docs/bus.md, Security); a vehicle
-    certificate counts only for the fleet's `vehicles`."""
+    certificate counts only for the fleet's `vehicles`. `fusion` speaks for any server,
+    `fusion-<id>` only for server <id> (its solution, diagnostics, tiles and token keys); both hear
+    what a fusion server hears."""
     vid = vehicle_of_identity(identity)
     if vid is not None and vid not in vehicles:
         return False
+    sid = server_of_identity(identity)
+    server = identity == FUSION or sid is not None
     parts = key.split("/")
     regional = len(parts) == 7 and parts[0] == "shard" and parts[2] == "region" and parts[4] == "vehicle"
-    per_server = len(parts) == 2 and parts[0] in ("solution", "diagnostics")  # regions: one per server
+    tiles = parts[:2] == ["map", "tiles"] and len(parts) <= 3
+    # regions: one key per server, the server's id its last chunk
+    per_server = (len(parts) == 2 and parts[0] in ("solution", "diagnostics")) or (tiles and len(parts) == 3)
     if operation == "put":
         if vid is not None:
             return parts[:2] == ["vehicle", vid] or (regional and parts[5] == vid)
-        return identity == FUSION and (key in ("solution", "diagnostics", "map/tiles") or per_server)
+        if sid is not None:
+            return per_server and parts[-1] == sid
+        return identity == FUSION and (key in ("solution", "diagnostics") or tiles or per_server)
     if operation == "token":
         if parts[0] != "alive" or len(parts) != 3:
             return False
@@ -60,20 +68,21 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
         return (
             (vid is not None and role == "agent" and ident == vid)
             or (identity == FUSION and role == "fusion")
+            or (sid is not None and role == "fusion" and ident == sid)
             or (identity == API and role == "api")
         )
     if operation == "subscribe":
         if key.startswith("vehicle/") or regional:
-            return identity == FUSION
-        if key == "map/tiles":  # the road map's tiles, for the agents and (regions) the other servers
-            return vid is not None or identity == FUSION
+            return server
+        if tiles:  # the road map's tiles, for the agents and (regions) the other servers
+            return vid is not None or server
         if parts[0] == "solution":  # the fusion servers hear each other's (hand-over seeds)
-            return vid is not None or identity in (API, MONITOR, FUSION)
+            return vid is not None or server or identity in (API, MONITOR)
         return parts[0] == "diagnostics" and identity in (API, MONITOR)
     if operation == "liveliness-subscribe":  # agents' and servers' tokens, as fusion servers follow them
         if key == "alive/fusion/*":  # the servers' tokens: every consumer of solutions follows them
-            return vid is not None or identity in (FUSION, API, MONITOR)
-        return (identity == FUSION and key == "alive/agent/*") or identity in (API, MONITOR)
+            return vid is not None or server or identity in (API, MONITOR)
+        return (server and key == "alive/agent/*") or identity in (API, MONITOR)
     return False
 
 
@@ -177,7 +186,7 @@ def probe_access(
         # the map tiles' legitimate listener is an agent
         tile_listener = _open(endpoint, base.as_identity(f"vehicle-{vehicles[0]}"), wait=True)
         listeners["tiles"] = tile_listener
-        keep.append(tile_listener.declare_subscriber(k.map_tiles, on_put))
+        keep.append(tile_listener.declare_subscriber(k.all_map_tiles, on_put))
         for identity in identities:
             session(identity)
         time.sleep(0.5)  # every session knows the listeners (a client puts only where one listens)
@@ -200,7 +209,12 @@ def probe_access(
                 record(Attempt(identity, rel(key), "put", ok, got))
         # -- liveliness tokens (a token carries no sender): per key, the forbidden ones together,
         # one at a time only if something got through; the allowed ones one at a time
-        token_keys = [*(k.alive("agent", v) for v in vehicles), k.alive("fusion", "0"), k.alive("api", "x")]
+        token_keys = [
+            *(k.alive("agent", v) for v in vehicles),
+            k.alive("fusion", "0"),
+            k.alive("fusion", "s1"),
+            k.alive("api", "x"),
+        ]
         for key in token_keys:
             denied = [i for i in identities if not allowed(i, rel(key), "token", vehicles)]
             if denied and _try_tokens(key, [session(i) for i in denied], seen, SETTLE_S):
@@ -224,8 +238,9 @@ def probe_access(
 
 def _region_keys(k: KeySpace, vehicles: Sequence[str]) -> list[str]:
     """The keys of a fleet with regions (docs/scale.md): a vehicle's node under a shard and region,
-    and one server's solution and diagnostics."""
-    return [k.region_node(3, "r1c2", v) for v in vehicles] + [k.server_solution("s1"), f"{k.diagnostics}/s1"]
+    and server s1's solution, diagnostics and tiles."""
+    own = k.server_keys("s1")
+    return [k.region_node(3, "r1c2", v) for v in vehicles] + [own.solution, own.diagnostics, own.tiles]
 
 
 def _try_tokens(key: str, sessions: Sequence[zenoh.Session], seen: _Seen, timeout: float) -> bool:
@@ -261,6 +276,7 @@ def _probe_subscriptions(
         k.solution: FUSION,
         k.diagnostics: FUSION,
         k.map_tiles: FUSION,
+        k.server_tiles("s1"): FUSION,
     }
     identities = list(identities)
 

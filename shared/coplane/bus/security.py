@@ -8,7 +8,12 @@ as more than one identity (the `coplane fleet` launcher's own listener) uses `us
 
 Identities are certificate common names: `router`, `fusion`, `api`, `monitor` (read-only
 listeners such as `coplane fleet`'s collector) and `vehicle-<id>` per vehicle; the prefix keeps a
-vehicle called "fusion" from ever being the fusion server.
+vehicle called "fusion" from ever being the fusion server. Fusion servers that share a fleet by
+region (docs/scale.md) each have their own, `fusion-<server id>`: the router's ACL then lets a
+server put only its own solution, diagnostics and tile keys and declare only its own liveliness
+token, so one server's certificate cannot speak for another. `fusion` is the identity of a fleet's
+one server, and a server of any id may still use it (one certificate for every server: each may
+then speak for the others, the deployment's choice).
 """
 
 from __future__ import annotations
@@ -32,27 +37,49 @@ API = "api"
 MONITOR = "monitor"
 SERVICE_IDENTITIES = (ROUTER, FUSION, API, MONITOR)
 VEHICLE_PREFIX = "vehicle-"
+SERVER_PREFIX = FUSION + "-"
 INSECURE_WARNING = "INSECURE BUS: plain TCP, no authentication, no access control; anyone who reaches the router can forge any message"
+
+
+def _prefixed(prefix: str, ident: str, what: str) -> str:
+    """`prefix` + a valid id (a key chunk: the identity's keys name it), else a ConfigError."""
+    if not is_vehicle_id(ident):
+        raise ConfigError(f"invalid {what} id {ident!r} (expected [A-Za-z0-9_-]{{1,32}})")
+    return prefix + ident
+
+
+def _id_after(prefix: str, identity: str) -> str | None:
+    ident = identity.removeprefix(prefix)
+    return ident if identity.startswith(prefix) and is_vehicle_id(ident) else None
 
 
 def vehicle_identity(vehicle_id: str) -> str:
     """The certificate common name of a vehicle."""
-    if not is_vehicle_id(vehicle_id):
-        raise ConfigError(f"invalid vehicle id {vehicle_id!r} (expected [A-Za-z0-9_-]{{1,32}})")
-    return VEHICLE_PREFIX + vehicle_id
+    return _prefixed(VEHICLE_PREFIX, vehicle_id, "vehicle")
 
 
 def vehicle_of_identity(identity: str) -> str | None:
     """The vehicle id of a `vehicle-<id>` identity, else None."""
-    vid = identity.removeprefix(VEHICLE_PREFIX)
-    return vid if identity.startswith(VEHICLE_PREFIX) and is_vehicle_id(vid) else None
+    return _id_after(VEHICLE_PREFIX, identity)
+
+
+def server_identity(server_id: str) -> str:
+    """The certificate common name of one fusion server of a fleet with regions."""
+    return _prefixed(SERVER_PREFIX, server_id, "server")
+
+
+def server_of_identity(identity: str) -> str | None:
+    """The server id of a `fusion-<id>` identity, else None (also for the shared `fusion`)."""
+    return _id_after(SERVER_PREFIX, identity)
 
 
 def check_identity(identity: str) -> str:
-    if identity in SERVICE_IDENTITIES or vehicle_of_identity(identity) is not None:
+    """`identity` if it is one the bus knows (a service, a vehicle's, a server's own), else a ConfigError."""
+    if identity in SERVICE_IDENTITIES or vehicle_of_identity(identity) or server_of_identity(identity):
         return identity
     raise ConfigError(
-        f"unknown bus identity {identity!r}: expected one of {', '.join(SERVICE_IDENTITIES)} or vehicle-<id>"
+        f"unknown bus identity {identity!r}: expected one of {', '.join(SERVICE_IDENTITIES)}, "
+        "fusion-<server id> or vehicle-<id>"
     )
 
 
@@ -98,6 +125,30 @@ class BusSecurity(ServiceSettings):
 
     def as_identity(self, identity: str) -> BusSecurity:
         return self.model_copy(update={"identity": check_identity(identity)})
+
+
+def check_server_identity(security: BusSecurity, server_id: str | None) -> None:
+    """Refuse to start a fusion server whose bus identity cannot speak for it, which the router
+    would silently drop every put of: `fusion` serves any server, `fusion-<id>` only server <id> of
+    a fleet with regions (`server_id`; None: the fleet's one server, whose keys name none). An
+    insecure bus has no identities to check."""
+    identity = security.identity
+    if not security.secure or identity == FUSION:
+        return
+    own = server_of_identity(identity or "")
+    if own is None:
+        raise ConfigError(
+            f"a fusion server needs the bus identity {FUSION} or {SERVER_PREFIX}<id>, got {identity!r}"
+        )
+    if server_id is None:
+        raise ConfigError(
+            f"bus identity {identity!r} belongs to server {own} of a fleet with regions: "
+            f"run with --regions true --server_id {own}, or as identity {FUSION}"
+        )
+    if own != server_id:
+        raise ConfigError(
+            f"bus identity {identity!r} belongs to server {own}, not to --server_id {server_id}"
+        )
 
 
 _global: list[BusSecurity] = []

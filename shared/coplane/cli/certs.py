@@ -43,10 +43,17 @@ def init(
     owner: Annotated[
         str | None, typer.Option(help="UID[:GID] to own the identity keys (a root one-shot container).")
     ] = None,
+    servers: Annotated[
+        str,
+        typer.Option(
+            help="Ids of fusion servers sharing the fleet by region, comma-separated: each gets its own "
+            "identity fusion-<id>, which may speak only for that server."
+        ),
+    ] = "",
 ) -> None:
     """Make a local CA and a key + certificate for the router, fusion, api, monitor and each vehicle.
 
-    Never replaces an existing CA or certificate: run it again to add vehicles.
+    Never replaces an existing CA or certificate: run it again to add vehicles or servers.
     """
     from coplane.bus.certs import init_certs
 
@@ -57,7 +64,8 @@ def init(
 
         ids += [v for v in fleet_of(recording_or_default(recording))[1] if v not in ids]
     extra = [d.strip() for d in dns.split(",") if d.strip()]
-    result = init_certs(folder, ids, extra, _owner(owner))
+    server_list = [x.strip() for x in servers.split(",") if x.strip()]
+    result = init_certs(folder, ids, extra, _owner(owner), servers=server_list)
     ca = "made a new CA" if result.ca_created else "kept the existing CA"
     console.print(f"{folder}: {ca}; created {len(result.created)}: {', '.join(result.created) or '-'}")
     if result.existing:

@@ -20,7 +20,7 @@ from typing import Any
 
 from coplane.bus.config import router_document
 from coplane.errors import ConfigError
-from coplane.fleet.launcher import fleet_of, fleet_services
+from coplane.fleet.launcher import fleet_of, fleet_services, server_ids
 
 COMPOSE_RECORDING = "/app/shared/coplane/data/recordings/default"  # the bundled recording in the image
 COMPOSE_ROUTER = "tls/zenoh-router:7447"
@@ -117,6 +117,8 @@ def compose_document(
                 "--owner",
                 IMAGE_USER,
                 *more_dns,
+                # with regions each server has its own identity (docs/bus.md)
+                *(["--servers", ",".join(server_ids(servers))] if servers > 1 else []),
             ],
             "volumes": [f"{CERTS_VOLUME}:{CERTS_DIR}"],
             "restart": "no",
@@ -166,10 +168,13 @@ def compose_document(
     return {"services": services, "volumes": {CERTS_VOLUME: {}, STATE_VOLUME: {}}}
 
 
-def router_config_text(vehicles: Sequence[str], fleet: str, connect: Sequence[str] = ()) -> str:
+def router_config_text(
+    vehicles: Sequence[str], fleet: str, connect: Sequence[str] = (), servers: Sequence[str] = ()
+) -> str:
     """deploy/zenoh/router.json5: TLS on every interface of the container, this fleet's ACL;
-    `connect`: the mesh's first router, for the further routers' configs."""
-    doc = router_document(["tls/[::]:7447"], CERTS_DIR, vehicles, fleet, connect=connect)
+    `connect`: the mesh's first router, for the further routers' configs; `servers`: the ids of
+    fusion servers with identities of their own."""
+    doc = router_document(["tls/[::]:7447"], CERTS_DIR, vehicles, fleet, connect=connect, servers=servers)
     return ROUTER_HEADER + _compact_json(doc) + "\n"
 
 
@@ -228,8 +233,9 @@ def write_compose(
     out.write_text(COMPOSE_HEADER + yaml.safe_dump(doc, sort_keys=False, width=200))
     router_path = router_config or out.parent / ROUTER_CONFIG
     router_path.parent.mkdir(parents=True, exist_ok=True)
-    router_path.write_text(router_config_text(vehicles, fleet))
+    ids = server_ids(servers)
+    router_path.write_text(router_config_text(vehicles, fleet, servers=ids))
     for name in router_names(routers)[1:]:
         path = router_path.with_name(router_config_path(name).name)
-        path.write_text(router_config_text(vehicles, fleet, connect=["tls/zenoh-router:7447"]))
+        path.write_text(router_config_text(vehicles, fleet, connect=["tls/zenoh-router:7447"], servers=ids))
     return ComposeResult(out, len(doc["services"]), router_path)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from coplane.allocator import allocator_env
-from coplane.bus.security import API, FUSION, ROUTER, BusSecurity, vehicle_identity
+from coplane.bus.security import API, FUSION, ROUTER, BusSecurity, server_identity, vehicle_identity
 from coplane.errors import CoplaneError
 from coplane.recording.manifest import load_manifest
 from coplane.replay import fleet_id
@@ -93,6 +93,12 @@ def router_spec(
     for p in mesh:
         args += ["--connect", f"{scheme}/127.0.0.1:{p}"]
     return ServiceSpec("zenoh-router" if index == 1 else f"zenoh-router-{index}", ROUTER_MODULE, args, ROUTER)
+
+
+def server_ids(servers: int) -> list[str]:
+    """The `--server_id`s of a fleet's fusion servers with regions (none for a single server);
+    each joins the bus as its own identity, `fusion-<id>` (docs/bus.md)."""
+    return [f"s{i}" for i in range(1, servers + 1)] if servers > 1 else []
 
 
 def fusion_name(i: int, servers: int) -> str:
@@ -193,15 +199,11 @@ def fleet_services(
                 str(max(0.05, 0.5 / speed)),
                 *road_map,
                 *workers,
-                *(
-                    [*regional, "--server_id", f"s{i}", "--expected_servers", str(servers)]
-                    if servers > 1
-                    else []
-                ),
+                *([*regional, "--server_id", sid, "--expected_servers", str(servers)] if sid else []),
             ],
-            FUSION,
+            server_identity(sid) if sid else FUSION,
         )
-        for i in range(1, servers + 1)
+        for i, sid in enumerate(server_ids(servers) or [""], start=1)
     ]
     for j, vid in enumerate(vehicles):
         out.append(

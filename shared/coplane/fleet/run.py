@@ -43,6 +43,7 @@ from coplane.fleet.launcher import (
     free_port,
     map_args,
     router_spec,
+    server_ids,
     wait_for_port,
 )
 from coplane.live.nmea_out import NmeaServer
@@ -130,7 +131,7 @@ def fleet_security(options: FleetOptions, vehicles: list[str]) -> BusSecurity:
         warn_insecure("coplane fleet --insecure")
         return BusSecurity(insecure=True)
     folder = (options.certs or default_certs_dir()).resolve()
-    made = init_certs(folder, vehicles)
+    made = init_certs(folder, vehicles, servers=server_ids(options.servers))
     if made.created:
         log.info("certificates made", extra={"folder": str(folder), "identities": ",".join(made.created)})
     return BusSecurity(certs=folder, insecure=False)

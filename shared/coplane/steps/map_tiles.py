@@ -145,8 +145,15 @@ class MapReceiver:
         self._parts: dict[tuple[str, int], set[int]] = {}
         self.complete = False
 
-    def take(self, msg: MapTilesMessage) -> int:
-        """Apply one batch; the number of tiles it changed. Never raises for bad tiles."""
+    def take(self, msg: MapTilesMessage, sender: str | None = None) -> int:
+        """Apply one batch; the number of tiles it changed. Never raises for bad tiles. `sender`:
+        the server its key names (`KeySpace.server_of_tiles_key`, "" for the single server's
+        key); a batch that says it is another server's is from the wrong sender and is dropped
+        whole (`rejected:wrong-sender`): on a secure bus the key is what the router's ACL ties
+        to the writer's certificate. None: not checked (in-process use)."""
+        if sender is not None and msg.server != sender:
+            self.counts["rejected:wrong-sender"] += 1
+            return 0
         if msg.fleet != self.fleet:
             self.counts["rejected:wrong-fleet"] += 1
             return 0
