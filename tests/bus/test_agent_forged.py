@@ -181,3 +181,29 @@ def test_a_lockstep_agent_the_fleet_left_behind_joins_at_the_fleet_s_epoch(
     order = node.order
     assert node.sent == [*order[:3], *order[5:]]  # epochs 3 and 4 were solved without it
     assert agent.skipped == 2 and published == len(order) - 2
+
+
+def test_agent_takes_map_tiles_only_from_the_server_their_key_names(
+    genuine: tuple[Path, list[SolutionMessage]],
+) -> None:
+    """A map method's agent: a tiles batch is taken from the key of the server it names (the single
+    server's `map/tiles` names none) and dropped whole, counted, from another server's key."""
+    import numpy as np
+
+    from coplane.roadmap import RoadMapConfig, TileKey, TilePlane
+    from coplane.steps.map_tiles import tiles_messages
+
+    rec, _ = genuine
+    agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc-map", map_wait_s=0.0))
+    assert agent.tiles is not None
+    tile = TilePlane(
+        key=TileKey(100, 7), h0_m=41.5, info=np.diag([40.0, 300.0, 300.0]), eta=np.array([4.0, 0.0, 0.0]),
+        n_passes=4, n_points=40, version=3, updated_s=1.4e9,
+    )  # fmt: skip
+    says_s1 = tiles_messages(agent.fleet, [tile], RoadMapConfig(), 1, False, "s1")[0]
+    agent.ingest_one(Payload(agent.keys.server_tiles("s2"), encode(says_s1)))
+    agent.ingest_one(Payload(agent.keys.map_tiles, encode(says_s1)))
+    assert TileKey(100, 7) not in agent.tiles.map.tiles
+    assert agent.tiles.counts["rejected:wrong-sender"] == 2
+    agent.ingest_one(Payload(agent.keys.server_tiles("s1"), encode(says_s1)))
+    assert agent.tiles.map.tiles[TileKey(100, 7)].version == 3

@@ -104,3 +104,19 @@ def test_the_launcher_gives_each_server_its_identity() -> None:
     ]
     assert [s.identity for s in three] == ["fusion-s1", "fusion-s2", "fusion-s3"]
     assert [s.args[s.args.index("--server_id") + 1] for s in three] == ["s1", "s2", "s3"]
+
+
+def test_a_fusion_server_stops_at_start_with_another_servers_identity(tmp_path: Path) -> None:
+    """`FusionServer.run` checks its identity before it opens anything: with server s2's certificate
+    it will not run as server s1, nor as the fleet's one server."""
+    from coplane.bus import use_security
+    from coplane.fusion_server.server import FusionServer
+    from coplane.fusion_server.settings import FusionSettings
+    from coplane.sim import ensure_default_recording
+
+    rec = ensure_default_recording()
+    with use_security(BusSecurity(certs=tmp_path, identity="fusion-s2")):
+        for kw in ({"regions": True, "server_id": "s1"}, {}):
+            server = FusionServer(FusionSettings(recording=rec, db="none", map="none", **kw))
+            with pytest.raises(ConfigError, match="fusion-s2"):
+                server.run()

@@ -210,3 +210,25 @@ def test_a_batch_is_believed_only_from_the_server_its_key_names(tmp_path: Path) 
     assert rx.take(says_s1, "s3") == 0 and rx.counts["rejected:wrong-sender"] == 1
     assert rx.take(says_s1, "") == 0  # the single server's key names no server
     assert rx.take(says_s1, "s1") == 1 and rx.map.tiles[TileKey(100, 0)].version == 9
+
+
+def test_a_region_server_passes_each_batch_the_server_its_key_names(tmp_path: Path) -> None:
+    """The server's dispatch: a tiles batch from `map/tiles/<id>` reaches the replica with that
+    sender, so one naming another server than its key is dropped there."""
+    from coplane.bus import Payload
+    from coplane.fusion_server.server import FusionServer
+    from coplane.fusion_server.settings import FusionSettings
+    from coplane.sim import ensure_default_recording
+
+    server = FusionServer(
+        FusionSettings(
+            recording=ensure_default_recording(), db="none", map="none", regions=True, server_id="s2"
+        )
+    )
+    server.road_map = LiveRoadMap(server_map(_base(tmp_path), "s2"), {}, fleet=server.fleet, server="s2")
+    says_s1 = tiles_messages(server.fleet, [_tile(0, 9)], CFG, 1, False, "s1")[0]
+    server.handle(Payload(server.keys.server_tiles("s3"), encode(says_s1)))
+    assert server.road_map.counts["peer-rejected:wrong-sender"] == 1
+    server.handle(Payload(server.keys.server_tiles("s1"), encode(says_s1)))
+    assert server.road_map.map.tiles[TileKey(100, 0)].version == 9
+    server.road_map.close()
