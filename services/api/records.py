@@ -2,7 +2,7 @@
 
 `FleetState` (state.py) takes the bus messages and holds these; `views` serves them. A point keeps
 only what the views show, and shares what repeats (empty tuples, the plane source's strings), since
-`history_per_vehicle` of them are held per vehicle (about 1 kB each, tests/api/test_api_state.py).
+`history_per_vehicle` of them are held per vehicle (about 1.1 kB each, tests/api/test_api_state.py).
 """
 
 from __future__ import annotations
