@@ -5,8 +5,9 @@
 A Zenoh router with TLS listeners, client certificates required and coplane's access control
 (coplane.bus.acl) runs as a separate Python process (`python -m coplane.bus.router`, exactly what
 `coplane fleet` starts), for a 4-vehicle fleet. `coplane.bus.probe` then opens one session per
-identity and tries every put, liveliness token and subscription on the fleet's keys, recording
-whether a legitimate listener (or the prober, for subscriptions) received it; and it tries to
+identity and tries every put, liveliness token, subscription and road-map area query (answering
+one, asking one) on the fleet's keys, recording whether a legitimate listener (or the prober, for
+subscriptions and queries) received it; and it tries to
 connect without a certificate, with another CA's certificate and over plain TCP. `vehicle-u9` has a
 certificate from the fleet's CA but is not one of the fleet's vehicles. `fusion-s1` and `fusion-s2`
 are two fusion servers of a fleet with regions, each with its own identity (docs/bus.md): each may
@@ -96,7 +97,9 @@ def render(access: list[Attempt], connections: list[Attempt], seconds: float) ->
         "(`coplane.bus.acl`, default deny) runs as its own process, as `coplane fleet` starts it; "
         f"the fleet is `{FLEET}` with vehicles {', '.join(VEHICLES)}. `coplane.bus.probe` tries every "
         "combination below through it and records whether a legitimate listener received it "
-        "(for subscriptions: whether the subscriber received the legitimate publisher's sample). "
+        "(for subscriptions: whether the subscriber received the legitimate publisher's sample; "
+        "for `answer`: whether a fleet vehicle's area query for the road map got the identity's "
+        "answer; for `ask`: whether the identity's query got a fusion server's answer). "
         "`vehicle-u9` holds a certificate from the fleet's CA but is not one of its vehicles. "
         f"{' and '.join(f'`fusion-{s}`' for s in SERVERS)} are fusion servers of a fleet with regions, "
         "each with its own identity, which may put only that server's solution, diagnostics and tile "
@@ -112,7 +115,7 @@ def render(access: list[Attempt], connections: list[Attempt], seconds: float) ->
         "| operation | authorised: delivered | unauthorised: delivered |",
         "|---|---|---|",
     ]
-    for op in ("put", "token", "subscribe", "liveliness-subscribe"):
+    for op in ("put", "token", "subscribe", "liveliness-subscribe", "answer", "ask"):
         ok = [a for a in access if a.operation == op and a.allowed]
         bad = [a for a in access if a.operation == op and not a.allowed]
         lines.append(

@@ -12,8 +12,11 @@ With regions (docs/scale.md, "The road map across servers") each server keeps it
 whole replica: it adds evidence only to the tiles of the regions it owns (`owns_tile`; passes in
 another server's tiles are counted `foreign-tile` and dropped), publishes them, and takes the other
 servers' tiles from the bus (`take_peer`, newer versions from the tile's writer win) into its map
-and file. Its file
-starts as a copy of the fleet's map file when it has none (`server_map`).
+and file. Its file starts as a copy of the fleet's map file when it has none (`server_map`).
+
+Agents do not take the whole map: each asks for the tiles around it and then for what changed
+(`answer`, `coplane.steps.map_area`). Every tile is stamped with the revision at which it last
+changed here (`RevisionIndex`), so an answer holds only what its asker lacks.
 """
 
 from __future__ import annotations
@@ -22,19 +25,25 @@ import logging
 import os
 import sqlite3
 import time
+import uuid
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from coplane.bus import BadMessage, BusNode, decode, encode
+from coplane.bus import BadMessage, BusNode, Request, decode, encode
 from coplane.messages import MAX_MAP_COUNTS, MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
 from coplane.roadmap import MapBuilder, RoadMap, TileKey
+from coplane.roadmap.area import RevisionIndex
 from coplane.roadmap.tile import PassEvidence
+from coplane.steps.map_area import AreaQuery, answer_messages
 from coplane.steps.map_evidence import solution_samples
 from coplane.steps.map_tiles import CHUNK_TILES, merge_tile_states, tiles_messages
 from coplane.store import server_map_path
 from coplane.store.roadmap_db import RoadMapDb
+
+from .regions import RegionRole
+from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server.road_map")
 
@@ -68,6 +77,10 @@ class LiveRoadMap:
         self.snapshot = 0
         self.last_snapshot = time.monotonic()
         self.outbox: list[MapTilesMessage] = self._snapshot()
+        # agents' area queries: this process's run and each tile's revision (`answer`)
+        self.run = uuid.uuid4().hex[:12]
+        self.index = RevisionIndex()
+        self.index.touch(self.map.tiles)
         log.info("road map open", extra={"path": str(path), **self.map.stats()})
 
     @classmethod
@@ -97,6 +110,26 @@ class LiveRoadMap:
         except Exception as exc:
             log.error("road map not used: %s", exc, extra={"path": str(path)})
             return None
+
+    @classmethod
+    def for_server(
+        cls,
+        path: Path,
+        s: FusionSettings,
+        heights: Mapping[str, float],
+        fleet: str,
+        regions: RegionRole | None,
+    ) -> LiveRoadMap | None:
+        """The map a server with these settings extends: the fleet's file, or with regions its own
+        replica and tiles (docs/scale.md); None with the reason logged."""
+        return cls.open(
+            path if regions is None else server_map(path, s.server_id),
+            heights,
+            s.map_commit_every_s,
+            fleet,
+            s.map_snapshot_every_s,
+            *(() if regions is None else (s.server_id, regions.owns_tile, regions.tile_writers)),
+        )
 
     def add(self, sol: SolutionMessage, msgs: Mapping[str, NodeMessage]) -> None:
         """One solution's vehicle-epochs into the builder (never raises)."""
@@ -158,6 +191,35 @@ class LiveRoadMap:
                 self.counts["publish-errors"] += 1
                 log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
 
+    def answer(self, request: Request, key: str) -> None:
+        """An agent's area query: the tiles around it that it lacks, as one answer on `key` (this
+        server's tiles key). A query that does not parse gets an error reply naming what is
+        wrong and is counted (`query-rejected`); nothing here raises into the server."""
+        try:
+            query = AreaQuery.parse(request.parameters)
+        except ValueError as exc:
+            self.counts["query-rejected"] += 1
+            self._finish(request, key, (), f"bad area query: {exc}")
+            return
+        try:
+            msgs = answer_messages(self.map, self.index, query, self.fleet, self.server, self.run)
+        except Exception as exc:
+            self.counts["errors"] += 1
+            log.exception("road map: area query not answered")
+            self._finish(request, key, (), f"area query not answered: {type(exc).__name__}")
+            return
+        self.counts["queries"] += 1
+        self.counts["query-tiles"] += sum(len(m.tiles) for m in msgs)
+        self._finish(request, key, [encode(m) for m in msgs])
+
+    def _finish(
+        self, request: Request, key: str, payloads: Sequence[bytes], error: str | None = None
+    ) -> None:
+        try:
+            BusNode.answer(request, key, payloads, error)
+        except Exception:  # the asker gone, the session closing: its `Answered` comes by timeout
+            self.counts["query-reply-errors"] += 1
+
     def take_peer(self, payload: bytes, sender: str | None = None) -> int:
         """Regions: another server's tiles from the bus into this map and its file; the number
         taken. Its own batches (which the subscription also hears) and other fleets' are skipped; a
@@ -186,6 +248,7 @@ class LiveRoadMap:
         taken += merge_tile_states(self.map, unchecked, peer)
         self.counts.update({f"peer-{k}": n for k, n in peer.items()})
         if taken:
+            self.index.touch(t.key for t in taken)
             try:
                 self.db.write(taken)  # the replica survives a restart of this server
             except Exception:
@@ -242,6 +305,7 @@ class LiveRoadMap:
             changes = self.map.apply(passes)
             dirty = self.map.take_dirty()
             written = self.db.write(dirty, changes, mapped_until=self.map.mapped_until)
+            self.index.touch(t.key for t in dirty)
             self.outbox += tiles_messages(
                 self.fleet, dirty, self.map.config, self.snapshot, False, self.server
             )

@@ -21,6 +21,7 @@ from coplane.bus import (
     Presence,
     Publication,
     RepeatDecoder,
+    Request,
     Subscription,
     current_security,
     decode,
@@ -42,7 +43,7 @@ from .admission import Admission, AdmissionConfig
 from .durability import Durability
 from .pacing import Pacing
 from .regions import RegionRole
-from .road_map import LiveRoadMap, server_map
+from .road_map import LiveRoadMap
 from .settings import FusionSettings
 
 log = logging.getLogger("coplane.fusion_server")
@@ -144,6 +145,7 @@ class FusionServer(Pacing):
                 ),
             ],
             subscribe=[*listen, Subscription(self.keys.all_alive("agent"), liveliness=True)],
+            serve=[self.tiles_key] if self.road_map is not None else [],  # agents' area queries
         )
 
     # -- message handling ----------------------------------------------------------------------
@@ -160,6 +162,8 @@ class FusionServer(Pacing):
                     self.handle_node(event.key, event.data)
             elif isinstance(event, Presence):
                 self.handle_alive(event.key, event.alive)
+            elif isinstance(event, Request) and self.road_map is not None:
+                self.road_map.answer(event, self.tiles_key)
         except Exception:
             log.exception("event handling failed")
 
@@ -346,15 +350,7 @@ class FusionServer(Pacing):
         check_server_identity(current_security(), s.server_id if s.regions else None)  # start error
         path = map_path(s.map, self.fleet)
         if path is not None:  # before the node: its tile publisher's cache is sized by the map
-            regions = self.regions  # with regions: its own file and tiles (docs/scale.md)
-            self.road_map = LiveRoadMap.open(
-                path if regions is None else server_map(path, s.server_id),
-                self.heights,
-                s.map_commit_every_s,
-                self.fleet,
-                s.map_snapshot_every_s,
-                *(() if regions is None else (s.server_id, regions.owns_tile, regions.tile_writers)),
-            )
+            self.road_map = LiveRoadMap.for_server(path, s, self.heights, self.fleet, self.regions)
         with self.node() as node:
             log.info(
                 "fusion server started", extra={"fleet": self.fleet, "method": self.spec.name, "pace": s.pace}

@@ -21,6 +21,7 @@ from collections import Counter
 from pathlib import Path
 
 from coplane.bus import (
+    Answered,
     BadMessage,
     BusEvent,
     BusNode,
@@ -34,10 +35,12 @@ from coplane.bus import (
     session_config,
 )
 from coplane.bus.trust import GateSet
+from coplane.gnss.dgnss import DgnssCorrections
+from coplane.gnss.epoch_solver import EpochResult
 from coplane.gnss.standstill import load_dependencies
 from coplane.gtime import GpsTime
 from coplane.live.nmea_out import NmeaServer
-from coplane.messages import MapTilesMessage, NodeMessage, SolutionMessage
+from coplane.messages import NodeMessage, SolutionMessage
 from coplane.recording.model import NavData, ObsEpoch, UwbRange
 from coplane.recording.reader import open_recording
 from coplane.replay import BaseCorrections, first_epoch, replay_setup, uwb_for_vehicle, vehicle_schedule
@@ -46,6 +49,7 @@ from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
 from coplane.steps.map_tiles import MapReceiver
 
+from .map_fetch import MapFetch
 from .region import NODE_HISTORY, RegionKeys
 from .resend import ResendTimer
 from .settings import AgentSettings
@@ -100,10 +104,18 @@ class VehicleAgent:
         self.interval_s = man.interval_s
         # the road map from the bus (map methods): the fusion server's tiles on top of --map's file
         self.tiles: MapReceiver | None = None
+        self.fetch: MapFetch | None = None  # ... the tiles around the vehicle, asked as it moves
         if setup.method.plane_map:
             self.tiles = MapReceiver(self.fleet, self.step.road_map)
             self.step.road_map = self.tiles.map
-        self.bad_tiles = 0
+            # a map file of its own stays whole; else only the box around the vehicle is kept
+            self.fetch = MapFetch(
+                self.keys,
+                self.tiles,
+                settings.map_radius_m,
+                settings.map_refresh_s,
+                evict=settings.map is None,
+            )
         self.live = settings.gnss is not None  # a receiver stream, not the recording's file
         self.live_status: dict[str, object] = {}  # the live inputs at the end of a live run
         if self.live:
@@ -147,8 +159,6 @@ class VehicleAgent:
                 Subscription(self.keys.all_solutions),
                 # the servers' tokens: a restarted server's solutions are taken at once (`GateSet`)
                 Subscription(self.keys.all_alive("fusion"), liveliness=True),
-                # the single server's tiles and, with regions, each server's own key's
-                *([Subscription(self.keys.all_map_tiles, history=True)] if self.tiles is not None else []),
             ],
         )
 
@@ -166,10 +176,15 @@ class VehicleAgent:
             # while the old run was not over, is taken now
             released = self.gate.on_token(ev.key, ev.alive, time.time())
             return None if released is None else self._take(released, released)
+        if isinstance(ev, Answered):
+            if self.fetch is not None:
+                self.fetch.finish(ev, time.monotonic())
+            return None
         if not isinstance(ev, Payload):
             return None
         if (tiles_from := KeySpace.server_of_tiles_key(ev.key)) is not None:
-            self._take_tiles(ev.data, tiles_from)
+            if self.fetch is not None:  # an answer to this agent's map request
+                self.fetch.take(ev.data, tiles_from, self.warn)
             return None
         try:
             sol = decode(SolutionMessage, ev.data)
@@ -205,32 +220,29 @@ class VehicleAgent:
             return False
         return sol.answers(self.step.vehicle_id) or st - t >= 2 * self.interval_s
 
-    def _take_tiles(self, data: bytes, sender: str) -> None:
-        """One batch of road-map tiles from the fusion server its key names, `sender` (bad ones
-        counted, never fatal)."""
-        assert self.tiles is not None
-        try:
-            msg = decode(MapTilesMessage, data)
-        except BadMessage as exc:
-            self.bad_tiles += 1
-            self.warn.log(logging.WARNING, ("tiles", exc.kind), "rejected map tiles", {"reason": str(exc)})
-            return
-        self.tiles.take(msg, sender)
-        rejected = {k: n for k, n in self.tiles.counts.items() if k.startswith("rejected")}
-        if rejected:
-            self.warn.log(logging.WARNING, ("tiles", "rejected"), "map tiles rejected", rejected)
+    def front_end(
+        self, node: BusNode, t: GpsTime, ep: ObsEpoch | None, corrections: DgnssCorrections | None
+    ) -> EpochResult:
+        """This epoch's SPP and Doppler and, for a map method, the road map around the fix asked
+        for (`MapFetch`); the first answer is awaited (up to `map_wait_s`), so the first epochs
+        already use the map."""
+        front = self.step.front_end(t, ep, corrections)
+        if self.fetch is not None and front.spp.ok:
+            first = self.fetch.box is None
+            if self.fetch.follow(node, front.spp.position, time.monotonic()) and first:
+                self.wait_for_map(node)
+        return front
 
     def wait_for_map(self, node: BusNode) -> None:
-        """Map methods: wait (up to `map_wait_s`) for a whole snapshot of the fusion server's map,
-        so the first epochs already use it; solutions that arrive meanwhile are ingested as usual."""
-        if self.tiles is None or self.s.map_wait_s <= 0.0:
-            return
+        """Wait (up to `map_wait_s`) for the answers to the first map request; solutions that
+        arrive meanwhile are ingested as usual."""
+        assert self.fetch is not None and self.tiles is not None
         deadline = time.monotonic() + self.s.map_wait_s
-        while not self.tiles.complete and not self.stop.is_set() and time.monotonic() < deadline:
+        while self.fetch.pending is not None and not self.stop.is_set() and time.monotonic() < deadline:
             if (ev := node.get(timeout=0.05)) is not None:
                 self.ingest_one(ev)
         log.info(
-            "road map from the bus" if self.tiles.complete else "no whole road map from the bus yet",
+            "road map from the bus" if self.fetch.pending is None else "no road map from the bus yet",
             extra={"vehicle": self.step.vehicle_id, **self.tiles.map.stats(), **dict(self.tiles.counts)},
         )
 
@@ -275,7 +287,6 @@ class VehicleAgent:
             )
             if not self.schedule:
                 return 0
-            self.wait_for_map(node)
             start = s.start_unix_s if s.start_unix_s is not None else time.time()
             t0 = self.t0 or self.schedule[0][0]
             interval = self.rec.manifest.interval_s
@@ -297,7 +308,9 @@ class VehicleAgent:
                         break
                 for ev in node.drain():  # ingest what has arrived, in order
                     self.ingest_one(ev, expect=t)
-                msg = self.step.process(t, ep, self.corrections.at(t), self.uwb.get(t, ()))
+                corrections = self.corrections.at(t)
+                front = self.front_end(node, t, ep, corrections)
+                msg = self.step.process(t, ep, corrections, self.uwb.get(t, ()), front)
                 msg = msg.model_copy(update={"sent_unix_s": time.time()})  # latency stamp only
                 if not (keys := self.node_keys(node, msg)):
                     continue
@@ -324,9 +337,14 @@ class VehicleAgent:
                     "skipped": self.skipped,
                     "resent": self.resent,
                     "resend_timeout_s": round(self.resend.timeout_s(), 3),
+                    **self.map_status(),
                 },
             )
             return self.published
+
+    def map_status(self) -> dict[str, int]:
+        """Map methods: what `MapFetch.status` says, for the agent's last log line."""
+        return self.fetch.status() if self.fetch is not None else {}
 
     def await_last_solution(self, node: BusNode, t_last: GpsTime, timeout_s: float) -> None:
         """Realtime end: stay on the bus until the last epoch's solution arrives (or `timeout_s`).

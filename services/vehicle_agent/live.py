@@ -76,7 +76,6 @@ def run_live(agent: VehicleAgent) -> int:
             "agent started on live streams",
             extra={"vehicle": agent.step.vehicle_id, "pace": agent.s.pace, **inputs.status()},
         )
-        agent.wait_for_map(node)
         inputs.start(agent.stop)
         while not agent.stop.is_set():
             for ev in node.drain():
@@ -121,6 +120,7 @@ def run_live(agent: VehicleAgent) -> int:
                 "vehicle": agent.step.vehicle_id,
                 "published": agent.published,
                 "skipped": agent.skipped,
+                **agent.map_status(),
                 **inputs.status(),
             },
         )
@@ -141,7 +141,7 @@ def _publish(
     ranges = inputs.ranges(t)
     for ev in node.drain():
         agent.ingest_one(ev, expect=t)
-    msg = agent.step.process(t, ep, corrections, ranges)
+    msg = agent.step.process(t, ep, corrections, ranges, agent.front_end(node, t, ep, corrections))
     msg = msg.model_copy(update={"sent_unix_s": time.time()})
     if not (keys := agent.node_keys(node, msg)):
         return

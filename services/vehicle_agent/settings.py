@@ -57,7 +57,19 @@ class AgentSettings(ServiceSettings, RegionOptions):
     map_wait_s: float = Field(
         default=10.0,
         ge=0.0,
-        description="Map methods: wait this long at start for the fusion server's whole road map on the bus",
+        description="Map methods: wait this long at the first fix for the fusion servers' tiles around it",
+    )
+    map_radius_m: float = Field(
+        default=1500.0,
+        ge=100.0,
+        le=50000.0,
+        description="Map methods: ask the fusion servers for the road map within this distance of the vehicle "
+        "(a new box once it is half this from the edge)",
+    )
+    map_refresh_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        description="Map methods: ask for the tiles that changed around the vehicle this often",
     )
     resend_s: float = Field(
         default=1.0,

@@ -485,7 +485,11 @@ class MapTilesMessage(_Model):
     """A batch of road-map tiles from the fusion server: the whole map in `parts` messages of one
     `snapshot` (at start and then periodically), or the tiles one commit changed (`parts` 0).
     `server`: the writer's id when several servers share the fleet by region ('' for one server),
-    so a snapshot's parts are counted per server and a server skips its own batches."""
+    so a snapshot's parts are counted per server and a server skips its own batches.
+
+    An answer to an agent's area query (docs/roadmap.md, "Tiles on the bus") is `parts` messages
+    too, with the answering server's `run` (one per server process) and the `revision` of its map
+    the answer is complete up to, which the agent names in its next query ('' and 0 otherwise)."""
 
     schema_: Literal["coplane.map_tiles/1"] = Field(default="coplane.map_tiles/1", alias="schema")
     fleet: VehicleId
@@ -495,6 +499,8 @@ class MapTilesMessage(_Model):
     part: int = Field(ge=0)
     parts: int = Field(ge=0)
     tiles: list[MapTileState] = Field(max_length=1000)
+    run: str = Field(default="", pattern=r"^[0-9a-f]{0,32}$")
+    revision: int = Field(default=0, ge=0)
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, populate_by_name=True)
 

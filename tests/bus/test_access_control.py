@@ -7,6 +7,7 @@ one delivered. Clients without an acceptable certificate do not connect at all.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from coplane.bus import (
     Payload,
     Presence,
     Publication,
+    Request,
     Subscription,
     router_config,
     session_config,
@@ -68,11 +70,9 @@ def test_policy_table() -> None:
     assert not allowed("vehicle-u9", "vehicle/u9/node", "put", v)  # not one of the fleet's vehicles
     assert allowed("fusion", "solution", "put", v) and allowed("fusion", "alive/fusion/0", "token", v)
     assert not any(allowed("api", k, "put", v) for k in ("solution", "diagnostics", "vehicle/u1/node"))
-    # the road map: only the fusion server puts tiles, the fleet's agents read them
+    # the road map: only the fusion server puts tiles; agents ask for theirs (`test_area_query`)
     assert allowed("fusion", "map/tiles", "put", v) and not allowed("vehicle-u1", "map/tiles", "put", v)
-    assert allowed("vehicle-u1", "map/tiles", "subscribe", v) and not allowed(
-        "vehicle-u9", "map/tiles", "subscribe", v
-    )
+    assert not allowed("vehicle-u1", "map/tiles", "subscribe", v)
     # a server's own identity speaks for it alone; it hears what every fusion server hears
     for key in ("solution/s1", "diagnostics/s1", "map/tiles/s1"):
         assert allowed("fusion-s1", key, "put", v) and not allowed("fusion-s2", key, "put", v)
@@ -92,7 +92,7 @@ def test_every_identity_key_operation(secure_router: tuple[str, Path, Path]) -> 
     assert not leaked, f"unauthorised messages delivered: {leaked}"
     assert not missing, f"authorised messages lost: {missing}"
     ops = {a.operation for a in attempts}
-    assert ops == {"put", "token", "subscribe", "liveliness-subscribe"}
+    assert ops == {"put", "token", "subscribe", "liveliness-subscribe", "answer", "ask"}
     assert sum(not a.allowed for a in attempts) >= 50  # the matrix really tries the forbidden cases
 
 
@@ -120,8 +120,9 @@ def test_clients_without_an_acceptable_certificate_cannot_connect(
 
 def test_a_server_identity_reaches_the_consumers_wildcards(secure_router: tuple[str, Path, Path]) -> None:
     """A fusion server with its own identity publishes as the services do (declared publishers,
-    the tiles with a history cache): an agent subscribed to every server's solutions and tiles
-    (`solution/**`, `map/tiles/**`, with history) gets them, live and from the cache. The
+    the tiles with a history cache): an agent subscribed to every server's solutions
+    (`solution/**`) gets them, and another server subscribed to every server's tiles
+    (`map/tiles/**`, with history) gets them from the cache. The
     publishers send only once the router forwards the consumers' wildcard declarations to them,
     which the probe's plain puts above do not need; and one server's identity cannot declare
     another's liveliness token or put on its keys."""
@@ -146,13 +147,10 @@ def test_a_server_identity_reaches_the_consumers_wildcards(secure_router: tuple[
         time.sleep(0.3)
         agent = node(
             "vehicle-u1",
-            subscribe=[
-                Subscription(k.all_solutions),
-                Subscription(k.all_map_tiles, history=True),
-                Subscription(k.all_alive("fusion"), liveliness=True),
-            ],
+            subscribe=[Subscription(k.all_solutions), Subscription(k.all_alive("fusion"), liveliness=True)],
         )
-        with agent, node("fusion-s2", publish=[Publication(own.solution)]) as impostor:
+        peer = node("fusion-s2", subscribe=[Subscription(k.all_map_tiles, history=True)])
+        with agent, peer, node("fusion-s2", publish=[Publication(own.solution)]) as impostor:
             time.sleep(0.5)
             server.put(own.solution, b"live")
             impostor.put(own.solution, b"forged")  # a well-formed put from the wrong server
@@ -162,15 +160,60 @@ def test_a_server_identity_reaches_the_consumers_wildcards(secure_router: tuple[
             while (
                 time.monotonic() < deadline and not {(own.solution, b"live"), (own.tiles, b"cached")} <= got
             ):
-                ev = agent.get(timeout=0.1)
-                if isinstance(ev, Payload):
-                    got.add((ev.key, ev.data))
-                elif isinstance(ev, Presence) and ev.alive:
-                    presence.add(ev.key)
+                for ev in (agent.get(timeout=0.1), peer.poll()):
+                    if isinstance(ev, Payload):
+                        got.add((ev.key, ev.data))
+                    elif isinstance(ev, Presence) and ev.alive:
+                        presence.add(ev.key)
             time.sleep(SETTLE_S)
-            while (ev := agent.poll()) is not None:
+            for ev in [*agent.drain(), *peer.drain()]:
                 if isinstance(ev, Payload):
                     got.add((ev.key, ev.data))
     assert (own.solution, b"live") in got and (own.tiles, b"cached") in got, got
     assert (own.solution, b"forged") not in got
     assert k.alive("fusion", "s1") in presence
+
+
+def test_area_query_is_answered_by_servers_alone(secure_router: tuple[str, Path, Path]) -> None:
+    """The road map's area queries (docs/roadmap.md, "Tiles on the bus"): an agent's query for
+    `map/tiles/**` reaches a server's queryable on its own tiles key and the answer comes back.
+    A vehicle cannot declare a queryable there to answer in a server's name, one server's
+    identity cannot answer on another's key, and a vehicle outside the fleet cannot ask."""
+    ep, certs, _ = secure_router
+    k = KeySpace(FLEET)
+    base = BusSecurity(certs=certs)
+
+    def node(identity: str, **kw: Any) -> BusNode:
+        return BusNode(session_config("client", [ep], security=base.as_identity(identity)), **kw)
+
+    s1 = k.server_keys("s1").tiles
+    answerers = {
+        "fusion-s1": node("fusion-s1", serve=[s1]),
+        "fusion-s2 on s1's key": node("fusion-s2", serve=[s1]),
+        "vehicle-u2": node("vehicle-u2", serve=[s1]),
+    }
+    askers = {"vehicle-u1": node("vehicle-u1"), "vehicle-u9": node("vehicle-u9")}
+    got: dict[str, set[bytes]] = {name: set() for name in askers}
+    order: dict[str, list[str]] = {name: [] for name in askers}
+    with contextlib.ExitStack() as stack:
+        for n in [*answerers.values(), *askers.values()]:
+            stack.enter_context(n)
+        time.sleep(0.5)
+        for tag, asker in enumerate(askers.values()):
+            asker.request(f"{k.all_map_tiles}?box=0,1,0,1", tag, timeout_s=2.0)
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            for name, answerer in answerers.items():
+                while (ev := answerer.poll()) is not None:
+                    if isinstance(ev, Request):
+                        BusNode.answer(ev, s1, [name.encode()])
+            for name, asker in askers.items():
+                while (ev := asker.poll()) is not None:
+                    order[name].append(type(ev).__name__)
+                    if isinstance(ev, Payload):
+                        got[name].add(ev.data)
+            time.sleep(0.05)
+    assert got["vehicle-u1"] == {b"fusion-s1"}, got
+    assert got["vehicle-u9"] == set(), got
+    # the end of a request comes after its answers, once the servers finished (not the timeout)
+    assert order["vehicle-u1"] == ["Payload", "Answered"], order

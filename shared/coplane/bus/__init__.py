@@ -5,7 +5,16 @@ runs a router."""
 from coplane.bus.codec import BadMessage, RepeatDecoder, decode, encode, payload_bytes
 from coplane.bus.config import router_config, router_document, secure_endpoint, session_config
 from coplane.bus.keys import KEY_ROOT, KeySpace
-from coplane.bus.node import BusEvent, BusNode, Payload, Presence, Publication, Subscription
+from coplane.bus.node import (
+    Answered,
+    BusEvent,
+    BusNode,
+    Payload,
+    Presence,
+    Publication,
+    Request,
+    Subscription,
+)
 from coplane.bus.security import (
     API,
     FUSION,
@@ -25,6 +34,7 @@ __all__ = [
     "KEY_ROOT",
     "MONITOR",
     "ROUTER",
+    "Answered",
     "BadMessage",
     "BusEvent",
     "BusNode",
@@ -34,6 +44,7 @@ __all__ = [
     "Presence",
     "Publication",
     "RepeatDecoder",
+    "Request",
     "Subscription",
     "current_security",
     "decode",

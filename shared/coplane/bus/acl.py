@@ -7,9 +7,9 @@ not granted is dropped, in both directions. The grants, with P = `coplane/v1/<fl
 
 | identity | sends (ingress) | receives (egress) |
 | --- | --- | --- |
-| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution` and the servers' tokens `P/alive/fusion/*`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); subscribe the map tiles `P/map/tiles/**` with history queries to their caches | `P/solution`; the servers' tokens; queries for its own cache; subscriber declarations on node keys; map tiles, their cache's replies and token |
-| `fusion` (a fleet's one server, or a certificate all servers share) | put `P/solution/**`, `P/diagnostics/**`, `P/map/tiles/**`; token `P/alive/fusion/*`; subscribe every node key, the agents' and servers' tokens and the other servers' solutions; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/**/@adv/**`); the other servers' tiles as a vehicle subscribes to them | every node put, cache reply and token; agent and server tokens; other servers' solutions; subscriber declarations on solution, diagnostics and map tiles; queries for the map cache; the other servers' tiles, their caches' replies and tokens |
-| `fusion-<id>` (one server of a fleet with regions, `--server_id <id>`) | as `fusion`, but put only `P/solution/<id>`, `P/diagnostics/<id>` and `P/map/tiles/<id>`, token only `P/alive/fusion/<id>`, its map cache only under `P/map/tiles/<id>/@adv/**` | as `fusion` |
+| `vehicle-<id>` | put `P/vehicle/<id>/**`; token `P/alive/agent/<id>`; subscribe `P/solution` and the servers' tokens `P/alive/fusion/*`; its node publisher's cache (queryable, replies, token under `P/vehicle/<id>/node/@adv/**`); area queries for the map tiles `P/map/tiles/**` | `P/solution`; the servers' tokens; queries for its own cache; subscriber declarations on node keys; the servers' answers with map tiles |
+| `fusion` (a fleet's one server, or a certificate all servers share) | put `P/solution/**`, `P/diagnostics/**`, `P/map/tiles/**`; token `P/alive/fusion/*`; subscribe every node key, the agents' and servers' tokens and the other servers' solutions; history queries to the nodes' caches; the map publisher's cache (queryable, replies, token under `P/map/tiles/**/@adv/**`); the queryable and answers for the agents' area queries on `P/map/tiles/**`; the other servers' tiles, with history queries to their caches | every node put, cache reply and token; agent and server tokens; other servers' solutions; subscriber declarations on solution, diagnostics and map tiles; the agents' area queries and queries for the map cache; the other servers' tiles, their caches' replies and tokens |
+| `fusion-<id>` (one server of a fleet with regions, `--server_id <id>`) | as `fusion`, but put only `P/solution/<id>`, `P/diagnostics/<id>` and `P/map/tiles/<id>`, token only `P/alive/fusion/<id>`, its map cache and area queryable only on `P/map/tiles/<id>` (and its `@adv/**`) | as `fusion` |
 | `api` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive`; token `P/alive/api/*` | those |
 | `monitor` | subscribe `P/solution`, `P/diagnostics`, tokens under `P/alive` | those |
 | `router` | everything under `P` (another router of the mesh, docs/scale.md) | everything under `P` |
@@ -19,8 +19,8 @@ also receive the subscriber declarations on their keys (measured: without them a
 before its subscribers never delivers). A vehicle's node publisher keeps a history cache (a Zenoh advanced publisher): its queryable and
 liveliness token live under the verbatim chunk `@adv`, which `**` never matches, so those keys are
 granted explicitly. `<fleet>` is `*` unless a fleet is named: a certificate is a vehicle's
-identity, not a fleet's. `delete`, `declare_queryable` elsewhere and plain `query` are granted to
-nobody.
+identity, not a fleet's. `delete`, `declare_queryable` elsewhere and `query` elsewhere are
+granted to nobody: no vehicle can answer another's area query.
 """
 
 from __future__ import annotations
@@ -53,7 +53,10 @@ def grants(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = (
     # the road map: the single server's `map/tiles` and each server's `map/tiles/<id>` (`**`
     # matches no chunk too), with their cached publishers' verbatim @adv chunks
     tiles, tiles_adv = k.all_map_tiles, f"{k.all_map_tiles}/@adv/**"
-    # the road map: the fusion server's cached publisher, the agents' history subscribers
+    # the road map: an agent asks the servers' queryables for the tiles around it, and only
+    # they answer (docs/roadmap.md, "Tiles on the bus")
+    tile_asker: list[Grant] = [("ingress", ("query",), (tiles,)), ("egress", ("reply",), (tiles,))]
+    # ... the servers' tiles stream (a server's cached publisher, the other servers' subscribers)
     tile_reader: list[Grant] = [
         ("ingress", ("declare_subscriber",), (tiles, tiles_adv)),
         ("ingress", SUBSCRIBE_LIVELINESS, (tiles_adv,)),
@@ -80,7 +83,7 @@ def grants(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = (
             ("egress", ("put",), (k.solution, sols)),
             ("egress", ("query",), (adv, r_adv)),
             ("egress", ("declare_subscriber",), (k.all_nodes, nodes_adv, rnodes, rnodes_adv)),
-            *tile_reader,
+            *tile_asker,
         ]
     # what every fusion server hears: the agents' nodes (and their caches), tokens, the other
     # servers' solutions (hand-over seeds) and, with regions, their tiles (docs/scale.md)
@@ -104,7 +107,7 @@ def grants(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = (
         # consumers declare wildcards (every server's solutions, tiles), which a grant on one
         # server's keys alone would not include, and its publishers would then never send
         ("egress", ("declare_subscriber",), (k.solution, k.diagnostics, sols, diags, tiles, tiles_adv)),
-        ("egress", ("query",), (tiles_adv,)),
+        ("egress", ("query",), (tiles, tiles_adv)),  # ... and the agents' area queries
     ]
     # the shared `fusion` identity speaks for any server; `fusion-<id>` only for its own
     out[FUSION] = [
@@ -136,11 +139,12 @@ def grants(vehicles: Sequence[str], fleet: str = "*", servers: Sequence[str] = (
 
 def _server_speaks(puts: tuple[str, ...], token: str, tiles: str, tiles_adv: str) -> list[Grant]:
     """What a fusion server sends: `puts` (solutions, diagnostics), its liveliness `token`, and
-    its tiles with their cached publisher (queryable, replies, token under `tiles_adv`)."""
+    its tiles with their cached publisher (queryable, replies, token under `tiles_adv`) and the
+    queryable that answers the agents' area queries on `tiles`."""
     return [
         ("ingress", ("put",), (*puts, tiles)),
         ("ingress", ("liveliness_token",), (token, tiles_adv)),
-        ("ingress", ("declare_queryable",), (tiles_adv,)),
+        ("ingress", ("declare_queryable",), (tiles, tiles_adv)),
         ("ingress", ("reply",), (tiles, tiles_adv)),
     ]
 

@@ -4,7 +4,7 @@
                  publish=[Publication(keys.node(vid), must_deliver=True)],
                  subscribe=[Subscription(keys.solution)]) as node:
         node.put(keys.node(vid), payload)
-        event = node.get(timeout=0.05)   # a Payload, a Presence, or None
+        event = node.get(timeout=0.05)   # a Payload, a Presence, a Request, an Answered, or None
 
 Every service declares its session, publishers, subscriptions and liveliness token here, so QoS
 and the thread hand-over are written once. Zenoh runs subscriber callbacks on its own threads and
@@ -12,6 +12,11 @@ they must return at once (a slow subscriber backs up the router and, through BLO
 control, the publisher): the node's callbacks only copy the payload into a typed event and hand it
 over, in arrival order, to one FIFO queue (read with `get`/`drain`) or to a `sink` the owner gives
 (the API hands events to its event loop). Decoding happens on the owner's side.
+
+Queries go the same way: a query to one of the node's queryables (`serve`) is handed over as a
+`Request`, which the owner answers from its own thread (`answer`); the replies to the node's own
+`request` arrive as `Payload`s, followed by one `Answered` once every queryable has answered or
+the timeout passed, so the owner sees a whole answer in order with everything else.
 """
 
 from __future__ import annotations
@@ -71,7 +76,26 @@ class Presence:
     alive: bool
 
 
-BusEvent = Payload | Presence
+@dataclass(frozen=True)
+class Request:
+    """A query to one of this node's queryables: the key expression asked for, its selector
+    parameters (not yet validated) and the Zenoh query to answer with `BusNode.answer`."""
+
+    key: str
+    parameters: dict[str, str]
+    query: Any
+
+
+@dataclass(frozen=True)
+class Answered:
+    """A `BusNode.request` finished: every reply to it came before this event. `tag` is the
+    request's."""
+
+    key: str
+    tag: int
+
+
+BusEvent = Payload | Presence | Request | Answered
 Sink = Callable[[BusEvent], None]
 TokenKey = str | Callable[[str], str]
 
@@ -84,7 +108,8 @@ class BusNode:
     subscriptions, so a node that says it is alive can already hear and speak. `sink`: where events
     go instead of the node's own queue; it runs on a Zenoh thread and must not block.
     `history_later`: publications with a cache will be added while open (`add_publication`), so
-    the session needs timestamps from the start.
+    the session needs timestamps from the start. `serve`: key expressions to declare queryables
+    on; their queries are handed over as `Request` events.
     """
 
     def __init__(
@@ -96,6 +121,7 @@ class BusNode:
         subscribe: Iterable[Subscription] = (),
         sink: Sink | None = None,
         history_later: bool = False,
+        serve: Iterable[str] = (),
     ) -> None:
         self._config = config
         self._token_key = token
@@ -108,6 +134,8 @@ class BusNode:
         self._token: Any = None
         self._publishers: dict[str, Any] = {}
         self._subscribers: dict[str, Any] = {}
+        self._serve = list(serve)  # keys of the queryables: their queries become `Request`s
+        self._queryables: list[Any] = []
 
     # -- lifetime ------------------------------------------------------------------------------
     def open(self) -> BusNode:
@@ -130,6 +158,8 @@ class BusNode:
             self._publishers[p.key] = self._declare_publisher(session, p)
         for s in self._subscribe:
             self._subscribers[s.key] = self._declare_subscriber(session, s)
+        for key in self._serve:
+            self._queryables.append(session.declare_queryable(key, self._on_query))
         if self._token_key is not None:
             key = self._token_key if isinstance(self._token_key, str) else self._token_key(self.zid)
             self._token = session.liveliness().declare_token(key)
@@ -223,6 +253,7 @@ class BusNode:
             self._token = None
             self._publishers.clear()
             self._subscribers.clear()
+            self._queryables.clear()
             session.close()
 
     def __enter__(self) -> BusNode:
@@ -247,6 +278,31 @@ class BusNode:
     def put(self, key: str, payload: bytes) -> None:
         """Put on one of the declared publications."""
         self._publishers[key].put(payload)
+
+    def request(self, selector: str, tag: int = 0, timeout_s: float = 5.0) -> None:
+        """Query every matching queryable without waiting: the replies arrive as `Payload`s (the
+        key each replier gave), then one `Answered(tag)`. Every reply is kept (no consolidation:
+        an answer may be several messages on one key), and every queryable is asked."""
+        key = selector.split("?", 1)[0]
+        self.session.get(
+            selector,
+            zenoh.handlers.Callback(self._on_reply, lambda: self._deliver(Answered(key, tag))),
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout_s,
+        )
+
+    @staticmethod
+    def answer(request: Request, key: str, payloads: Iterable[bytes] = (), error: str | None = None) -> None:
+        """Reply to a `Request` on `key` (one reply per payload, or an error reply) and finish it:
+        the asker's `Answered` comes once every queryable asked has finished."""
+        try:
+            if error is not None:
+                request.query.reply_err(error.encode())
+            for data in payloads:
+                request.query.reply(key, data)
+        finally:
+            request.query.drop()
 
     def get(self, timeout: float | None = None) -> BusEvent | None:
         """The next event in arrival order, or None if none came within `timeout` seconds."""
@@ -280,6 +336,13 @@ class BusNode:
     # -- Zenoh threads -------------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
         self._deliver(Payload(str(sample.key_expr), payload_bytes(sample)))
+
+    def _on_reply(self, reply: Any) -> None:
+        if reply.ok is not None:  # an error reply is the answerer's word on a bad query: logged there
+            self._on_sample(reply.ok)
+
+    def _on_query(self, query: Any) -> None:
+        self._deliver(Request(str(query.key_expr), dict(query.parameters), query))
 
     def _on_presence(self, sample: Any) -> None:
         self._deliver(Presence(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))

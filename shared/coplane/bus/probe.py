@@ -1,8 +1,10 @@
 """Probe a live secure router: try every (identity x key x operation) and report what got through.
 
 `probe_access` opens one session per identity (certificates from a `coplane certs init` folder),
-tries every put, liveliness token and subscription that matters on one fleet's keys, and records for
-each whether a legitimate listener (or the prober itself, for subscriptions) received it, beside
+tries every put, liveliness token and subscription that matters on one fleet's keys, and the road
+map's area queries (answering one on a server's tiles key, asking one), and records for each
+whether a legitimate listener (or the prober itself, for subscriptions and questions) received it,
+beside
 what the policy says (`allowed`, written from docs/bus.md's table, independently of the router's
 ACL generator in coplane.bus.acl, so a wrong rule shows up as a mismatch). `probe_connections`
 checks that clients without an acceptable certificate cannot connect at all.
@@ -35,7 +37,7 @@ class Attempt:
 
     identity: str
     key: str
-    operation: str  # put | token | subscribe | liveliness-subscribe | connect
+    operation: str  # put | token | subscribe | liveliness-subscribe | answer | ask | connect
     allowed: bool  # what the policy says
     delivered: bool  # what happened through the router
 
@@ -74,11 +76,15 @@ def allowed(identity: str, key: str, operation: str, vehicles: Sequence[str]) ->
     if operation == "subscribe":
         if key.startswith("vehicle/") or regional:
             return server
-        if tiles:  # the road map's tiles, for the agents and (regions) the other servers
-            return vid is not None or server
+        if tiles:  # the servers' tiles stream, for (regions) the other servers; agents ask instead
+            return server
         if parts[0] == "solution":  # the fusion servers hear each other's (hand-over seeds)
             return vid is not None or server or identity in (API, MONITOR)
         return parts[0] == "diagnostics" and identity in (API, MONITOR)
+    if operation == "answer":  # a queryable for the agents' area queries: a server's own tiles key
+        return tiles and ((identity == FUSION) or (sid is not None and per_server and parts[-1] == sid))
+    if operation == "ask":  # an area query for the tiles: the fleet's vehicles
+        return tiles and vid is not None
     if operation == "liveliness-subscribe":  # agents' and servers' tokens, as fusion servers follow them
         if key == "alive/fusion/*":  # the servers' tokens: every consumer of solutions follows them
             return vid is not None or server or identity in (API, MONITOR)
@@ -183,8 +189,8 @@ def probe_access(
         keep.append(listeners[API].declare_subscriber(k.all_solutions, on_put))
         keep.append(listeners[API].declare_subscriber(f"{k.diagnostics}/**", on_put))
         keep.append(listeners[API].liveliness().declare_subscriber(f"{k.prefix}/alive/*/*", on_token))
-        # the map tiles' legitimate listener is an agent
-        tile_listener = _open(endpoint, base.as_identity(f"vehicle-{vehicles[0]}"), wait=True)
+        # the map tiles' legitimate listener is another server (agents ask by area instead)
+        tile_listener = _open(endpoint, base.as_identity(FUSION), wait=True)
         listeners["tiles"] = tile_listener
         keep.append(tile_listener.declare_subscriber(k.all_map_tiles, on_put))
         for identity in identities:
@@ -230,6 +236,9 @@ def probe_access(
                     record(Attempt(i, rel(key), "token", True, _try_tokens(key, [session(i)], seen, 3.0)))
         # -- subscriptions: each identity listens, the legitimate publisher puts
         out.extend(_probe_subscriptions(k, identities, vehicles, base, endpoint, session, rel, progress))
+        # -- area queries: each identity answers (a vehicle asks) and asks (a server answers)
+        for a in _probe_queries(k, identities, vehicles, base, endpoint, session, rel):
+            record(a)
     finally:
         for s in [*sessions.values(), *listeners.values()]:
             s.close()
@@ -241,6 +250,68 @@ def _region_keys(k: KeySpace, vehicles: Sequence[str]) -> list[str]:
     and server s1's solution, diagnostics and tiles."""
     own = k.server_keys("s1")
     return [k.region_node(3, "r1c2", v) for v in vehicles] + [own.solution, own.diagnostics, own.tiles]
+
+
+def _probe_queries(
+    k: KeySpace,
+    identities: Sequence[str],
+    vehicles: Sequence[str],
+    base: BusSecurity,
+    endpoint: str,
+    session: Callable[[str], zenoh.Session],
+    rel: Callable[[str], str],
+) -> list[Attempt]:
+    """The road map's area queries: every identity declares a queryable on the single server's and
+    server s1's tiles keys, answering with its name, and a fleet vehicle asks `map/tiles/**`;
+    then a fusion server answers "legit" and every identity asks."""
+    out: list[Attempt] = []
+    keys = [k.map_tiles, k.server_tiles("s1")]
+
+    def ask(s: zenoh.Session) -> set[tuple[str, str]]:
+        got = [
+            (str(r.ok.key_expr), r.ok.payload.to_bytes().decode())
+            for r in s.get(
+                f"{k.all_map_tiles}?box=0,0,0,0",
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,  # every answer, several on one key
+                timeout=2.0,
+            )
+            if r.ok is not None
+        ]
+        return set(got)
+
+    def answering(s: zenoh.Session, key: str, name: str) -> Any:
+        return s.declare_queryable(key, lambda q: q.reply(key, name))
+
+    queryables = [answering(session(i), key, i) for i in identities for key in keys]
+    asker = _open(endpoint, base.as_identity(f"vehicle-{vehicles[0]}"), wait=True)
+    try:
+        time.sleep(0.5)
+        heard = ask(asker)
+        for i in identities:
+            for key in keys:
+                out.append(
+                    Attempt(
+                        i, rel(key), "answer", allowed(i, rel(key), "answer", vehicles), (key, i) in heard
+                    )
+                )
+    finally:
+        for q in queryables:
+            q.undeclare()
+        asker.close()
+    legit = _open(endpoint, base.as_identity(FUSION), wait=True)
+    try:
+        kept = answering(legit, k.map_tiles, "legit")
+        time.sleep(0.5)
+        for i in identities:
+            got = (k.map_tiles, "legit") in ask(session(i))
+            out.append(
+                Attempt(i, rel(k.all_map_tiles), "ask", allowed(i, rel(k.map_tiles), "ask", vehicles), got)
+            )
+        kept.undeclare()
+    finally:
+        legit.close()
+    return out
 
 
 def _try_tokens(key: str, sessions: Sequence[zenoh.Session], seen: _Seen, timeout: float) -> bool:

@@ -26,6 +26,7 @@ from coplane.bus import (
     BusEvent,
     BusNode,
     KeySpace,
+    Payload,
     Presence,
     Subscription,
     decode,
@@ -83,6 +84,8 @@ class Collector:
     def _on_event(self, event: BusEvent) -> None:
         if isinstance(event, Presence):
             self._on_presence(event)
+            return
+        if not isinstance(event, Payload):
             return
         if event.key.startswith(self.keys.solution):
             self._on_solution(event.data, KeySpace.server_of_solution_key(event.key))

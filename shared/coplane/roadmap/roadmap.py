@@ -117,6 +117,14 @@ class RoadMap:
         self.dirty = set()
         return out
 
+    def drop(self, keys: Iterable[TileKey]) -> int:
+        """Forget these tiles (an agent's map keeps only the tiles around it); how many were held."""
+        n = 0
+        for k in keys:
+            n += self.tiles.pop(k, None) is not None
+            self._planes.pop(k, None)
+        return n
+
     def tile_at(self, ecef: ArrayLike) -> TilePlane | None:
         """The tile holding an ECEF position (a road point: project an antenna first)."""
         return self.tiles.get(tile_of_ecef(ecef, self.config.tile_size_m))

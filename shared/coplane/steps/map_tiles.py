@@ -46,10 +46,13 @@ def tiles_messages(
     snapshot: int,
     whole: bool,
     server: str = "",
+    run: str = "",
+    revision: int = 0,
 ) -> list[MapTilesMessage]:
-    """`tiles` in messages of at most CHUNK_TILES; `whole`: they are the whole map (parts = count,
-    at least one message even for an empty map), else a commit's changes (parts = 0). `server`:
-    the writer's id with regions (docs/scale.md, "The road map across servers")."""
+    """`tiles` in messages of at most CHUNK_TILES; `whole`: they are the whole map or a whole
+    answer (parts = count, at least one message even for no tiles), else a commit's changes
+    (parts = 0). `server`: the writer's id with regions (docs/scale.md, "The road map across
+    servers"); `run`, `revision`: an area answer's (`coplane.steps.map_area`)."""
     chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)] or [[]]
     if not whole:
         chunks = [c for c in chunks if c]
@@ -62,6 +65,8 @@ def tiles_messages(
             part=i,
             parts=len(chunks) if whole else 0,
             tiles=[tile_state(t) for t in chunk],
+            run=run,
+            revision=revision,
         )
         for i, chunk in enumerate(chunks)
     ]
@@ -144,6 +149,10 @@ class MapReceiver:
         self.counts: Counter[str] = Counter()
         self._parts: dict[tuple[str, int], set[int]] = {}
         self.complete = False
+        # area answers (`coplane.steps.map_area`): the parts seen of each, and per server the
+        # (run, revision) of the last answer whose every part arrived, until `take_answers`
+        self._answer_parts: dict[tuple[str, str, int], set[int]] = {}
+        self._answers: dict[str, tuple[str, int]] = {}
 
     def take(self, msg: MapTilesMessage, sender: str | None = None) -> int:
         """Apply one batch; the number of tiles it changed. Never raises for bad tiles. `sender`:
@@ -161,7 +170,14 @@ class MapReceiver:
             self.counts["rejected:tile-size"] += 1
             return 0
         changed = len(merge_tile_states(self.map, msg.tiles, self.counts))
-        if msg.parts > 0 and msg.part < msg.parts:
+        if msg.run and msg.parts > 0 and msg.part < msg.parts:
+            seen = self._answer_parts.setdefault((msg.server, msg.run, msg.revision), set())
+            seen.add(msg.part)
+            if len(seen) == msg.parts:
+                self._answers[msg.server] = (msg.run, msg.revision)
+                del self._answer_parts[(msg.server, msg.run, msg.revision)]
+                self.complete = True
+        elif msg.parts > 0 and msg.part < msg.parts:
             # per server: with regions every server publishes snapshots numbered from 1
             seen = self._parts.setdefault((msg.server, msg.snapshot), set())
             seen.add(msg.part)
@@ -169,3 +185,10 @@ class MapReceiver:
                 self.complete = True
                 self._parts.clear()
         return changed
+
+    def take_answers(self) -> dict[str, tuple[str, int]]:
+        """Per server, the (run, revision) of the last area answer that arrived whole since the
+        last call; parts of unfinished answers are forgotten (their tiles are kept)."""
+        out, self._answers = self._answers, {}
+        self._answer_parts.clear()
+        return out
