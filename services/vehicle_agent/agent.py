@@ -48,6 +48,7 @@ from coplane.roadmap import RoadMap
 from coplane.runtime import RateLimitedLog
 from coplane.steps import gps_time
 from coplane.steps.map_tiles import MapReceiver
+from coplane.typing import Vec
 
 from .map_fetch import MapFetch
 from .region import NODE_HISTORY, RegionKeys
@@ -230,19 +231,21 @@ class VehicleAgent:
         if self.fetch is not None and front.spp.ok:
             first = self.fetch.box is None
             if self.fetch.follow(node, front.spp.position, time.monotonic()) and first:
-                self.wait_for_map(node)
+                self.wait_for_map(node, front.spp.position)
         return front
 
-    def wait_for_map(self, node: BusNode) -> None:
-        """Wait (up to `map_wait_s`) for the answers to the first map request; solutions that
-        arrive meanwhile are ingested as usual."""
+    def wait_for_map(self, node: BusNode, position: Vec) -> None:
+        """Wait (up to `map_wait_s`) until a server answered the first map request, asking again
+        while none has (a server still starting); solutions that arrive meanwhile are ingested."""
         assert self.fetch is not None and self.tiles is not None
         deadline = time.monotonic() + self.s.map_wait_s
-        while self.fetch.pending is not None and not self.stop.is_set() and time.monotonic() < deadline:
+        while not self.fetch.held and not self.stop.is_set() and time.monotonic() < deadline:
             if (ev := node.get(timeout=0.05)) is not None:
                 self.ingest_one(ev)
+            elif self.fetch.pending is None:
+                self.fetch.follow(node, position, time.monotonic())
         log.info(
-            "road map from the bus" if self.fetch.pending is None else "no road map from the bus yet",
+            "road map from the bus" if self.fetch.held else "no road map from the bus yet",
             extra={"vehicle": self.step.vehicle_id, **self.tiles.map.stats(), **dict(self.tiles.counts)},
         )
 
@@ -337,14 +340,10 @@ class VehicleAgent:
                     "skipped": self.skipped,
                     "resent": self.resent,
                     "resend_timeout_s": round(self.resend.timeout_s(), 3),
-                    **self.map_status(),
+                    **(self.fetch.status() if self.fetch is not None else {}),
                 },
             )
             return self.published
-
-    def map_status(self) -> dict[str, int]:
-        """Map methods: what `MapFetch.status` says, for the agent's last log line."""
-        return self.fetch.status() if self.fetch is not None else {}
 
     def await_last_solution(self, node: BusNode, t_last: GpsTime, timeout_s: float) -> None:
         """Realtime end: stay on the bus until the last epoch's solution arrives (or `timeout_s`).

@@ -120,7 +120,7 @@ def run_live(agent: VehicleAgent) -> int:
                 "vehicle": agent.step.vehicle_id,
                 "published": agent.published,
                 "skipped": agent.skipped,
-                **agent.map_status(),
+                **(agent.fetch.status() if agent.fetch is not None else {}),
                 **inputs.status(),
             },
         )

@@ -28,6 +28,8 @@ from coplane.runtime import RateLimitedLog
 from coplane.steps.map_area import AreaQuery, Holding
 from coplane.steps.map_tiles import MapReceiver
 
+RETRY_S = 1.0  # a request nobody answered is asked again this soon
+
 
 class MapFetch:
     """Which tiles to ask for, when, and what is held of each server's answers."""
@@ -113,10 +115,13 @@ class MapFetch:
         now held, inside the box asked for."""
         if event.tag != self.tag or self.pending is None:
             return
-        for server, (run, revision) in self.receiver.take_answers().items():
+        answers = self.receiver.take_answers()
+        for server, (run, revision) in answers.items():
             self.held[server] = Holding(server, run, revision, self.pending)
-        self.counts["answered"] += 1
-        self.pending, self.answered_at = None, now
+        self.counts["answered" if answers else "unanswered"] += 1
+        # nobody answered (no server with a map up yet): ask again after RETRY_S, not refresh_s
+        self.pending = None
+        self.answered_at = now if answers else now - self.refresh_s + min(RETRY_S, self.refresh_s)
 
     def _move(self, box: TileBox) -> None:
         """A new box: the tiles outside it dropped (`evict`), and each holding cut to what is

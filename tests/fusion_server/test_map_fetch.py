@@ -113,3 +113,22 @@ def test_a_bad_query_is_answered_with_an_error_and_counted(tmp_path: Path) -> No
     assert query.replies == [] and b"box of tiles" in query.errors[0]
     assert server.counts["query-rejected"] == 1 and "queries" not in server.counts
     server.close()
+
+
+class _Nobody:
+    """A bus where no server with a map is up yet: every request ends unanswered."""
+
+    def request(self, selector: str, tag: int = 0, timeout_s: float = 5.0) -> None:
+        pass
+
+
+def test_an_unanswered_request_is_asked_again_within_a_second() -> None:
+    """No server answered (none with a map up yet): the agent asks again after RETRY_S, not only
+    at the next refresh, so a server that starts after the agents still feeds their first epochs."""
+    fetch = MapFetch(KeySpace("f1"), MapReceiver("f1"), radius_m=200.0, refresh_s=10.0)
+    position = tile_frame(TileKey(ROW, 5), CFG.tile_size_m)[0]
+    assert fetch.follow(_Nobody(), position, 0.0)  # type: ignore[arg-type]
+    fetch.finish(Answered("k", fetch.tag), 0.1)
+    assert fetch.counts["unanswered"] == 1 and not fetch.held and fetch.pending is None
+    assert not fetch.follow(_Nobody(), position, 0.5)  # type: ignore[arg-type]
+    assert fetch.follow(_Nobody(), position, 1.2)  # type: ignore[arg-type]
