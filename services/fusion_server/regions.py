@@ -27,6 +27,7 @@ from coplane.estimation.contract import VehicleSeed
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage, VehicleState
 from coplane.regions import (
+    MOVE_GRACE_S,
     RangeGraph,
     RegionConfig,
     owned_shards,
@@ -40,9 +41,6 @@ from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.fusion_server")
 
-# after a change of the live servers (and at start, while they find one another) any server's
-# tiles are taken: the old writer's last commit of a moved region is still on its way
-MOVE_GRACE_S = 30.0
 SETTLE_S = 1.0  # lockstep start: no new vehicle heard for this long, the fleet of this server is complete
 PEER_STATE_MAX = 100_000
 REGION_AT_MAX = 1_000_000  # pending (vehicle, epoch) regions kept (the admission bounds pending far lower)  # vehicles whose last state from another server is kept (bounded memory)

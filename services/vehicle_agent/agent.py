@@ -250,7 +250,17 @@ class VehicleAgent:
         )
 
     def _take(self, taken: SolutionMessage | None, offered: SolutionMessage) -> SolutionMessage | None:
-        """Ingest what the gate let through; count and (rate-limited) log what it did not."""
+        """Ingest what the gate let through; count and (rate-limited) log what it did not, and
+        with regions a solution that speaks for this vehicle from a server that does not own its
+        region (`RegionKeys.may_answer`, counted `not-owner`)."""
+        region = self.region
+        if (
+            taken is not None
+            and region is not None
+            and not region.may_answer(taken, self.gate.servers_alive, time.monotonic())
+        ):
+            self.gate.overflow["not-owner"] += 1
+            self.gate.last_reason, taken = "not-owner", None
         if taken is None:
             reason = self.gate.last_reason or "untrusted"
             n = self.gate.counts[reason]

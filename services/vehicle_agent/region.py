@@ -8,21 +8,32 @@ position (the recording's), the best guess of where the fleet is. Each home key 
 publisher with the agent's history cache; the previous one is kept (a server taking over late
 still finds its cache), older ones are undeclared. Copies have plain publishers, declared while
 the vehicle is near that region.
+
+Only the owner of the region a vehicle sent an epoch's message from may answer it (docs/scale.md,
+"Boundaries"), and the agent knows that region: `may_answer` holds a server's solution that
+speaks for this vehicle to it, so a server answering outside its regions (compromised, or with a
+stale view of the live servers) is not taken for this vehicle's own position, its plane centre
+or the car's NMEA output.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Set
 
 import numpy as np
 
 from coplane.bus import BusNode, KeySpace, Publication
-from coplane.messages import NodeMessage
-from coplane.regions import RegionConfig, region_of_ecef, regions_near, shard_of
+from coplane.gtime import GpsTime
+from coplane.messages import NodeMessage, SolutionMessage
+from coplane.regions import MOVE_GRACE_S, RegionConfig, owner, region_of_ecef, regions_near, shard_of
+from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.vehicle_agent")
 
 NODE_HISTORY = 120  # node messages each publisher's cache keeps (a restarted server replays them)
+SENT_KEPT = 4 * NODE_HISTORY  # epochs whose home region is remembered: past any replay of a cache
 
 
 class RegionKeys:
@@ -38,6 +49,9 @@ class RegionKeys:
         self.copies: set[str] = set()  # copy keys with a publisher now
         self.changes = 0
         self.copies_put = 0
+        self.sent: dict[GpsTime, str] = {}  # the home region of each epoch sent (the last SENT_KEPT)
+        self._servers: frozenset[str] = frozenset()
+        self._servers_changed = -math.inf  # when the live servers last changed (`may_answer`)
 
     def keys_for(self, msg: NodeMessage, node: BusNode) -> list[str]:
         """The keys to put `msg` on (publishers declared): its region's first, then the copies
@@ -58,7 +72,27 @@ class RegionKeys:
             node.add_publication(Publication(k, must_deliver=True))
         self.copies = copies
         self.copies_put += len(copies)
+        self.sent[gps_time(msg.epoch)] = self.region
+        while len(self.sent) > SENT_KEPT:
+            del self.sent[next(iter(self.sent))]
         return [home, *sorted(copies)]
+
+    def may_answer(self, sol: SolutionMessage, servers: Set[str], now: float) -> bool:
+        """Whether `sol` may speak for this vehicle: it does not (it names neither this vehicle's
+        answer nor its state), or its server owns the region this vehicle sent that epoch from
+        among the live `servers`. Within MOVE_GRACE_S of a change of the live servers, for an
+        epoch not sent from here, or with no server known, every server may (the views of who
+        owns what may differ; nothing to hold it to)."""
+        if servers != self._servers:
+            self._servers, self._servers_changed = frozenset(servers), now
+        if sol.server is None or not (
+            sol.answers(self.vehicle_id) or any(v.vehicle_id == self.vehicle_id for v in sol.vehicles)
+        ):
+            return True
+        region = self.sent.get(gps_time(sol.epoch))
+        if region is None or not servers or now - self._servers_changed < MOVE_GRACE_S:
+            return True
+        return owner(shard_of(region, self.cfg.shards), servers) == sol.server
 
     def home_key(self, pos: tuple[float, float, float] | None, node: BusNode) -> str | None:
         """The key of the vehicle's own region (its publisher declared), None if unknown."""

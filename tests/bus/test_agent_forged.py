@@ -207,3 +207,50 @@ def test_agent_takes_map_tiles_only_from_the_server_their_key_names(
     assert agent.tiles.counts["rejected:wrong-sender"] == 2
     agent.ingest_one(Payload(agent.keys.server_tiles("s1"), encode(says_s1)))
     assert agent.tiles.map.tiles[TileKey(100, 7)].version == 3
+
+
+def test_with_regions_only_the_owner_of_its_region_answers_for_the_vehicle(
+    genuine: tuple[Path, list[SolutionMessage]], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Regions (docs/scale.md, "Boundaries"): a server's well-formed solution that speaks for this
+    vehicle is taken only from the owner of the region the vehicle sent that epoch from, among
+    the live servers; another server's is dropped (`not-owner`), one that does not name the
+    vehicle is taken, and within the grace time after a change of the live servers any is."""
+    from coplane.regions import owner, region_of_ecef, shard_of
+
+    rec, sols = genuine
+    agent = VehicleAgent(AgentSettings(recording=rec, vehicle_id="u3", method="pc", regions=True))
+    assert agent.region is not None
+    taken: list[SolutionMessage] = []
+    monkeypatch.setattr(agent.step, "ingest", taken.append)
+    cfg = agent.region.cfg
+    u3 = next(v for v in sols[0].vehicles if v.vehicle_id == "u3")
+    region = region_of_ecef(u3.position_ecef_m, cfg)
+    live = {"s1", "s2"}
+    home = owner(shard_of(region, cfg.shards), live)
+    other = ({"s1", "s2"} - {home}).pop()
+    for s in sols:
+        agent.region.sent[gps_time(s.epoch)] = region  # as `keys_for` records each epoch sent
+    for sid in live:
+        agent.gate.server_token(sid, True)
+    agent.region.may_answer(sols[0], live, -1e9)  # the live servers known long ago: no grace
+
+    def as_server(s: SolutionMessage, sid: str, vehicles: list[str]) -> Payload:
+        msg = s.model_copy(
+            update={
+                "server": sid,
+                "answered": vehicles,
+                "vehicles": [v for v in s.vehicles if v.vehicle_id in vehicles],
+            }
+        )
+        return Payload(agent.keys.server_solution(sid), encode(msg))
+
+    agent.ingest_one(as_server(sols[1], other, ["u1", "u2"]))  # the other server, its own vehicles
+    agent.ingest_one(as_server(sols[2], other, ["u1", "u2", "u3"]))  # ... and u3 too
+    agent.ingest_one(as_server(sols[3], home, ["u3"]))  # the owner answers for u3
+    assert [(s.server, s.answered) for s in taken] == [(other, ["u1", "u2"]), (home, ["u3"])], agent.untrusted
+    assert agent.untrusted["not-owner"] == 1
+    agent.gate.server_token("s3", True)  # a server joins: the views may differ for a while
+    agent.ingest_one(as_server(sols[4], other, ["u1", "u2", "u3"]))
+    assert [(s.server, s.answered) for s in taken][-1] == (other, ["u1", "u2", "u3"])
+    assert agent.untrusted["not-owner"] == 1

@@ -12,6 +12,11 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterable, Sequence
 
+# after a change of the live servers (and at start, while they find one another) the processes'
+# views of who owns what may differ for a moment: within this time of a change, servers take any
+# server's tiles and agents take any server's answer for their vehicle
+MOVE_GRACE_S = 30.0
+
 
 def _weight(server: str, item: str) -> int:
     h = hashlib.blake2b(f"{server}\x00{item}".encode(), digest_size=8).digest()
