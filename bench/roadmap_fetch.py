@@ -1,7 +1,7 @@
 """What an agent receives of the road map: tiles by area (`MapFetch`) against the whole map.
 
     .venv/bin/python bench/roadmap_fetch.py [--city-km 10] [--block-m 200] [--vehicles 5]
-        [--drive-s 1800] [--changed-per-commit 500] [--seed 3] [--out docs/roadmap.md]
+        [--drive-s 1800] [--changed-per-commit 500] [--start-agents 200] [--seed 3] [--out docs/roadmap.md]
 
 A synthetic city: a grid of roads every `--block-m` over a square of `--city-km`, one tile wide
 (20 m tiles), held by one fusion server's map (`LiveRoadMap`, in memory). Each vehicle drives a
@@ -13,7 +13,10 @@ fleet's evidence changes `--changed-per-commit` random tiles.
 Printed per vehicle-hour: the tiles and bytes an agent received and the most tiles it held, for
 the area queries (measured) and for the servers' whole-map stream agents took before (counted:
 the whole map at start and every 60 s, and every commit's changed tiles, at the measured bytes per
-tile of an answer), and the server's time per answer (median and 99th percentile, this host).
+tile of an answer), and the server's time per answer (this host): the first, whole box of each vehicle
+and the later ones (median and 99th percentile); and a fleet's start, `--start-agents` agents
+asking one server for their whole boxes in turn (the server keeps each tile's JSON between
+answers, `coplane.fusion_server.tile_json`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from docblock import publish  # bench/ is the script's directory, first on sys.p
 
 from coplane.bus import Answered, KeySpace, Request, decode
 from coplane.fusion_server.road_map import LiveRoadMap
+from coplane.fusion_server.tile_json import EncodedTiles
 from coplane.messages import MapTilesMessage
 from coplane.roadmap import RoadMapConfig, TileKey, TilePlane, tile_frame, tile_of_geodetic
 from coplane.steps.map_tiles import MapReceiver
@@ -111,13 +115,32 @@ def drive(roads: set[TileKey], start: TileKey, steps: int, rng: random.Random) -
     return route
 
 
+def fleet_start(keys: list[TileKey], starts: list[TileKey], tmp: Path, kept: bool) -> list[float]:
+    """A fleet's start: a vehicle at each of `starts` asks one server for its whole box, one after
+    another as the server's loop takes them; the time of each answer (s). `kept`: the server keeps
+    the tiles' JSON between answers (as it does); else each answer encodes its tiles anew."""
+    server = LiveRoadMap(tmp / f"start-{kept}.sqlite", {}, fleet="f1")
+    server.map.tiles.update({k: _tile(k, 1) for k in keys})
+    server.index.touch(keys)
+    times = []
+    for at in starts:
+        if not kept:
+            server.encoded = EncodedTiles()
+        bus = _Bus(server, MapReceiver("f1"))
+        MapFetch(KeySpace("f1"), bus.rx).follow(bus, tile_frame(at, 20.0)[0], 0.0)  # type: ignore[arg-type]
+        times += bus.answer_s
+    server.close()
+    return times
+
+
 def run(args: argparse.Namespace) -> tuple[list[str], dict[str, float]]:
     cfg = RoadMapConfig()
     keys = city(args.city_km, args.block_m, cfg.tile_size_m)
     roads = set(keys)
     rng = random.Random(args.seed)
     area, fetched, held, bytes_per_tile = [], [], [], []
-    answer_s: list[float] = []
+    answer_s: list[float] = []  # the answers after each vehicle's first
+    first_s: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         for v in range(args.vehicles):
             server = LiveRoadMap(Path(tmp) / f"map{v}.sqlite", {}, fleet="f1")
@@ -146,8 +169,15 @@ def run(args: argparse.Namespace) -> tuple[list[str], dict[str, float]]:
             snapshots = 1 + math.floor(args.drive_s / SNAPSHOT_S)
             fetched.append((len(keys) * snapshots + changed) / hours)
             held.append(peak)
-            answer_s += bus.answer_s
+            first_s.append(bus.answer_s[0])  # the whole box, at the first fix
+            answer_s += bus.answer_s[1:]
             server.close()
+        starts = [rng.choice(keys) for _ in range(args.start_agents)]
+        # the same starts with and without the kept JSON, taking turns so they share the host's drift
+        start_s, cold_s = [], []
+        for half in (starts[::2], starts[1::2]):
+            start_s += fleet_start(keys, half, Path(tmp), kept=True)
+            cold_s += fleet_start(keys, half, Path(tmp), kept=False)
     bpt = statistics.median(bytes_per_tile)
     whole_tiles = statistics.median(fetched)
     area_tiles = statistics.median(t for t, _ in area)
@@ -165,6 +195,12 @@ def run(args: argparse.Namespace) -> tuple[list[str], dict[str, float]]:
         "answer_ms_median": statistics.median(ms),
         "answer_ms_p99": ms[min(len(ms) - 1, int(0.99 * len(ms)))],
         "answers": len(ms),
+        "first_ms_median": 1e3 * statistics.median(first_s),
+        "start_agents": len(start_s),
+        "start_s_total": sum(start_s),
+        "start_ms_median": 1e3 * statistics.median(start_s),
+        "cold_s_total": sum(cold_s),
+        "cold_ms_median": 1e3 * statistics.median(cold_s),
         "bytes_per_tile": bpt,
     }
     return rows, stats
@@ -178,6 +214,7 @@ def main() -> int:
     ap.add_argument("--drive-s", type=float, default=1800.0)
     ap.add_argument("--changed-per-commit", type=int, default=500)
     ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--start-agents", type=int, default=200, help="agents asking at once at a fleet's start")
     ap.add_argument("--out", type=Path, default=None, help="write the table into this doc's block")
     args = ap.parse_args()
     rows, st = run(args)
@@ -185,8 +222,14 @@ def main() -> int:
         f"A {args.city_km:g} km city with a road every {args.block_m:g} m: {st['map_tiles']:,} tiles; "
         f"{args.vehicles} vehicles of {args.drive_s:g} s each, {args.changed_per_commit} tiles changed "
         f"every {COMMIT_S:g} s; {st['bytes_per_tile']:.0f} bytes per tile. Area queries: "
-        f"{st['ratio']:,.0f}x fewer tiles than the whole map. The server's answer: median "
-        f"{st['answer_ms_median']:.2f} ms, p99 {st['answer_ms_p99']:.2f} ms over {st['answers']} answers."
+        f"{st['ratio']:,.0f}x fewer tiles than the whole map. The server's first answer to each "
+        f"vehicle (its whole box): median {st['first_ms_median']:.1f} ms; the {st['answers']} answers "
+        f"after it (new strips, refreshes): median {st['answer_ms_median']:.2f} ms, p99 "
+        f"{st['answer_ms_p99']:.2f} ms. A fleet's start, {st['start_agents']} agents at random places "
+        f"asking one server for their whole boxes: {st['start_s_total']:.2f} s of the server's loop "
+        f"in all, median {st['start_ms_median']:.1f} ms per answer, with the tiles' JSON kept between "
+        f"answers; {st['cold_s_total']:.2f} s, median {st['cold_ms_median']:.1f} ms, encoding every "
+        f"answer anew ({st['cold_s_total'] / st['start_s_total']:.1f}x, same run)."
     )
     publish(args.out, MARK, "bench/roadmap_fetch.py --out docs/roadmap.md", head, rows)
     return 0

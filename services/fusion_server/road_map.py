@@ -36,7 +36,7 @@ from coplane.messages import MAX_MAP_COUNTS, MapTilesMessage, MapTileState, Node
 from coplane.roadmap import MapBuilder, RoadMap, TileKey
 from coplane.roadmap.area import RevisionIndex
 from coplane.roadmap.tile import PassEvidence
-from coplane.steps.map_area import AreaQuery, answer_messages
+from coplane.steps.map_area import AreaQuery, answer_tiles
 from coplane.steps.map_evidence import solution_samples
 from coplane.steps.map_tiles import CHUNK_TILES, merge_tile_states, tiles_messages
 from coplane.store import server_map_path
@@ -44,6 +44,7 @@ from coplane.store.roadmap_db import RoadMapDb
 
 from .regions import RegionRole
 from .settings import FusionSettings
+from .tile_json import EncodedTiles
 
 log = logging.getLogger("coplane.fusion_server.road_map")
 
@@ -81,6 +82,7 @@ class LiveRoadMap:
         self.run = uuid.uuid4().hex[:12]
         self.index = RevisionIndex()
         self.index.touch(self.map.tiles)
+        self.encoded = EncodedTiles()
         log.info("road map open", extra={"path": str(path), **self.map.stats()})
 
     @classmethod
@@ -202,15 +204,18 @@ class LiveRoadMap:
             self._finish(request, key, (), f"bad area query: {exc}")
             return
         try:
-            msgs = answer_messages(self.map, self.index, query, self.fleet, self.server, self.run)
+            tiles = answer_tiles(self.map, self.index, query, self.server, self.run)
+            payloads = self.encoded.answer(
+                self.fleet, tiles, self.map.config, self.server, self.run, self.index.revision
+            )
         except Exception as exc:
             self.counts["errors"] += 1
             log.exception("road map: area query not answered")
             self._finish(request, key, (), f"area query not answered: {type(exc).__name__}")
             return
         self.counts["queries"] += 1
-        self.counts["query-tiles"] += sum(len(m.tiles) for m in msgs)
-        self._finish(request, key, [encode(m) for m in msgs])
+        self.counts["query-tiles"] += len(tiles)
+        self._finish(request, key, payloads)
 
     def _finish(
         self, request: Request, key: str, payloads: Sequence[bytes], error: str | None = None

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from coplane.bus import Answered, KeySpace, Payload, Request, decode
+from coplane.bus import Answered, KeySpace, Payload, Request, decode, encode
 from coplane.fusion_server.road_map import LiveRoadMap
+from coplane.fusion_server.tile_json import EncodedTiles
 from coplane.messages import MapTilesMessage
 from coplane.roadmap import RoadMapConfig, TileKey, TilePlane, tile_frame
-from coplane.steps.map_tiles import MapReceiver
+from coplane.steps.map_tiles import CHUNK_TILES, MapReceiver, tiles_messages
 from coplane.store.roadmap_db import RoadMapDb
 from coplane.vehicle_agent.map_fetch import MapFetch
 
@@ -132,3 +133,20 @@ def test_an_unanswered_request_is_asked_again_within_a_second() -> None:
     assert fetch.counts["unanswered"] == 1 and not fetch.held and fetch.pending is None
     assert not fetch.follow(_Nobody(), position, 0.5)  # type: ignore[arg-type]
     assert fetch.follow(_Nobody(), position, 1.2)  # type: ignore[arg-type]
+
+
+def test_the_kept_json_is_the_models_bytes_and_follows_each_tile() -> None:
+    """`EncodedTiles.answer` writes what `encode(tiles_messages(...))` writes, byte for byte, in
+    parts; a tile's JSON is made again when its version changes or another copy replaces it."""
+    tiles = [_tile(c) for c in range(CHUNK_TILES + 7)]
+    enc = EncodedTiles()
+    for some in (tiles, tiles[:3], []):
+        want = [encode(m) for m in tiles_messages("f1", some, CFG, 0, True, "s1", "ab12", 9)]
+        assert enc.answer("f1", some, CFG, "s1", "ab12", 9) == want
+    t = tiles[0]
+    before = enc.json(t)
+    t.version += 1
+    assert enc.json(t) != before and b'"version":2' in enc.json(t)
+    copy = _tile(0, version=2)
+    copy.h0_m = 50.0  # another server's copy at the same version, other evidence
+    assert b'"h0_m":50.0' in enc.json(copy)

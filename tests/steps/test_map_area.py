@@ -10,8 +10,8 @@ from coplane.bus import decode, encode
 from coplane.messages import MapTilesMessage
 from coplane.roadmap import RoadMap, RoadMapConfig, TileKey, TilePlane
 from coplane.roadmap.area import BLOCK_TILES, RevisionIndex, TileBox
-from coplane.steps.map_area import MAX_HOLDINGS, AreaQuery, Holding, answer_messages
-from coplane.steps.map_tiles import CHUNK_TILES, MapReceiver
+from coplane.steps.map_area import MAX_HOLDINGS, AreaQuery, Holding, answer_tiles
+from coplane.steps.map_tiles import CHUNK_TILES, MapReceiver, tiles_messages
 
 CFG = RoadMapConfig()
 
@@ -88,13 +88,20 @@ def test_a_query_round_trips_and_hostile_ones_are_refused_by_name() -> None:
             AreaQuery.parse(params)
 
 
+def _answer(road_map: RoadMap, idx: RevisionIndex, query: AreaQuery, run: str) -> list[MapTilesMessage]:
+    """A server's answer as it goes on the bus (services/fusion_server/tile_json.py writes the
+    same bytes)."""
+    tiles = answer_tiles(road_map, idx, query, "", run)
+    return tiles_messages("f1", tiles, road_map.config, 0, True, "", run, idx.revision)
+
+
 def test_an_answer_holds_the_box_in_parts_and_then_only_the_changes() -> None:
     tiles = [_tile(r, c) for r in range(30) for c in range(20)] + [_tile(500, 500)]
     road_map = RoadMap(CFG, {t.key: t for t in tiles})
     idx = RevisionIndex()
     idx.touch(road_map.tiles)
     box = TileBox(0, 29, 0, 19)
-    first = answer_messages(road_map, idx, AreaQuery(box), "f1", "", "ab12")
+    first = _answer(road_map, idx, AreaQuery(box), "ab12")
     assert [m.parts for m in first] == [2, 2] and sum(len(m.tiles) for m in first) == 600 > CHUNK_TILES
     assert all((m.run, m.revision) == ("ab12", 1) for m in first)
     rx = MapReceiver("f1")
@@ -106,15 +113,10 @@ def test_an_answer_holds_the_box_in_parts_and_then_only_the_changes() -> None:
     road_map.tiles[TileKey(3, 3)] = _tile(3, 3, version=2)
     idx.touch([TileKey(3, 3)])
     held = Holding("", "ab12", 1, box)
-    again = answer_messages(road_map, idx, AreaQuery(box, (held,)), "f1", "", "ab12")
+    again = _answer(road_map, idx, AreaQuery(box, (held,)), "ab12")
     assert [[t.tile for t in m.tiles] for m in again] == [["r3c3"]] and again[0].revision == 2
     # nothing new: still one (empty) message, so the asker learns the revision
     held2 = Holding("", "ab12", 2, box)
-    assert [
-        len(m.tiles) for m in answer_messages(road_map, idx, AreaQuery(box, (held2,)), "f1", "", "ab12")
-    ] == [0]
+    assert [len(m.tiles) for m in _answer(road_map, idx, AreaQuery(box, (held2,)), "ab12")] == [0]
     # a restarted server (another run) answers the whole box
-    assert (
-        sum(len(m.tiles) for m in answer_messages(road_map, idx, AreaQuery(box, (held2,)), "f1", "", "ff"))
-        == 600
-    )
+    assert sum(len(m.tiles) for m in _answer(road_map, idx, AreaQuery(box, (held2,)), "ff")) == 600

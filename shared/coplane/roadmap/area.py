@@ -154,4 +154,8 @@ class RevisionIndex:
                     out.add(k)
         if recent is not None:
             out.update(k for k in recent if k in box and self._rev[k] > since)
-        return sorted(out)
+        return sorted(out, key=_row_col)  # the keys' own order, without their generated __lt__
+
+
+def _row_col(key: TileKey) -> tuple[int, int]:
+    return key.row, key.col

@@ -16,10 +16,8 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from coplane.messages import MapTilesMessage
-from coplane.roadmap import RoadMap
+from coplane.roadmap import RoadMap, TilePlane
 from coplane.roadmap.area import RevisionIndex, TileBox
-from coplane.steps.map_tiles import tiles_messages
 
 MAX_HOLDINGS = 64  # servers named in one query: far more than a fleet's regions
 MAX_BOX_SIDE = 20000  # tiles: 400 km at 20 m, a bound on what one query may name
@@ -84,12 +82,12 @@ class AreaQuery:
         return next((h for h in self.held if h.server == server and h.run == run), None)
 
 
-def answer_messages(
-    road_map: RoadMap, index: RevisionIndex, query: AreaQuery, fleet: str, server: str, run: str
-) -> list[MapTilesMessage]:
-    """One server's whole answer to `query`: the tiles of the box its asker lacks, as messages
-    of one answer (at least one, so an empty answer still gives the asker the revision)."""
+def answer_tiles(
+    road_map: RoadMap, index: RevisionIndex, query: AreaQuery, server: str, run: str
+) -> list[TilePlane]:
+    """One server's answer to `query`: the tiles of the box its asker lacks, by key. The server
+    sends them as one answer (`tiles_messages(..., whole=True)` with its run and the index's
+    revision: at least one message, so an empty answer still gives the asker the revision)."""
     held = query.holding(server, run)
     keys = index.changed(query.box) if held is None else index.changed(query.box, held.revision, held.box)
-    tiles = [road_map.tiles[k] for k in keys if k in road_map.tiles]
-    return tiles_messages(fleet, tiles, road_map.config, 0, True, server, run, index.revision)
+    return [road_map.tiles[k] for k in keys if k in road_map.tiles]
