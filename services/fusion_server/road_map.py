@@ -33,7 +33,7 @@ from typing import Any
 
 from coplane.bus import BadMessage, BusNode, Request, decode, encode
 from coplane.messages import MAX_MAP_COUNTS, MapTilesMessage, MapTileState, NodeMessage, SolutionMessage
-from coplane.roadmap import MapBuilder, RoadMap, TileKey
+from coplane.roadmap import MapBuilder, RoadMap, TileKey, TilePlane
 from coplane.roadmap.area import RevisionIndex
 from coplane.roadmap.tile import PassEvidence
 from coplane.steps.map_area import AreaQuery, answer_tiles
@@ -74,6 +74,8 @@ class LiveRoadMap:
         self.fleet = fleet
         self.server, self.owns_tile = server, owns_tile  # regions: this server's id and tiles
         self.tile_writers = tile_writers  # ... and whose copy of a tile to take (None: anyone's)
+        # regions: when the live servers last changed, i.e. who writes which tile (`answer`)
+        self.writers_since: Callable[[], float] | None = None
         self.snapshot_every_s = snapshot_every_s
         self.snapshot = 0
         self.last_snapshot = time.monotonic()
@@ -124,7 +126,7 @@ class LiveRoadMap:
     ) -> LiveRoadMap | None:
         """The map a server with these settings extends: the fleet's file, or with regions its own
         replica and tiles (docs/scale.md); None with the reason logged."""
-        return cls.open(
+        live = cls.open(
             path if regions is None else server_map(path, s.server_id),
             heights,
             s.map_commit_every_s,
@@ -132,6 +134,9 @@ class LiveRoadMap:
             s.map_snapshot_every_s,
             *(() if regions is None else (s.server_id, regions.owns_tile, regions.tile_writers)),
         )
+        if live is not None and regions is not None:
+            live.writers_since = lambda: regions.servers_changed_at
+        return live
 
     def add(self, sol: SolutionMessage, msgs: Mapping[str, NodeMessage]) -> None:
         """One solution's vehicle-epochs into the builder (never raises)."""
@@ -204,9 +209,10 @@ class LiveRoadMap:
             self._finish(request, key, (), f"bad area query: {exc}")
             return
         try:
-            tiles = answer_tiles(self.map, self.index, query, self.server, self.run)
+            run = self.answer_run()
+            tiles = self._written_here(answer_tiles(self.map, self.index, query, self.server, run))
             payloads = self.encoded.answer(
-                self.fleet, tiles, self.map.config, self.server, self.run, self.index.revision
+                self.fleet, tiles, self.map.config, self.server, run, self.index.revision
             )
         except Exception as exc:
             self.counts["errors"] += 1
@@ -216,6 +222,23 @@ class LiveRoadMap:
         self.counts["queries"] += 1
         self.counts["query-tiles"] += len(tiles)
         self._finish(request, key, payloads)
+
+    def answer_run(self) -> str:
+        """The run an answer names: this process's, and with regions also when the live servers
+        last changed. Who writes which tile changes only then, and a server that now writes more
+        tiles must answer an agent's box whole, not only what changed since its last answer."""
+        if self.writers_since is None:
+            return self.run
+        return f"{self.run}{int(self.writers_since() * 1000) & 0xFFFFFFF:07x}"
+
+    def _written_here(self, tiles: list[TilePlane]) -> list[TilePlane]:
+        """Regions: the tiles this server writes, and those whose writer is not known now (the
+        grace time after a change); every server holds a replica, but only a tile's writer
+        answers for it, so an agent gets one copy of each tile, not one per server."""
+        if self.tile_writers is None:
+            return tiles
+        size = self.map.config.tile_size_m
+        return [t for t in tiles if (w := self.tile_writers(t.key, size)) is None or self.server in w]
 
     def _finish(
         self, request: Request, key: str, payloads: Sequence[bytes], error: str | None = None

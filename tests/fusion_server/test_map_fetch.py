@@ -150,3 +150,37 @@ def test_the_kept_json_is_the_models_bytes_and_follows_each_tile() -> None:
     copy = _tile(0, version=2)
     copy.h0_m = 50.0  # another server's copy at the same version, other evidence
     assert b'"h0_m":50.0' in enc.json(copy)
+
+
+def test_with_regions_a_server_answers_the_tiles_it_writes(tmp_path: Path) -> None:
+    """Regions: every server holds a replica, but answers only for the tiles it writes, so an
+    agent gets one copy of each. When the live servers change (who writes what changes), the
+    answers name a new run, so the server that now writes more answers the box whole."""
+    path = tmp_path / "map.sqlite"
+    with RoadMapDb(path) as db:
+        db.write([_tile(c) for c in range(COLS)])
+    writes_all = [False]  # s2 is live and writes the odd columns; then it is gone
+
+    def writers(key: TileKey, _size: float) -> set[str] | None:
+        return {"s1"} if writes_all[0] or key.col % 2 == 0 else {"s2"}
+
+    changed_at = [100.0]
+    s1 = LiveRoadMap(path, {}, fleet="f1", server="s1", tile_writers=writers)
+    s1.writers_since = lambda: changed_at[0]
+    keys = KeySpace("f1")
+    bus = _Bus(s1, keys.server_tiles("s1"))
+    rx = MapReceiver("f1")
+    fetch = MapFetch(keys, rx, radius_m=200.0, refresh_s=10.0)
+    position = tile_frame(TileKey(ROW, 100), CFG.tile_size_m)[0]
+    assert fetch.follow(bus, position, 0.0)  # type: ignore[arg-type]
+    _deliver(bus, rx, fetch, 0.0)
+    box = fetch.box
+    assert box is not None
+    in_box = [k for k in s1.map.tiles if k in box]
+    assert s1.counts["query-tiles"] == sum(k.col % 2 == 0 for k in in_box) > 0
+    writes_all[0], changed_at[0] = True, 200.0  # s2 went: s1 writes every tile now
+    assert fetch.follow(bus, position, 10.0)  # type: ignore[arg-type]
+    _deliver(bus, rx, fetch, 10.0)
+    assert s1.counts["query-tiles"] == sum(k.col % 2 == 0 for k in in_box) + len(in_box)
+    assert fetch.held["s1"].run != s1.run and len(rx.map.tiles) == len(in_box)
+    s1.close()
