@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from coplane.bus import encode
 from coplane.messages import MapTilesMessage
 from coplane.roadmap import RoadMapConfig, TileKey, TilePlane
-from coplane.steps.map_tiles import CHUNK_TILES, tile_state
+from coplane.steps.map_tiles import tile_chunks, tile_state
 
 _EMPTY = b'"tiles":[]'
 
@@ -44,9 +44,9 @@ class EncodedTiles:
         run: str,
         revision: int,
     ) -> list[bytes]:
-        """The encoded messages of one whole answer: `tiles` in parts of CHUNK_TILES (one empty
+        """The encoded messages of one whole answer: `tiles` in parts (`tile_chunks`, one empty
         message for none), each with the server's `run` and `revision`."""
-        chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)] or [[]]
+        chunks = tile_chunks(tiles, whole=True)
         out = []
         for i, chunk in enumerate(chunks):
             envelope = MapTilesMessage(

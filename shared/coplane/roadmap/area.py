@@ -58,10 +58,6 @@ class TileBox:
             and self.col0 <= key.col <= self.col1
         )
 
-    def inner(self, margin: int) -> bool:
-        """Whether the box still has tiles inside after taking `margin` off each side."""
-        return self.row1 - self.row0 >= 2 * margin and self.col1 - self.col0 >= 2 * margin
-
     def keeps(self, key: TileKey, margin: int) -> bool:
         """Whether `key` is at least `margin` tiles inside the box: a vehicle there still has
         `margin` tiles of map ahead whichever way it drives."""
@@ -111,9 +107,6 @@ class RevisionIndex:
         self._blocks: dict[tuple[int, int], set[TileKey]] = {}
         self._log: deque[tuple[int, tuple[TileKey, ...]]] = deque()  # (revision, its tiles)
         self._log_tiles, self._logged = log_tiles, 0
-
-    def __len__(self) -> int:
-        return len(self._rev)
 
     def touch(self, keys: Iterable[TileKey]) -> int:
         """One new revision for these tiles (a commit, a batch from a peer); the revision."""

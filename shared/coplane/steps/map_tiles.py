@@ -39,6 +39,13 @@ def tile_state(t: TilePlane) -> MapTileState:
     )
 
 
+def tile_chunks(tiles: Sequence[TilePlane], whole: bool) -> list[Sequence[TilePlane]]:
+    """`tiles` in parts of at most CHUNK_TILES, one message each; a whole map or answer is at
+    least one (empty) part, a commit's changes none when there are no tiles."""
+    chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)]
+    return chunks or ([[]] if whole else [])
+
+
 def tiles_messages(
     fleet: str,
     tiles: Sequence[TilePlane],
@@ -53,9 +60,7 @@ def tiles_messages(
     answer (parts = count, at least one message even for no tiles), else a commit's changes
     (parts = 0). `server`: the writer's id with regions (docs/scale.md, "The road map across
     servers"); `run`, `revision`: an area answer's (`coplane.steps.map_area`)."""
-    chunks = [tiles[i : i + CHUNK_TILES] for i in range(0, len(tiles), CHUNK_TILES)] or [[]]
-    if not whole:
-        chunks = [c for c in chunks if c]
+    chunks = tile_chunks(tiles, whole)
     return [
         MapTilesMessage(
             fleet=fleet,
