@@ -74,6 +74,7 @@ class MapFetch:
         elif now - self.answered_at < self.refresh_s:
             return False
         assert self.box is not None
+        self.receiver.take_answers()  # a lost request's answers hold no box: not this one's
         self.tag += 1
         query = AreaQuery(self.box, tuple(self.held.values()))
         try:

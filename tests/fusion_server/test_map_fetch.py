@@ -184,3 +184,18 @@ def test_with_regions_a_server_answers_the_tiles_it_writes(tmp_path: Path) -> No
     assert s1.counts["query-tiles"] == sum(k.col % 2 == 0 for k in in_box) + len(in_box)
     assert fetch.held["s1"].run != s1.run and len(rx.map.tiles) == len(in_box)
     s1.close()
+
+
+def test_a_lost_requests_late_answer_is_not_taken_for_the_next_box() -> None:
+    """A request whose end never came is asked again after twice the timeout; an answer of the
+    lost one that completes meanwhile covers no known box, so it is not held as the new one's."""
+    rx = MapReceiver("f1")
+    fetch = MapFetch(KeySpace("f1"), rx, radius_m=200.0, refresh_s=10.0, timeout_s=5.0)
+    position = tile_frame(TileKey(ROW, 5), CFG.tile_size_m)[0]
+    assert fetch.follow(_Nobody(), position, 0.0)  # type: ignore[arg-type]
+    late = tiles_messages("f1", [_tile(5)], CFG, 0, True, "", "ab12", 5)
+    rx.take(late[0], "")  # the lost request's answer, after all
+    assert fetch.follow(_Nobody(), position, 11.0)  # type: ignore[arg-type]
+    assert fetch.counts["lost"] == 1
+    fetch.finish(Answered("k", fetch.tag), 11.5)  # the new request: nobody answered it
+    assert fetch.held == {} and fetch.counts["unanswered"] == 1
