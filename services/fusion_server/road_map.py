@@ -42,6 +42,7 @@ from coplane.steps.map_tiles import CHUNK_TILES, merge_tile_states, tiles_messag
 from coplane.store import server_map_path
 from coplane.store.roadmap_db import RoadMapDb
 
+from .map_queries import SLICE_S, QueryQueue
 from .regions import RegionRole
 from .settings import FusionSettings
 from .tile_json import EncodedTiles
@@ -85,6 +86,7 @@ class LiveRoadMap:
         self.index = RevisionIndex()
         self.index.touch(self.map.tiles)
         self.encoded = EncodedTiles()
+        self.queries = QueryQueue(self.counts)  # answered between solves (`serve_queries`)
         log.info("road map open", extra={"path": str(path), **self.map.stats()})
 
     @classmethod
@@ -198,6 +200,14 @@ class LiveRoadMap:
                 self.counts["publish-errors"] += 1
                 log.exception("road map tiles not published", extra={"snapshot": msg.snapshot})
 
+    def enqueue(self, request: Request, key: str) -> None:
+        """An agent's area query, to be answered on `key` between solves (`serve_queries`)."""
+        self.queries.add(request, key, self._refuse)
+
+    def serve_queries(self, slice_s: float = SLICE_S) -> int:
+        """Answer the waiting area queries for about `slice_s`; how many were answered."""
+        return self.queries.serve(self.answer, self._refuse, slice_s) if self.queries else 0
+
     def answer(self, request: Request, key: str) -> None:
         """An agent's area query: the tiles around it that it lacks, as one answer on `key` (this
         server's tiles key). A query that does not parse gets an error reply naming what is
@@ -239,6 +249,9 @@ class LiveRoadMap:
             return tiles
         size = self.map.config.tile_size_m
         return [t for t in tiles if (w := self.tile_writers(t.key, size)) is None or self.server in w]
+
+    def _refuse(self, request: Request, key: str, error: str) -> None:
+        self._finish(request, key, (), error)
 
     def _finish(
         self, request: Request, key: str, payloads: Sequence[bytes], error: str | None = None
@@ -314,7 +327,9 @@ class LiveRoadMap:
         return tiles_messages(self.fleet, tiles, self.map.config, self.snapshot, True, self.server)
 
     def close(self) -> None:
-        """Close every open pass, commit, checkpoint the file."""
+        """Refuse the area queries still waiting; close every open pass, commit, checkpoint the
+        file."""
+        self.queries.close(self._refuse)
         try:
             self._commit(self.builder.flush())
         finally:

@@ -163,7 +163,7 @@ class FusionServer(Pacing):
             elif isinstance(event, Presence):
                 self.handle_alive(event.key, event.alive)
             elif isinstance(event, Request) and self.road_map is not None:
-                self.road_map.answer(event, self.tiles_key)
+                self.road_map.enqueue(event, self.tiles_key)  # answered between solves
         except Exception:
             log.exception("event handling failed")
 
@@ -359,7 +359,8 @@ class FusionServer(Pacing):
             self.durable.start(self)  # the solution log; resume after a crash
             try:
                 while not self.stop.is_set():
-                    if (event := node.get(timeout=0.02)) is not None:
+                    queries = self.road_map is not None and len(self.road_map.queries) > 0
+                    if (event := node.poll() if queries else node.get(timeout=0.02)) is not None:
                         self.handle(event)
                         # what else is queued, before one pacing decision: deciding after every
                         # message costs O(vehicles) each, O(vehicles^2) per epoch
@@ -378,6 +379,7 @@ class FusionServer(Pacing):
                     if self.road_map is not None:
                         self.road_map.tick(now)
                         self.road_map.publish(node, self.tiles_key)
+                        self.road_map.serve_queries()  # after the ready epochs: a slice at most
                     if now - last_diag > s.diagnostics_period_s:
                         node.put(self.diagnostics_key, encode(self.diagnostics()))
                         last_diag = now
