@@ -163,6 +163,7 @@ def create_app(
             truth=truth,
             known_vehicles=known,
             started=clock(),
+            regions=settings.region_config() if settings.regions else None,
         )
     fleet = state.fleet
     if bus is None:

@@ -13,10 +13,10 @@ from pydantic_settings import SettingsConfigDict
 
 from coplane.evaluate.truth import Truth
 from coplane.ids import VEHICLE_ID_PATTERN
-from coplane.runtime import LogLevel, ServiceSettings
+from coplane.runtime import LogLevel, RegionOptions, ServiceSettings
 
 
-class ApiSettings(ServiceSettings):
+class ApiSettings(RegionOptions, ServiceSettings):
     model_config = SettingsConfigDict(env_prefix="COPLANE_API_", extra="ignore")
     toml_table: str = "api"
 

@@ -19,7 +19,8 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from coplane.bus.trust import MAX_SERVERS, GateSet, Verdict
+from coplane.bus.gates import MAX_SERVERS, GateSet
+from coplane.bus.trust import Verdict
 from coplane.geo import ecef_to_geodetic, enu_rotation
 from coplane.gtime import GpsTime
 from coplane.ids import is_vehicle_id
@@ -29,6 +30,7 @@ from coplane.messages import (
     VehicleState,
     merge_diagnostics,
 )
+from coplane.regions import RegionConfig
 from coplane.typing import Mat
 
 from .accuracy import RunningAccuracy, TruthTrack
@@ -88,6 +90,7 @@ class FleetState:
         known_vehicles: Iterable[str] = (),
         started: float = 0.0,
         gate: GateSet | None = None,
+        regions: RegionConfig | None = None,
     ) -> None:
         self.fleet = fleet
         self.history = history_per_vehicle
@@ -102,7 +105,8 @@ class FleetState:
             self._vehicle(v)
         # with a recording the fleet's vehicles are known: no other id is taken from a solution
         # one gate per fusion server: with regions each server is its own run (docs/scale.md)
-        self.gate = gate or GateSet(fleet, vehicles=known or None, max_vehicles=max_vehicles)
+        # `regions`: several servers share the fleet, each speaking only of its regions' vehicles
+        self.gate = gate or GateSet(fleet, regions=regions, vehicles=known or None, max_vehicles=max_vehicles)
         self.last_verdict: Verdict | None = None  # of the latest solution offered (for the ingest's log)
         self.fusion_alive: set[str] = set()
         self.solutions = 0

@@ -34,7 +34,7 @@ from coplane.bus import (
     encode,
     session_config,
 )
-from coplane.bus.trust import GateSet
+from coplane.bus.gates import GateSet
 from coplane.gnss.dgnss import DgnssCorrections
 from coplane.gnss.epoch_solver import EpochResult
 from coplane.gnss.standstill import load_dependencies
@@ -94,8 +94,9 @@ class VehicleAgent:
         )
         self.fleet = setup.fleet
         self.keys = KeySpace(self.fleet)
-        # one gate per server: with regions each server is its own run (docs/scale.md)
-        self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=[v.id for v in man.vehicles])
+        # one gate per server (with regions: its own run, its regions' vehicles; this one's: `_take`)
+        regions, ids = settings.region_config() if settings.regions else None, [v.id for v in man.vehicles]
+        self.gate = GateSet(self.fleet, regions, exempt=[vid], method=setup.method.name, vehicles=ids)
         self.resend = ResendTimer(settings.resend_s)
         self.step = setup.vehicle_step(rec, vid)
         self.region: RegionKeys | None = None

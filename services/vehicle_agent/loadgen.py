@@ -32,7 +32,7 @@ from coplane.bus import (
     session_config,
 )
 from coplane.bus.codec import BadMessage
-from coplane.bus.trust import GateSet
+from coplane.bus.gates import GateSet
 from coplane.gnss.standstill import load_dependencies
 from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
@@ -145,7 +145,8 @@ class LoadGenerator:
         # one plane history for every vehicle: N histories would store each solution N times
         self.history = SharedHistory(v.step for v in self.vehicles.values())
         self.times = sorted({t for v in self.vehicles.values() for t in v.schedule})
-        self.gate = GateSet(self.fleet, method=setup.method.name, vehicles=ids)
+        regions = settings.region_config() if settings.regions else None
+        self.gate = GateSet(self.fleet, regions=regions, method=setup.method.name, vehicles=ids)
         self.stats = LoadStats(vehicles=len(ids), pace=settings.pace)
         # re-sends stay well inside an epoch's timeout, so a lost message is sent again before it
         self.resend = ResendTimer(settings.resend_s, min(MAX_RESEND_S, settings.epoch_timeout_s / 3.0))

@@ -10,7 +10,8 @@ import pytest
 from support.api import FLEET, T0, ecef_at, solution, vehicle_state
 
 from coplane.bus import encode
-from coplane.bus.trust import GateSet, SolutionGate, on_earth
+from coplane.bus.gates import GateSet
+from coplane.bus.trust import SolutionGate, on_earth
 from coplane.evaluate.runner import MethodRun
 from coplane.fleet.collector import Collector
 from coplane.gtime import GpsTime

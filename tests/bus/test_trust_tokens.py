@@ -11,8 +11,8 @@ import zenoh
 from support.api import FLEET, T0, ecef_at, solution, vehicle_state
 
 from coplane.bus import KeySpace, router_config, session_config
+from coplane.bus.gates import GateSet
 from coplane.bus.security import BusSecurity
-from coplane.bus.trust import GateSet
 from coplane.fleet import free_port
 from coplane.messages import SolutionMessage
 

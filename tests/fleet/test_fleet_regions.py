@@ -3,7 +3,8 @@ bus, as `coplane fleet --servers N` runs them.
 
 - with every vehicle in one region, N servers give exactly the single server's positions;
 - vehicles that cross regions (small regions) keep a solution at every epoch, answered by exactly
-  one server, and the positions stay within the documented tolerance of the single server's;
+  one server, and the positions stay within the documented tolerance of the single server's; every
+  state a server publishes lies where its regions reach (what consumers hold servers to);
 - a server killed mid-run: its shards move to the survivors, which continue the vehicles.
 """
 
@@ -17,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.e2e_fleet import agents_done, live_fleet, wait_until
+from support.e2e_fleet import agents_done, live_fleet, region_options, wait_until
 
 from coplane.evaluate.runner import MethodRun, run_method
 from coplane.messages import SolutionMessage
 from coplane.recording.reader import open_recording
+from coplane.regions import assignment, may_speak_of
 from coplane.sim.generate import run_simulation, write_recording
 
 pytestmark = pytest.mark.slow
@@ -96,9 +98,11 @@ def test_vehicles_crossing_regions_keep_a_solution_every_epoch(tmp_path: Path) -
     rec_path = write_recording(run_simulation("urban-loop", 4, 150.0, 7), tmp_path / "r")
     ref = run_method(open_recording(rec_path), "pc")
     answers: Counter[tuple[str, str]] = Counter()
+    spoken: list[tuple[str, tuple[float, float, float]]] = []  # (server, state position)
 
     def count(sol: SolutionMessage) -> None:
         answers.update((v, str(sol.epoch)) for v in sol.answered)
+        spoken.extend((sol.server or "", vs.position_ecef_m) for vs in sol.vehicles)
 
     with live_fleet(
         rec_path, "pc", log_dir=tmp_path / "logs", servers=3, region_args=SMALL_REGIONS, listeners=[count]
@@ -114,6 +118,12 @@ def test_vehicles_crossing_regions_keep_a_solution_every_epoch(tmp_path: Path) -
     # each vehicle-epoch answered by exactly one server: its own region's, also at a boundary
     assert len(answers) == sum(len(p) for p in ref.positions.values())
     assert set(answers.values()) == {1}
+    # every state a server published lies where its regions reach, also while crossing: the
+    # consumers' rule (`GateSet`, `regions.may_speak_of`) holds for genuine servers with no grace
+    cfg = region_options(SMALL_REGIONS).region_config()
+    owners = assignment(sorted(diags), cfg.shards)
+    shards = {srv: {k for k, o in owners.items() if o == srv} for srv in diags}
+    assert spoken and all(may_speak_of(p, shards[srv], cfg) for srv, p in spoken)
     d = _diffs(ref, got)
     assert np.median(d) < HANDOVER_MEDIAN_M and d.max() < HANDOVER_MAX_M, (np.median(d), d.max())
     assert _rmse_h(got, rec_path) <= HANDOVER_RMSE_RATIO * _rmse_h(_positions(ref), rec_path)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from coplane.bus import KeySpace
-from coplane.bus.trust import MAX_SERVERS, GateSet
+from coplane.bus.gates import MAX_SERVERS, GateSet
 from coplane.fusion_server.regions import MOVE_GRACE_S, RegionRole
 from coplane.geo import geodetic_to_ecef
 from coplane.gtime import GpsTime

@@ -33,6 +33,7 @@ from coplane.fleet import (
 )
 from coplane.fleet.launcher import server_ids
 from coplane.messages import SolutionMessage
+from coplane.runtime import RegionOptions
 
 T = TypeVar("T")
 
@@ -47,6 +48,13 @@ class LiveFleet:
     specs: list
     fleet: str
     security: BusSecurity  # the fleet's (insecure, or the certificates folder)
+
+
+def region_options(args: Sequence[str]) -> RegionOptions:
+    """The region settings that `--flag value` pairs (a fleet's `region_args`) give its processes."""
+    return RegionOptions.model_validate(
+        {k.removeprefix("--"): v for k, v in zip(args[::2], args[1::2], strict=True)}
+    )
 
 
 @contextmanager
@@ -89,7 +97,8 @@ def live_fleet(
     try:
         procs.start(router_spec(port, secure, fleet))
         wait_for_port(port)
-        collector = Collector(fleet, method, connect, vehicles=vehicles, listeners=listeners)
+        regions = region_options(region_args).region_config() if servers > 1 else None
+        collector = Collector(fleet, method, connect, vehicles=vehicles, listeners=listeners, regions=regions)
         start = time.time() + start_delay_s if pace == "realtime" else None
         running = list(agents) if agents is not None else vehicles
         specs = fleet_services(

@@ -32,7 +32,9 @@ One vehicle dropped (counted as `vehicle-unknown`, `vehicle-jump`, `too-many-veh
   - a vehicle farther from its last accepted position (same generation) than
     `max_speed_mps * epoch gap + jump_margin_m`. A genuine estimator may re-initialise one vehicle
     from a poor fix, and lockstep agents must still receive the epoch, so only that vehicle goes;
-  - a new vehicle once `max_vehicles` are remembered (bounded memory without a known set).
+  - a new vehicle once `max_vehicles` are remembered (bounded memory without a known set);
+  - regions: a state that none of its server's regions reaches (`vehicle-not-owner`, checked by
+    the set of gates, `coplane.bus.gates.GateSet`).
   If no vehicle of a non-empty message is left, the message is rejected (`no-trusted-vehicle`)
   without moving the epoch, so the genuine solution of that epoch is still taken. Likewise, once
   the run follows some vehicles, a message that continues none of them is rejected without moving
@@ -66,7 +68,6 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from coplane.bus.keys import KeySpace
 from coplane.estimation.limits import MAX_SPEED_MPS, RECEIVER_RADIUS_M
 from coplane.geo import ecef_to_geodetic
 from coplane.gtime import GpsTime
@@ -286,88 +287,3 @@ class SolutionGate:
         ):
             return "vehicle-jump"
         return None
-
-
-MAX_SERVERS = 256  # servers a consumer follows at once (bounded memory against invented keys)
-
-
-class GateSet:
-    """One `SolutionGate` per server key, for a fleet spread over several servers (regions,
-    docs/scale.md): each server is its own generation and its own sequence of epochs, so each is
-    gated on its own. The single server's `solution` key is the server "". At most `MAX_SERVERS`
-    are followed; solutions on further keys are rejected as `too-many-servers`."""
-
-    def __init__(self, fleet: str, **options: object) -> None:
-        self.fleet = fleet
-        self.options = options
-        self.gates: dict[str, SolutionGate] = {}
-        self.overflow: Counter[str] = Counter()
-        self.last_reason: str | None = None
-        self.servers_alive: set[str] = set()  # fusion servers whose liveliness token is up
-
-    def server_token(self, server_id: str, alive: bool) -> None:
-        """A fusion server's liveliness token (`alive/fusion/<server_id>`) appeared or went away.
-        Going away ends the run of that server's gate (regions: its own solution key), and of the
-        single server's gate ("") once no fusion token is left: its solutions do not name their
-        server, and a fleet with one server has one token. At most `MAX_SERVERS` tokens are
-        remembered; beyond that (invented ones on an insecure bus) no gate ends early, and the
-        quiet time decides as before."""
-        if not server_id:
-            return
-        if alive:
-            if len(self.servers_alive) < MAX_SERVERS:
-                self.servers_alive.add(server_id)
-            return
-        self.servers_alive.discard(server_id)
-        if (g := self.gates.get(server_id)) is not None:
-            g.server_gone()
-        if not self.servers_alive and (g := self.gates.get("")) is not None:
-            g.server_gone()
-
-    def presence(self, key: str, alive: bool) -> bool:
-        """A liveliness event from the bus: a fusion server's token goes to `server_token`;
-        whether it was one (other roles' tokens and other keys are not this gate set's)."""
-        ident = KeySpace.id_of_alive_key(key)
-        if ident is None or ident[0] != "fusion":
-            return False
-        self.server_token(ident[1], alive)
-        return True
-
-    def on_token(self, key: str, alive: bool, now: float) -> SolutionMessage | None:
-        """`presence`, and when a fusion server's token went away, the held first solution of its
-        successor that this releases (`release`), for the consumer to take as if it came now."""
-        if self.presence(key, alive) and not alive:
-            return self.release(now)
-        return None
-
-    def gate(self, server: str) -> SolutionGate | None:
-        g = self.gates.get(server)
-        if g is None and len(self.gates) < MAX_SERVERS:
-            g = self.gates[server] = SolutionGate(self.fleet, **self.options)  # type: ignore[arg-type]
-        return g
-
-    def check(self, server: str, sol: SolutionMessage, now: float, expect: GpsTime | None = None) -> Verdict:
-        """`SolutionGate.check` by the gate of `server` (the key's server chunk)."""
-        g = self.gate(server)
-        if g is None:
-            self.overflow["too-many-servers"] += 1
-            self.last_reason = "too-many-servers"
-            return Verdict(None, "too-many-servers")
-        v = g.check(sol, now, expect)
-        self.last_reason = g.last_reason
-        return v
-
-    def release(self, now: float) -> SolutionMessage | None:
-        """A held new-generation message that may now be taken (see `SolutionGate.release`)."""
-        for g in self.gates.values():
-            if g.held is not None and (v := g.release(now)) is not None:
-                return v.solution
-        return None
-
-    @property
-    def counts(self) -> Counter[str]:
-        """Every gate's rejections, added up."""
-        out: Counter[str] = Counter(self.overflow)
-        for g in self.gates.values():
-            out.update(g.counts)
-        return out

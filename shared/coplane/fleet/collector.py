@@ -33,9 +33,10 @@ from coplane.bus import (
     encode,
     session_config,
 )
-from coplane.bus.trust import MAX_SERVERS, GateSet
+from coplane.bus.gates import MAX_SERVERS, GateSet
 from coplane.evaluate.runner import MethodRun, record_solution
 from coplane.messages import DiagnosticsMessage, SolutionMessage, merge_diagnostics
+from coplane.regions import RegionConfig
 from coplane.store import SolutionLog
 
 STREAM_FILE = "solutions.sqlite"
@@ -45,6 +46,7 @@ class Collector:
     """Subscribes to solutions and diagnostics from the moment it is built until `close`.
 
     Events are handled on Zenoh's thread (recording a solution is quick); read `run` under `lock`.
+    `regions`: the fleet's region grid when several servers share it (`GateSet`).
     """
 
     def __init__(
@@ -55,10 +57,12 @@ class Collector:
         out: Path | None = None,
         vehicles: Iterable[str] | None = None,
         listeners: Iterable[Callable[[SolutionMessage], None]] = (),
+        regions: RegionConfig | None = None,
     ) -> None:
         self.keys = KeySpace(fleet)
         self.listeners = list(listeners)  # each trusted solution, after it is recorded (NMEA output)
-        self.gate = GateSet(fleet, method=method, vehicles=vehicles)  # one gate per server
+        # one gate per server; with regions each server speaks only of its regions' vehicles
+        self.gate = GateSet(fleet, regions=regions, method=method, vehicles=vehicles)
         self.stream: SolutionLog | None = None
         if out is not None:
             path = out / STREAM_FILE

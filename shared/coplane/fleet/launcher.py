@@ -136,6 +136,7 @@ def api_spec(
             str(api_port),
             *road_map,
             *(["--map_server", "s1"] if servers > 1 else []),  # a whole replica (docs/scale.md)
+            *(["--regions", "true"] if servers > 1 else []),  # each server speaks of its regions
             *(["--truth_dir", str(truth_dir)] if truth_dir is not None else []),
         ],
         API,

@@ -52,6 +52,7 @@ from coplane.messages import DiagnosticsMessage
 from coplane.methods import get_method
 from coplane.recording.health import InputHealth, input_health
 from coplane.recording.reader import open_recording
+from coplane.regions import RegionConfig
 from coplane.replay import vehicle_schedule
 from coplane.store import map_path
 from coplane.typing import Pace
@@ -236,6 +237,7 @@ def run_fleet(
                 out=o.out,
                 vehicles=vehicles,
                 listeners=[nmea.publish] if nmea is not None else [],
+                regions=RegionConfig() if o.servers > 1 else None,  # the launcher's: the defaults
             )
         with collector:
             truth_dir = save_truth(rec, Path(truth_files.name)) if truth_files is not None else None

@@ -11,13 +11,14 @@
 from coplane.regions.clusters import RangeGraph
 from coplane.regions.config import RegionConfig
 from coplane.regions.grid import region_of_ecef, region_of_tile, regions_near, shard_of
-from coplane.regions.ownership import MOVE_GRACE_S, assignment, owned_shards, owner
+from coplane.regions.ownership import MOVE_GRACE_S, assignment, may_speak_of, owned_shards, owner
 
 __all__ = [
     "MOVE_GRACE_S",
     "RangeGraph",
     "RegionConfig",
     "assignment",
+    "may_speak_of",
     "owned_shards",
     "owner",
     "region_of_ecef",

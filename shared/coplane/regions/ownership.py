@@ -11,6 +11,15 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable, Sequence
+from collections.abc import Set as AbstractSet
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from coplane.roadmap.grid import tiles_around
+
+from .config import RegionConfig
+from .grid import shard_of
 
 # after a change of the live servers (and at start, while they find one another) the processes'
 # views of who owns what may differ for a moment: within this time of a change, servers take any
@@ -46,3 +55,18 @@ def assignment(servers: Sequence[str], shards: int) -> dict[int, str]:
     if not live:
         return {}
     return {s: owner(s, live) or "" for s in range(shards)}
+
+
+def may_speak_of(ecef: ArrayLike, shards: AbstractSet[int], cfg: RegionConfig) -> bool:
+    """Whether a server that owns `shards` (`owned_shards`) may publish a vehicle state at `ecef`:
+    a region within `margin_m` + `hysteresis_m` of it is in one of them. A server publishes the
+    vehicles of its own regions only (their home region comes from the agent's SPP fix, held by
+    the hysteresis), so a state farther than that from all of its regions is one it had no node
+    message for: a compromised or misconfigured server speaking of another's vehicles. The reach
+    leaves the fused position hundreds of metres from the fix that chose the region (defaults)."""
+    reach = cfg.margin_m + cfg.hysteresis_m
+    try:
+        near = tiles_around(np.asarray(ecef, dtype=float), reach, cfg.size_m)
+    except ValueError:  # off the grid (|lat| > 85 deg): no fleet's region
+        return False
+    return any(shard_of(str(k), cfg.shards) in shards for k in near)
