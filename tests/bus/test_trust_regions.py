@@ -119,3 +119,16 @@ def test_every_consumer_of_a_fleet_with_regions_holds_servers_to_them() -> None:
     assert create_app(ApiSettings(fleet=FLEET), LocalBus()).state.fleet.gate.regions is None
     assert "--regions" in api_spec(FLEET_DIR, "tcp/127.0.0.1:7447", servers=2).args
     assert "--regions" not in api_spec(FLEET_DIR, "tcp/127.0.0.1:7447", servers=1).args
+
+
+def test_a_held_new_run_s_first_solution_is_held_to_the_regions_when_released() -> None:
+    clock = _Clock()
+    gs = _gates(clock)
+    mine, theirs = _deep_in("s2"), _deep_in("s1")
+    clock.t += MOVE_GRACE_S + 1.0
+    assert gs.check("s2", _sol(0, ("a", mine)), 0.0).accepted
+    new_run = _sol(1, ("a", mine), ("b", theirs)).model_copy(update={"generation": "0123456789abcdef"})
+    assert gs.check("s2", new_run, 0.5).reason == "new-generation"  # s2's token is still up: held
+    gs.gates["s2"].server_gone()  # its run is over (as when its token goes, without a change here)
+    released = gs.release(0.6)
+    assert released is not None and [s.vehicle_id for s in released.vehicles] == ["a"]

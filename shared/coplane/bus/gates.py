@@ -138,10 +138,11 @@ class GateSet:
         )
 
     def release(self, now: float) -> SolutionMessage | None:
-        """A held new-generation message that may now be taken (see `SolutionGate.release`)."""
-        for g in self.gates.values():
+        """A held new-generation message that may now be taken (see `SolutionGate.release`), held
+        to its server's regions as `check` holds the others."""
+        for server, g in self.gates.items():
             if g.held is not None and (v := g.release(now)) is not None:
-                return v.solution
+                return self._owned_only(server, v).solution
         return None
 
     @property
