@@ -258,7 +258,7 @@ class VehicleAgent:
         if (
             taken is not None
             and region is not None
-            and not region.may_answer(taken, self.gate.servers_alive, time.monotonic())
+            and not region.may_answer(taken, self.gate.servers_alive, self.gate.settled())
         ):
             self.gate.overflow["not-owner"] += 1
             self.gate.last_reason, taken = "not-owner", None

@@ -19,7 +19,6 @@ or the car's NMEA output.
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Set
 
 import numpy as np
@@ -27,7 +26,7 @@ import numpy as np
 from coplane.bus import BusNode, KeySpace, Publication
 from coplane.gtime import GpsTime
 from coplane.messages import NodeMessage, SolutionMessage
-from coplane.regions import MOVE_GRACE_S, RegionConfig, owner, region_of_ecef, regions_near, shard_of
+from coplane.regions import RegionConfig, owner, region_of_ecef, regions_near, shard_of
 from coplane.steps import gps_time
 
 log = logging.getLogger("coplane.vehicle_agent")
@@ -50,8 +49,6 @@ class RegionKeys:
         self.changes = 0
         self.copies_put = 0
         self.sent: dict[GpsTime, str] = {}  # the home region of each epoch sent (the last SENT_KEPT)
-        self._servers: frozenset[str] = frozenset()
-        self._servers_changed = -math.inf  # when the live servers last changed (`may_answer`)
 
     def keys_for(self, msg: NodeMessage, node: BusNode) -> list[str]:
         """The keys to put `msg` on (publishers declared): its region's first, then the copies
@@ -77,20 +74,18 @@ class RegionKeys:
             del self.sent[next(iter(self.sent))]
         return [home, *sorted(copies)]
 
-    def may_answer(self, sol: SolutionMessage, servers: Set[str], now: float) -> bool:
+    def may_answer(self, sol: SolutionMessage, servers: Set[str], settled: bool) -> bool:
         """Whether `sol` may speak for this vehicle: it does not (it names neither this vehicle's
         answer nor its state), or its server owns the region this vehicle sent that epoch from
-        among the live `servers`. Within MOVE_GRACE_S of a change of the live servers, for an
-        epoch not sent from here, or with no server known, every server may (the views of who
-        owns what may differ; nothing to hold it to)."""
-        if servers != self._servers:
-            self._servers, self._servers_changed = frozenset(servers), now
+        among the live `servers`. Unless the live servers are `settled` (`GateSet.settled`: known,
+        and unchanged for MOVE_GRACE_S), or for an epoch not sent from here, every server may (the
+        views of who owns what may differ; nothing to hold it to)."""
         if sol.server is None or not (
             sol.answers(self.vehicle_id) or any(v.vehicle_id == self.vehicle_id for v in sol.vehicles)
         ):
             return True
         region = self.sent.get(gps_time(sol.epoch))
-        if region is None or not servers or now - self._servers_changed < MOVE_GRACE_S:
+        if region is None or not servers or not settled:
             return True
         return owner(shard_of(region, self.cfg.shards), servers) == sol.server
 

@@ -233,7 +233,7 @@ def test_with_regions_only_the_owner_of_its_region_answers_for_the_vehicle(
         agent.region.sent[gps_time(s.epoch)] = region  # as `keys_for` records each epoch sent
     for sid in live:
         agent.gate.server_token(sid, True)
-    agent.region.may_answer(sols[0], live, -1e9)  # the live servers known long ago: no grace
+    agent.gate.servers_changed = -1e9  # the live servers known long ago: no grace
 
     def as_server(s: SolutionMessage, sid: str, vehicles: list[str]) -> Payload:
         msg = s.model_copy(

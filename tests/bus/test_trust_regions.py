@@ -10,7 +10,15 @@ from support.api import FLEET, T0, ecef_at, solution, vehicle_state
 
 from coplane.bus.gates import GateSet
 from coplane.messages import SolutionMessage
-from coplane.regions import MOVE_GRACE_S, RegionConfig, assignment, may_speak_of, region_of_ecef, shard_of
+from coplane.regions import (
+    MOVE_GRACE_S,
+    RegionConfig,
+    assignment,
+    may_speak_of,
+    owned_shards,
+    region_of_ecef,
+    shard_of,
+)
 
 CFG = RegionConfig(size_m=1100.0, margin_m=500.0)
 LIVE = ["s1", "s2"]
@@ -19,7 +27,7 @@ OWNERS = assignment(LIVE, CFG.shards)
 
 
 def _shards(server: str) -> set[int]:
-    return {k for k, o in OWNERS.items() if o == server}
+    return owned_shards(server, LIVE, CFG.shards)
 
 
 def _deep_in(server: str) -> tuple[float, float, float]:

@@ -14,7 +14,7 @@ from coplane.bus.keys import KeySpace
 from coplane.bus.trust import SolutionGate, Verdict
 from coplane.gtime import GpsTime
 from coplane.messages import SolutionMessage
-from coplane.regions import MOVE_GRACE_S, RegionConfig, assignment, may_speak_of
+from coplane.regions import MOVE_GRACE_S, RegionConfig, may_speak_of, owned_shards
 
 MAX_SERVERS = 256  # servers a consumer follows at once (bounded memory against invented keys)
 
@@ -73,6 +73,11 @@ class GateSet:
         if not self.servers_alive and (g := self.gates.get("")) is not None:
             g.server_gone()
 
+    def settled(self) -> bool:
+        """Whether the live servers are known and have not changed for `MOVE_GRACE_S`: only then
+        do all processes agree on who owns which region, and a server is held to its own."""
+        return bool(self.servers_alive) and self.clock() - self.servers_changed >= MOVE_GRACE_S
+
     def presence(self, key: str, alive: bool) -> bool:
         """A liveliness event from the bus: a fusion server's token goes to `server_token`;
         whether it was one (other roles' tokens and other keys are not this gate set's)."""
@@ -109,18 +114,12 @@ class GateSet:
     def _owned_only(self, server: str, v: Verdict) -> Verdict:
         """`v` without the states of vehicles `server` may not speak of (see the class)."""
         sol = v.solution
-        if (
-            sol is None
-            or self.regions is None
-            or not server
-            or not self.servers_alive
-            or self.clock() - self.servers_changed < MOVE_GRACE_S
-        ):
+        if sol is None or self.regions is None or not server or not self.settled():
             return v
         live = frozenset(self.servers_alive)
         if (cached := self._owned.get(server)) is None or cached[0] != live:
-            owners = assignment(sorted(live), self.regions.shards)  # a server not alive owns nothing
-            cached = self._owned[server] = (live, {k for k, o in owners.items() if o == server})
+            mine = owned_shards(server, live, self.regions.shards) if server in live else set()
+            cached = self._owned[server] = (live, mine)  # a server not alive owns nothing
         shards, cfg = cached[1], self.regions
         ok = [
             vs.vehicle_id in self.exempt or may_speak_of(vs.position_ecef_m, shards, cfg)
